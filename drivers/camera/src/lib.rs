@@ -1,0 +1,1 @@
+//! csmetro-camera

@@ -1,0 +1,5 @@
+//! The simulator: one stage model (effect library) and the simulated devices built on it.
+pub mod model;
+pub mod reference;
+
+pub use model::{AxisId, Deviation, Effect, EffectKind, SampleContext, StageModel};

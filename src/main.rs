@@ -1,0 +1,41 @@
+//! `csmetro`: one binary, one subcommand per job.
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use csmetro::cli;
+
+#[derive(Parser)]
+#[command(name = "csmetro", version, about = "Compressive-sensing metrology for micropositioning stages")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Recover a whole error curve from m samples on a grid.
+    Reconstruct(cli::reconstruct::Args),
+    /// Write a paper-like reference error curve (full and sampled) as CSV.
+    Generate(cli::generate::Args),
+    /// Reconstruction demo on generated data: every method against the ground truth.
+    Demo(cli::demo::Args),
+    /// Benchmarks that print JSON (accuracy and speed).
+    Bench(cli::bench::Args),
+    /// Pseudo-periodic pattern: render a camera frame, decode a frame.
+    Ppp(cli::ppp::Args),
+    /// Simulated devices (C-863 controller, camera).
+    Sim(cli::sim::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Reconstruct(a) => cli::reconstruct::run(a),
+        Command::Generate(a) => cli::generate::run(a),
+        Command::Demo(a) => cli::demo::run(a),
+        Command::Bench(a) => cli::bench::run(a),
+        Command::Ppp(a) => cli::ppp::run(a),
+        Command::Sim(a) => cli::sim::run(a),
+    };
+    cli::finish(result)
+}
