@@ -2,5 +2,6 @@
 pub mod cli;
 pub mod grid;
 pub mod recon;
-pub mod sampling;
 pub mod samples;
+pub mod sampling;
+pub mod synth;

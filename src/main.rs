@@ -5,7 +5,11 @@ use clap::{Parser, Subcommand};
 use csmetro::cli;
 
 #[derive(Parser)]
-#[command(name = "csmetro", version, about = "Compressive-sensing metrology for micropositioning stages")]
+#[command(
+    name = "csmetro",
+    version,
+    about = "Compressive-sensing metrology for micropositioning stages"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

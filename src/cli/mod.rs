@@ -18,11 +18,17 @@ pub struct CliError {
 impl CliError {
     /// Bad input from the user (file, flag, data): exit code 2.
     pub fn input(message: impl Into<String>) -> Self {
-        Self { code: 2, message: message.into() }
+        Self {
+            code: 2,
+            message: message.into(),
+        }
     }
     /// Anything else that failed: exit code 1.
     pub fn failure(message: impl Into<String>) -> Self {
-        Self { code: 1, message: message.into() }
+        Self {
+            code: 1,
+            message: message.into(),
+        }
     }
 }
 

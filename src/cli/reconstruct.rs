@@ -1,9 +1,92 @@
-//! `csmetro reconstruct`
+//! `csmetro reconstruct`: samples CSV → full curve CSV (+ one JSON object with `--json`).
+use std::path::PathBuf;
+use std::process::ExitCode;
+
 use super::{CliError, CliResult};
+use crate::grid::Grid;
+use crate::recon::{self, Method, ReconSettings, Solver};
+use crate::samples;
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Samples, CSV with header `position_um,error_um` (positions on the grid).
+    #[arg(long)]
+    samples: PathBuf,
+    /// Grid START:STEP:END in µm, e.g. 0:5:9500.
+    #[arg(long)]
+    grid: String,
+    /// auto | bp | bpdn | pchip | linear | physics
+    #[arg(long, default_value = "auto")]
+    method: String,
+    /// fast | clarabel (bp and bpdn only).
+    #[arg(long, default_value = "fast")]
+    solver: String,
+    /// Sensor noise σ in µm (BPDN radius σ·√m; nugget of the physics model).
+    #[arg(long, default_value_t = 0.01)]
+    noise_um: f64,
+    /// Leadscrew thread pitch in µm (physics model).
+    #[arg(long, default_value_t = 400.0)]
+    pitch_um: f64,
+    /// Output CSV `position_um,error_um` at every grid point (default: stdout unless --json).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print exactly one JSON object with the solve figures on stdout.
+    #[arg(long)]
+    json: bool,
+}
 
-pub fn run(_args: Args) -> CliResult {
-    Err(CliError::failure("not built yet"))
+pub fn run(a: Args) -> CliResult {
+    let grid: Grid = a
+        .grid
+        .parse()
+        .map_err(|e: String| CliError::input(format!("--grid: {e}")))?;
+    let method: Method = a
+        .method
+        .parse()
+        .map_err(|e: String| CliError::input(format!("--method: {e}")))?;
+    let solver: Solver = a
+        .solver
+        .parse()
+        .map_err(|e: String| CliError::input(format!("--solver: {e}")))?;
+    if !(a.noise_um.is_finite() && a.noise_um >= 0.0) {
+        return Err(CliError::input("--noise-um must be a finite number >= 0"));
+    }
+    if !(a.pitch_um.is_finite() && a.pitch_um > 0.0) {
+        return Err(CliError::input("--pitch-um must be a positive number"));
+    }
+    let s = samples::read_samples_csv(&a.samples, &grid).map_err(CliError::input)?;
+    if s.len() > grid.n {
+        return Err(CliError::input(format!(
+            "{}: {} samples but the grid has only {} points",
+            a.samples.display(),
+            s.len(),
+            grid.n
+        )));
+    }
+    let settings = ReconSettings {
+        method,
+        solver,
+        noise_um: a.noise_um,
+        pitch_um: a.pitch_um,
+        ..Default::default()
+    };
+    let r = recon::reconstruct(&grid, &s, &settings)
+        .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
+    let positions = grid.positions();
+    match &a.out {
+        Some(path) => samples::write_curve_csv(path, &positions, &r.values)
+            .map_err(|e| CliError::failure(format!("{}: cannot write: {e}", path.display())))?,
+        None if !a.json => {
+            println!("position_um,error_um");
+            for (p, v) in positions.iter().zip(&r.values) {
+                println!("{p},{v}");
+            }
+        }
+        None => {}
+    }
+    if a.json {
+        let v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;
+        println!("{v}");
+    }
+    Ok(ExitCode::SUCCESS)
 }

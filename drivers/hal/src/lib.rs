@@ -48,7 +48,11 @@ pub struct AxisInfo {
 pub enum AxisError {
     /// Refused before anything was sent: the target lies outside the configured soft limits.
     #[error("target {target_um} µm is outside the soft limits [{lo_um}, {hi_um}] µm; not moved")]
-    OutsideSoftLimits { target_um: f64, lo_um: f64, hi_um: f64 },
+    OutsideSoftLimits {
+        target_um: f64,
+        lo_um: f64,
+        hi_um: f64,
+    },
     /// The controller reported an error code (GCS `ERR?`).
     #[error("controller error {code}: {message}")]
     Controller { code: i32, message: String },

@@ -118,9 +118,17 @@ pub enum EffectKind {
     /// δ_axis = ppm·1e-6·(p - ref_um)
     Scale { ppm: f64, ref_um: f64 },
     /// δ_axis = Σ_h cos_h·cos(2πh p/period) + sin_h·sin(2πh p/period)
-    LeadscrewCyclic { period_um: f64, cos_um: Vec<f64>, sin_um: Vec<f64> },
+    LeadscrewCyclic {
+        period_um: f64,
+        cos_um: Vec<f64>,
+        sin_um: Vec<f64>,
+    },
     /// Same form as the leadscrew, one short period (motor revolution / encoder).
-    MotorCyclic { period_um: f64, cos_um: Vec<f64>, sin_um: Vec<f64> },
+    MotorCyclic {
+        period_um: f64,
+        cos_um: Vec<f64>,
+        sin_um: Vec<f64>,
+    },
     /// δ_axis = (b/2)·d
     Backlash { reversal_um: f64 },
     /// δ_axis = ((b0 + b1·s)/2)·d
@@ -136,7 +144,12 @@ pub enum EffectKind {
     /// δ = ppm·1e-6·(p_x, p_y) (every sample)
     CameraScale { ppm: f64 },
     /// δ_component = amp·(1 - e^(-t/τ)) + rate·t/3600 (every sample)
-    ThermalDrift { component: AxisId, amp_um: f64, tau_s: f64, rate_um_per_h: f64 },
+    ThermalDrift {
+        component: AxisId,
+        amp_um: f64,
+        tau_s: f64,
+        rate_um_per_h: f64,
+    },
     /// White measurement noise (simulator only).
     Noise { sigma_um: f64 },
 
@@ -155,13 +168,31 @@ pub enum EffectKind {
         phase_drift_rad: f64,
     },
     /// A sinusoidal profile of any period on a chosen component.
-    Harmonic { component: Component, period_um: f64, cos_um: Vec<f64>, sin_um: Vec<f64> },
+    Harmonic {
+        component: Component,
+        period_um: f64,
+        cos_um: Vec<f64>,
+        sin_um: Vec<f64>,
+    },
     /// Legendre profile Σ_k c_k P_k(s), k = 1, 2, ... on a chosen component (bows, trends).
-    Legendre { component: Component, coef_um: Vec<f64> },
+    Legendre {
+        component: Component,
+        coef_um: Vec<f64>,
+    },
     /// Localized Gaussian defect (a dent in the leadscrew or guide).
-    Defect { component: Component, center_um: f64, height_um: f64, sigma_um: f64 },
+    Defect {
+        component: Component,
+        center_um: f64,
+        height_um: f64,
+        sigma_um: f64,
+    },
     /// Correlated roughness: a seeded AR(1) profile with correlation length `corr_um`.
-    Roughness { component: Component, sigma_um: f64, corr_um: f64, seed: u64 },
+    Roughness {
+        component: Component,
+        sigma_um: f64,
+        corr_um: f64,
+        seed: u64,
+    },
 }
 
 /// One effect of the model.
@@ -203,7 +234,11 @@ pub struct StageModel {
 impl Default for StageModel {
     /// An ideal stage over the paper's pattern range (9.5 mm x 4.2 mm).
     fn default() -> Self {
-        Self { travel_x_um: [0.0, 9500.0], travel_y_um: [0.0, 4200.0], effects: Vec::new() }
+        Self {
+            travel_x_um: [0.0, 9500.0],
+            travel_y_um: [0.0, 4200.0],
+            effects: Vec::new(),
+        }
     }
 }
 
@@ -222,8 +257,13 @@ pub const LIBRARY_KINDS: &[&str] = &[
     "noise",
 ];
 
-pub const SIM_ONLY_KINDS: &[&str] =
-    &["leadscrew_modulated", "harmonic", "legendre", "defect", "roughness"];
+pub const SIM_ONLY_KINDS: &[&str] = &[
+    "leadscrew_modulated",
+    "harmonic",
+    "legendre",
+    "defect",
+    "roughness",
+];
 
 impl EffectKind {
     pub fn name(&self) -> &'static str {
@@ -291,7 +331,12 @@ fn fourier(p: f64, period: f64, cos: &[f64], sin: &[f64]) -> f64 {
 
 impl Effect {
     pub fn new(axis: AxisId, kind: EffectKind) -> Self {
-        let mut e = Self { axis, travel_um: None, kind, table: None };
+        let mut e = Self {
+            axis,
+            travel_um: None,
+            kind,
+            table: None,
+        };
         e.table = None;
         e
     }
@@ -321,19 +366,35 @@ impl Effect {
         };
         match &self.kind {
             EffectKind::Scale { ppm, ref_um } => dev.add(a, ppm * 1e-6 * (p - ref_um)),
-            EffectKind::LeadscrewCyclic { period_um, cos_um, sin_um }
-            | EffectKind::MotorCyclic { period_um, cos_um, sin_um } => {
-                dev.add(a, fourier(p, *period_um, cos_um, sin_um))
+            EffectKind::LeadscrewCyclic {
+                period_um,
+                cos_um,
+                sin_um,
             }
+            | EffectKind::MotorCyclic {
+                period_um,
+                cos_um,
+                sin_um,
+            } => dev.add(a, fourier(p, *period_um, cos_um, sin_um)),
             EffectKind::Backlash { reversal_um } => dev.add(a, reversal_um / 2.0 * d),
             EffectKind::Hysteresis { b0_um, b1_um } => dev.add(a, (b0_um + b1_um * s) / 2.0 * d),
             EffectKind::Straightness { legendre_um } => {
-                let v = legendre_um.iter().enumerate().map(|(i, c)| c * legendre(i + 2, s)).sum();
+                let v = legendre_um
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| c * legendre(i + 2, s))
+                    .sum();
                 dev.add(o, v)
             }
-            EffectKind::YawAbbe { yaw_urad, offset_um } => {
+            EffectKind::YawAbbe {
+                yaw_urad,
+                offset_um,
+            } => {
                 let other = c.target(o);
-                dev.add(a, -(yaw_urad[0] + yaw_urad[1] * s) * 1e-6 * (other - offset_um))
+                dev.add(
+                    a,
+                    -(yaw_urad[0] + yaw_urad[1] * s) * 1e-6 * (other - offset_um),
+                )
             }
             EffectKind::Squareness { angle_urad } => dev.add(o, angle_urad * 1e-6 * p),
             EffectKind::CameraRotation { angle_urad } => {
@@ -345,9 +406,18 @@ impl Effect {
                 dev.x_um += ppm * 1e-6 * c.target_x_um;
                 dev.y_um += ppm * 1e-6 * c.target_y_um;
             }
-            EffectKind::ThermalDrift { component, amp_um, tau_s, rate_um_per_h } => {
+            EffectKind::ThermalDrift {
+                component,
+                amp_um,
+                tau_s,
+                rate_um_per_h,
+            } => {
                 let t = c.time_s;
-                let expo = if *tau_s > 0.0 { 1.0 - (-t / tau_s).exp() } else { 1.0 };
+                let expo = if *tau_s > 0.0 {
+                    1.0 - (-t / tau_s).exp()
+                } else {
+                    1.0
+                };
                 dev.add(*component, amp_um * expo + rate_um_per_h * t / 3600.0)
             }
             EffectKind::Noise { .. } => {}
@@ -377,14 +447,26 @@ impl Effect {
                     .sum();
                 dev.add(a, env * v)
             }
-            EffectKind::Harmonic { component, period_um, cos_um, sin_um } => {
-                dev.add(comp(*component), fourier(p, *period_um, cos_um, sin_um))
-            }
+            EffectKind::Harmonic {
+                component,
+                period_um,
+                cos_um,
+                sin_um,
+            } => dev.add(comp(*component), fourier(p, *period_um, cos_um, sin_um)),
             EffectKind::Legendre { component, coef_um } => {
-                let v = coef_um.iter().enumerate().map(|(i, c)| c * legendre(i + 1, s)).sum();
+                let v = coef_um
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| c * legendre(i + 1, s))
+                    .sum();
                 dev.add(comp(*component), v)
             }
-            EffectKind::Defect { component, center_um, height_um, sigma_um } => {
+            EffectKind::Defect {
+                component,
+                center_um,
+                height_um,
+                sigma_um,
+            } => {
                 let z = (p - center_um) / sigma_um;
                 dev.add(comp(*component), height_um * (-0.5 * z * z).exp())
             }
@@ -397,7 +479,13 @@ impl Effect {
     }
 
     fn prepare(&mut self, model_travel: [f64; 2]) {
-        if let EffectKind::Roughness { sigma_um, corr_um, seed, .. } = &self.kind {
+        if let EffectKind::Roughness {
+            sigma_um,
+            corr_um,
+            seed,
+            ..
+        } = &self.kind
+        {
             let travel = self.travel_um.unwrap_or(model_travel);
             self.table = Some(RoughTable::ar1(travel, *sigma_um, *corr_um, *seed));
         }
@@ -423,7 +511,11 @@ impl RoughTable {
             let z: f64 = StandardNormal.sample(&mut rng);
             v = rho * v + innov * z;
         }
-        Self { start_um: start, step_um: step, values }
+        Self {
+            start_um: start,
+            step_um: step,
+            values,
+        }
     }
 
     fn eval(&self, p: f64) -> f64 {
@@ -446,7 +538,11 @@ pub fn map_to_unit(p: f64, travel: [f64; 2]) -> f64 {
 
 impl StageModel {
     pub fn new(travel_x_um: [f64; 2], travel_y_um: [f64; 2]) -> Self {
-        Self { travel_x_um, travel_y_um, effects: Vec::new() }
+        Self {
+            travel_x_um,
+            travel_y_um,
+            effects: Vec::new(),
+        }
     }
 
     pub fn travel(&self, axis: AxisId) -> [f64; 2] {
@@ -519,8 +615,9 @@ impl StageModel {
     }
 
     pub fn from_toml_str(text: &str) -> Result<Self, ModelError> {
-        let table: Table =
-            text.parse().map_err(|e: toml::de::Error| ModelError::Invalid(e.to_string()))?;
+        let table: Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| ModelError::Invalid(e.to_string()))?;
         Self::from_table(&table)
     }
 
@@ -568,7 +665,11 @@ impl StageModel {
         stage.insert("travel_x_um".into(), pair(self.travel_x_um));
         stage.insert("travel_y_um".into(), pair(self.travel_y_um));
         root.insert("stage".into(), Value::Table(stage));
-        let effects: Vec<Value> = self.effects.iter().map(|e| Value::Table(e.to_table())).collect();
+        let effects: Vec<Value> = self
+            .effects
+            .iter()
+            .map(|e| Value::Table(e.to_table()))
+            .collect();
         root.insert("effect".into(), Value::Array(effects));
         toml::to_string(&root).expect("a TOML table always serializes")
     }
@@ -613,8 +714,16 @@ impl Effect {
                 put("ppm", Value::Float(*ppm));
                 put("ref_um", Value::Float(*ref_um));
             }
-            EffectKind::LeadscrewCyclic { period_um, cos_um, sin_um }
-            | EffectKind::MotorCyclic { period_um, cos_um, sin_um } => {
+            EffectKind::LeadscrewCyclic {
+                period_um,
+                cos_um,
+                sin_um,
+            }
+            | EffectKind::MotorCyclic {
+                period_um,
+                cos_um,
+                sin_um,
+            } => {
                 put("period_um", Value::Float(*period_um));
                 put("cos_um", floats(cos_um));
                 put("sin_um", floats(sin_um));
@@ -625,7 +734,10 @@ impl Effect {
                 put("b1_um", Value::Float(*b1_um));
             }
             EffectKind::Straightness { legendre_um } => put("legendre_um", floats(legendre_um)),
-            EffectKind::YawAbbe { yaw_urad, offset_um } => {
+            EffectKind::YawAbbe {
+                yaw_urad,
+                offset_um,
+            } => {
                 put("yaw_urad", floats(yaw_urad));
                 put("offset_um", Value::Float(*offset_um));
             }
@@ -633,7 +745,12 @@ impl Effect {
                 put("angle_urad", Value::Float(*angle_urad))
             }
             EffectKind::CameraScale { ppm } => put("ppm", Value::Float(*ppm)),
-            EffectKind::ThermalDrift { component, amp_um, tau_s, rate_um_per_h } => {
+            EffectKind::ThermalDrift {
+                component,
+                amp_um,
+                tau_s,
+                rate_um_per_h,
+            } => {
                 put("component", Value::String(component.as_str().into()));
                 put("amp_um", Value::Float(*amp_um));
                 put("tau_s", Value::Float(*tau_s));
@@ -659,7 +776,12 @@ impl Effect {
                 put("env_wave_phase_rad", Value::Float(*env_wave_phase_rad));
                 put("phase_drift_rad", Value::Float(*phase_drift_rad));
             }
-            EffectKind::Harmonic { component, period_um, cos_um, sin_um } => {
+            EffectKind::Harmonic {
+                component,
+                period_um,
+                cos_um,
+                sin_um,
+            } => {
                 put("component", Value::String(component_str(*component).into()));
                 put("period_um", Value::Float(*period_um));
                 put("cos_um", floats(cos_um));
@@ -669,13 +791,23 @@ impl Effect {
                 put("component", Value::String(component_str(*component).into()));
                 put("coef_um", floats(coef_um));
             }
-            EffectKind::Defect { component, center_um, height_um, sigma_um } => {
+            EffectKind::Defect {
+                component,
+                center_um,
+                height_um,
+                sigma_um,
+            } => {
                 put("component", Value::String(component_str(*component).into()));
                 put("center_um", Value::Float(*center_um));
                 put("height_um", Value::Float(*height_um));
                 put("sigma_um", Value::Float(*sigma_um));
             }
-            EffectKind::Roughness { component, sigma_um, corr_um, seed } => {
+            EffectKind::Roughness {
+                component,
+                sigma_um,
+                corr_um,
+                seed,
+            } => {
                 put("component", Value::String(component_str(*component).into()));
                 put("sigma_um", Value::Float(*sigma_um));
                 put("corr_um", Value::Float(*corr_um));
@@ -695,7 +827,11 @@ struct Params<'a> {
 
 impl<'a> Params<'a> {
     fn new(ctx: &str, table: &'a Table) -> Self {
-        Self { ctx: ctx.to_string(), table, used: Vec::new() }
+        Self {
+            ctx: ctx.to_string(),
+            table,
+            used: Vec::new(),
+        }
     }
 
     fn err(&self, msg: String) -> ModelError {
@@ -727,7 +863,8 @@ impl<'a> Params<'a> {
     }
 
     fn req_f64(&mut self, key: &'static str) -> Result<f64, ModelError> {
-        self.opt_f64(key)?.ok_or_else(|| self.err(format!("missing parameter `{key}`")))
+        self.opt_f64(key)?
+            .ok_or_else(|| self.err(format!("missing parameter `{key}`")))
     }
 
     fn vec_or_empty(&mut self, key: &'static str) -> Result<Vec<f64>, ModelError> {
@@ -769,7 +906,9 @@ impl<'a> Params<'a> {
             None => Ok(default),
             Some("axis") => Ok(Component::Axis),
             Some("other") => Ok(Component::Other),
-            Some(s) => Err(self.err(format!("`component` must be \"axis\" or \"other\", not {s:?}"))),
+            Some(s) => Err(self.err(format!(
+                "`component` must be \"axis\" or \"other\", not {s:?}"
+            ))),
         }
     }
 
@@ -807,10 +946,15 @@ fn parse_effect(index: usize, t: &Table) -> Result<Effect, ModelError> {
     let mut p = Params::new(&format!("effect #{index} ({kind_name})"), t);
     p.used.push("kind");
     let axis = match p.string("axis")? {
-        Some(s) => AxisId::parse(&s).ok_or_else(|| p.err(format!("`axis` must be x or y, not {s:?}")))?,
+        Some(s) => {
+            AxisId::parse(&s).ok_or_else(|| p.err(format!("`axis` must be x or y, not {s:?}")))?
+        }
         None => {
             // Global kinds belong to no axis; others must name theirs.
-            if matches!(kind_name.as_str(), "camera_rotation" | "camera_scale" | "thermal_drift" | "noise") {
+            if matches!(
+                kind_name.as_str(),
+                "camera_rotation" | "camera_scale" | "thermal_drift" | "noise"
+            ) {
                 AxisId::X
             } else {
                 return Err(p.err("missing `axis` (x or y)".into()));
@@ -819,9 +963,19 @@ fn parse_effect(index: usize, t: &Table) -> Result<Effect, ModelError> {
     };
     let travel = p.opt_pair("travel_um")?;
     let kind = match kind_name.as_str() {
-        "scale" => EffectKind::Scale { ppm: p.req_f64("ppm")?, ref_um: p.f64_or("ref_um", 0.0)? },
+        "scale" => EffectKind::Scale {
+            ppm: p.req_f64("ppm")?,
+            ref_um: p.f64_or("ref_um", 0.0)?,
+        },
         "leadscrew_cyclic" | "motor_cyclic" => {
-            let period = p.f64_or("period_um", if kind_name == "leadscrew_cyclic" { 400.0 } else { f64::NAN })?;
+            let period = p.f64_or(
+                "period_um",
+                if kind_name == "leadscrew_cyclic" {
+                    400.0
+                } else {
+                    f64::NAN
+                },
+            )?;
             if period.is_nan() {
                 return Err(p.err("missing parameter `period_um`".into()));
             }
@@ -832,13 +986,26 @@ fn parse_effect(index: usize, t: &Table) -> Result<Effect, ModelError> {
                 return Err(p.err("needs `cos_um` and/or `sin_um` (one value per harmonic)".into()));
             }
             if kind_name == "leadscrew_cyclic" {
-                EffectKind::LeadscrewCyclic { period_um, cos_um, sin_um }
+                EffectKind::LeadscrewCyclic {
+                    period_um,
+                    cos_um,
+                    sin_um,
+                }
             } else {
-                EffectKind::MotorCyclic { period_um, cos_um, sin_um }
+                EffectKind::MotorCyclic {
+                    period_um,
+                    cos_um,
+                    sin_um,
+                }
             }
         }
-        "backlash" => EffectKind::Backlash { reversal_um: p.req_f64("reversal_um")? },
-        "hysteresis" => EffectKind::Hysteresis { b0_um: p.req_f64("b0_um")?, b1_um: p.f64_or("b1_um", 0.0)? },
+        "backlash" => EffectKind::Backlash {
+            reversal_um: p.req_f64("reversal_um")?,
+        },
+        "hysteresis" => EffectKind::Hysteresis {
+            b0_um: p.req_f64("b0_um")?,
+            b1_um: p.f64_or("b1_um", 0.0)?,
+        },
         "straightness" => {
             let legendre_um = p.vec_or_empty("legendre_um")?;
             if legendre_um.is_empty() {
@@ -856,9 +1023,15 @@ fn parse_effect(index: usize, t: &Table) -> Result<Effect, ModelError> {
                 offset_um: p.f64_or("offset_um", 0.0)?,
             }
         }
-        "squareness" => EffectKind::Squareness { angle_urad: p.req_f64("angle_urad")? },
-        "camera_rotation" => EffectKind::CameraRotation { angle_urad: p.req_f64("angle_urad")? },
-        "camera_scale" => EffectKind::CameraScale { ppm: p.req_f64("ppm")? },
+        "squareness" => EffectKind::Squareness {
+            angle_urad: p.req_f64("angle_urad")?,
+        },
+        "camera_rotation" => EffectKind::CameraRotation {
+            angle_urad: p.req_f64("angle_urad")?,
+        },
+        "camera_scale" => EffectKind::CameraScale {
+            ppm: p.req_f64("ppm")?,
+        },
         "thermal_drift" => {
             let component = match p.string("component")?.as_deref() {
                 None => axis,
@@ -954,7 +1127,13 @@ mod tests {
     use super::*;
 
     fn ctx(moving: AxisId, d: f64, x: f64, y: f64) -> SampleContext {
-        SampleContext { moving, direction: d, target_x_um: x, target_y_um: y, time_s: 0.0 }
+        SampleContext {
+            moving,
+            direction: d,
+            target_x_um: x,
+            target_y_um: y,
+            time_s: 0.0,
+        }
     }
 
     /// The worked example of the gap contract, to the digit.
@@ -980,18 +1159,36 @@ mod tests {
         )
         .unwrap();
         let (x, y) = m.predict(&ctx(AxisId::X, 1.0, 100.0, 2000.0));
-        assert!((x - 101.0).abs() < 1e-12 && (y - 2000.0).abs() < 1e-12, "{x} {y}");
+        assert!(
+            (x - 101.0).abs() < 1e-12 && (y - 2000.0).abs() < 1e-12,
+            "{x} {y}"
+        );
         let (x, y) = m.predict(&ctx(AxisId::X, -1.0, 200.0, 2000.0));
-        assert!((x - 198.0).abs() < 1e-12 && (y - 2000.0).abs() < 1e-12, "{x} {y}");
+        assert!(
+            (x - 198.0).abs() < 1e-12 && (y - 2000.0).abs() < 1e-12,
+            "{x} {y}"
+        );
         let (x, y) = m.predict(&ctx(AxisId::Y, 1.0, 4750.0, 1000.0));
-        assert!((x - 4750.1).abs() < 1e-9 && (y - 1000.0).abs() < 1e-12, "{x} {y}");
+        assert!(
+            (x - 4750.1).abs() < 1e-9 && (y - 1000.0).abs() < 1e-12,
+            "{x} {y}"
+        );
     }
 
     #[test]
     fn effects_of_static_axis_do_not_act_but_global_ones_do() {
         let m = StageModel::default()
-            .with(Effect::new(AxisId::Y, EffectKind::Scale { ppm: 100.0, ref_um: 0.0 }))
-            .with(Effect::new(AxisId::X, EffectKind::CameraRotation { angle_urad: 10.0 }));
+            .with(Effect::new(
+                AxisId::Y,
+                EffectKind::Scale {
+                    ppm: 100.0,
+                    ref_um: 0.0,
+                },
+            ))
+            .with(Effect::new(
+                AxisId::X,
+                EffectKind::CameraRotation { angle_urad: 10.0 },
+            ));
         let d = m.deviation(&ctx(AxisId::X, 1.0, 1000.0, 2000.0));
         assert!((d.x_um - (-10e-6 * 2000.0)).abs() < 1e-12);
         assert!((d.y_um - 10e-6 * 1000.0).abs() < 1e-12);
@@ -1024,18 +1221,25 @@ mod tests {
         let m = StageModel::from_toml_str(text).unwrap();
         let again = StageModel::from_toml_str(&m.to_toml_string()).unwrap();
         assert_eq!(m, again);
-        let c = SampleContext { time_s: 600.0, ..ctx(AxisId::X, 1.0, 4321.0, 1234.0) };
+        let c = SampleContext {
+            time_s: 600.0,
+            ..ctx(AxisId::X, 1.0, 4321.0, 1234.0)
+        };
         assert_eq!(m.deviation(&c), again.deviation(&c));
     }
 
     #[test]
     fn bad_files_are_refused_with_the_key_named() {
-        let e = StageModel::from_toml_str("[[effect]]\nkind = \"warp\"\naxis = \"x\"\n").unwrap_err();
+        let e =
+            StageModel::from_toml_str("[[effect]]\nkind = \"warp\"\naxis = \"x\"\n").unwrap_err();
         assert!(e.to_string().contains("unknown kind `warp`"), "{e}");
-        let e = StageModel::from_toml_str("[[effect]]\nkind = \"scale\"\naxis = \"x\"\nppm = 1\nfoo = 2\n")
-            .unwrap_err();
+        let e = StageModel::from_toml_str(
+            "[[effect]]\nkind = \"scale\"\naxis = \"x\"\nppm = 1\nfoo = 2\n",
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("unknown parameter `foo`"), "{e}");
-        let e = StageModel::from_toml_str("[[effect]]\nkind = \"backlash\"\naxis = \"x\"\n").unwrap_err();
+        let e = StageModel::from_toml_str("[[effect]]\nkind = \"backlash\"\naxis = \"x\"\n")
+            .unwrap_err();
         assert!(e.to_string().contains("reversal_um"), "{e}");
     }
 
@@ -1051,10 +1255,16 @@ mod tests {
     fn roughness_has_the_requested_sigma() {
         let m = StageModel::default().with(Effect::new(
             AxisId::X,
-            EffectKind::Roughness { component: Component::Axis, sigma_um: 0.1, corr_um: 12.0, seed: 3 },
+            EffectKind::Roughness {
+                component: Component::Axis,
+                sigma_um: 0.1,
+                corr_um: 12.0,
+                seed: 3,
+            },
         ));
-        let v: Vec<f64> =
-            (0..1900).map(|i| m.deviation(&ctx(AxisId::X, 1.0, i as f64 * 5.0, 0.0)).x_um).collect();
+        let v: Vec<f64> = (0..1900)
+            .map(|i| m.deviation(&ctx(AxisId::X, 1.0, i as f64 * 5.0, 0.0)).x_um)
+            .collect();
         let mean = v.iter().sum::<f64>() / v.len() as f64;
         let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
         assert!((sd - 0.1).abs() < 0.02, "sd {sd}");

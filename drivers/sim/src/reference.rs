@@ -76,7 +76,11 @@ pub fn paper_like_model(seed: u64, p: &ReferenceCurveParams) -> StageModel {
     let x = AxisId::X;
     let sign = |rng: &mut ChaCha8Rng| if rng.random::<bool>() { 1.0 } else { -1.0 };
 
-    let phases: Vec<f64> = p.leadscrew_amp_um.iter().map(|_| rng.random_range(0.0..2.0 * PI)).collect();
+    let phases: Vec<f64> = p
+        .leadscrew_amp_um
+        .iter()
+        .map(|_| rng.random_range(0.0..2.0 * PI))
+        .collect();
     let [wlo, whi] = p.envelope_wave_period_um;
     m.push(Effect::new(
         x,
@@ -86,7 +90,11 @@ pub fn paper_like_model(seed: u64, p: &ReferenceCurveParams) -> StageModel {
             phase_rad: phases,
             env_linear: p.envelope_linear * sign(&mut rng),
             env_wave_amp: p.envelope_wave,
-            env_wave_period_um: if whi > wlo { rng.random_range(wlo..whi) } else { wlo },
+            env_wave_period_um: if whi > wlo {
+                rng.random_range(wlo..whi)
+            } else {
+                wlo
+            },
             env_wave_phase_rad: rng.random_range(0.0..2.0 * PI),
             phase_drift_rad: rng.random_range(-p.phase_drift_rad..=p.phase_drift_rad),
         },
@@ -101,12 +109,21 @@ pub fn paper_like_model(seed: u64, p: &ReferenceCurveParams) -> StageModel {
             sin_um: vec![p.secondary_amp_um * ph.sin()],
         },
     ));
-    m.push(Effect::new(x, EffectKind::Scale { ppm: p.scale_ppm, ref_um: lo }));
+    m.push(Effect::new(
+        x,
+        EffectKind::Scale {
+            ppm: p.scale_ppm,
+            ref_um: lo,
+        },
+    ));
     // Bow: peak-to-chord height `bow_um` is (3/2)·c2 for P2 over [-1, 1] (P2 runs -1/2..1).
     let ph: f64 = rng.random_range(0.0..2.0 * PI);
     m.push(Effect::new(
         x,
-        EffectKind::Legendre { component: Component::Axis, coef_um: vec![0.0, -p.bow_um / 1.5 * sign(&mut rng)] },
+        EffectKind::Legendre {
+            component: Component::Axis,
+            coef_um: vec![0.0, -p.bow_um / 1.5 * sign(&mut rng)],
+        },
     ));
     m.push(Effect::new(
         x,
@@ -142,14 +159,24 @@ pub fn paper_like_model(seed: u64, p: &ReferenceCurveParams) -> StageModel {
         ));
     }
     if p.noise_sigma_um > 0.0 {
-        m.push(Effect::new(x, EffectKind::Noise { sigma_um: p.noise_sigma_um }));
+        m.push(Effect::new(
+            x,
+            EffectKind::Noise {
+                sigma_um: p.noise_sigma_um,
+            },
+        ));
     }
     m
 }
 
 /// The noise-free error (measured - target) of `axis` moving forward, at each position (µm),
 /// with the other axis held at `other_um`.
-pub fn error_curve(model: &StageModel, axis: AxisId, positions_um: &[f64], other_um: f64) -> Vec<f64> {
+pub fn error_curve(
+    model: &StageModel,
+    axis: AxisId,
+    positions_um: &[f64],
+    other_um: f64,
+) -> Vec<f64> {
     positions_um
         .iter()
         .map(|&p| {
@@ -157,7 +184,13 @@ pub fn error_curve(model: &StageModel, axis: AxisId, positions_um: &[f64], other
                 AxisId::X => (p, other_um),
                 AxisId::Y => (other_um, p),
             };
-            let c = SampleContext { moving: axis, direction: 1.0, target_x_um: tx, target_y_um: ty, time_s: 0.0 };
+            let c = SampleContext {
+                moving: axis,
+                direction: 1.0,
+                target_x_um: tx,
+                target_y_um: ty,
+                time_s: 0.0,
+            };
             model.deviation(&c).get(axis)
         })
         .collect()
@@ -176,7 +209,9 @@ mod tests {
         let c = error_curve(&paper_like_model(2, &p), AxisId::X, &grid, 0.0);
         assert_eq!(a, b);
         assert_ne!(a, c);
-        let (mn, mx) = a.iter().fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+        let (mn, mx) = a
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
         // Leadscrew ±1.7..2.4 µm on top of a ~1 µm trend: a few µm peak to peak, as in the paper's Fig. 4.
         assert!(mx - mn > 3.0 && mx - mn < 12.0, "peak-to-peak {}", mx - mn);
     }

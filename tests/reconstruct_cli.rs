@@ -1,0 +1,216 @@
+//! `csmetro generate` → `csmetro reconstruct` through the binary: outputs, JSON, and bad input.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_csmetro"))
+}
+
+fn read_curve(path: &Path) -> Vec<(f64, f64)> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("position_um,error_um"));
+    lines
+        .map(|l| {
+            let (a, b) = l.split_once(',').unwrap();
+            (a.parse().unwrap(), b.parse().unwrap())
+        })
+        .collect()
+}
+
+fn generate(dir: &Path, m: usize) -> (PathBuf, PathBuf) {
+    let full = dir.join("full.csv");
+    let samples = dir.join("samples.csv");
+    let st = bin()
+        .args([
+            "generate",
+            "--seed",
+            "3",
+            "--m",
+            &m.to_string(),
+            "--out-full",
+        ])
+        .arg(&full)
+        .arg("--out-samples")
+        .arg(&samples)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    (full, samples)
+}
+
+#[test]
+fn round_trip_every_method_writes_the_whole_grid_and_beats_a_lookup_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let (full, samples) = generate(dir.path(), 300);
+    let truth = read_curve(&full);
+    assert_eq!(truth.len(), 1901);
+    assert_eq!(read_curve(&samples).len(), 300);
+    let mut mae = std::collections::HashMap::new();
+    for method in ["auto", "bp", "pchip", "linear"] {
+        let out = dir.path().join(format!("{method}.csv"));
+        let o = bin()
+            .args([
+                "reconstruct",
+                "--grid",
+                "0:5:9500",
+                "--method",
+                method,
+                "--json",
+                "--samples",
+            ])
+            .arg(&samples)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{method}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let stdout = String::from_utf8(o.stdout).unwrap();
+        assert_eq!(stdout.trim().lines().count(), 1, "exactly one JSON object");
+        let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+        for key in [
+            "method",
+            "solver",
+            "n",
+            "m",
+            "solve_ms",
+            "iterations",
+            "objective",
+            "cv_error_um",
+        ] {
+            assert!(j.get(key).is_some(), "{method}: JSON lacks `{key}`: {j}");
+        }
+        assert_eq!(j["n"], 1901);
+        assert_eq!(j["m"], 300);
+        if method == "bp" {
+            assert_eq!(j["status"], "optimal");
+            assert!(j["objective"].as_f64().unwrap() > 0.0);
+        }
+        if method == "auto" {
+            assert!(j["cv_error_um"].as_f64().unwrap() > 0.0);
+        }
+        let g = read_curve(&out);
+        assert_eq!(g.len(), 1901);
+        let e = g
+            .iter()
+            .zip(&truth)
+            .map(|(a, b)| (a.1 - b.1).abs())
+            .sum::<f64>()
+            / 1901.0;
+        mae.insert(method, e);
+    }
+    assert!(mae["auto"] < mae["pchip"], "{mae:?}");
+    assert!(mae["auto"] < mae["bp"], "{mae:?}");
+    assert!(
+        mae["auto"] < 0.198,
+        "auto must beat the paper's Table II at m = 300: {mae:?}"
+    );
+}
+
+fn expect_input_error(dir: &Path, content: Option<&str>, extra: &[&str], needle: &str) {
+    let path = dir.join("bad.csv");
+    if let Some(c) = content {
+        std::fs::write(&path, c).unwrap();
+    } else {
+        let _ = std::fs::remove_file(&path);
+    }
+    let o = bin()
+        .args(["reconstruct", "--grid", "0:5:100", "--samples"])
+        .arg(&path)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "content {content:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let err = String::from_utf8(o.stderr).unwrap();
+    assert_eq!(err.trim().lines().count(), 1, "one-line error: {err}");
+    if !extra.iter().any(|a| a.starts_with("--method")) {
+        assert!(err.contains("bad.csv"), "names the file: {err}");
+    }
+    assert!(err.contains(needle), "expected {needle:?} in {err}");
+    assert!(!err.contains("panicked"));
+}
+
+#[test]
+fn bad_input_gives_one_line_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    expect_input_error(d, None, &[], "cannot read");
+    expect_input_error(d, Some("0,1\n5,2\n"), &[], "header");
+    expect_input_error(d, Some("position_um,error_um\n0,1\n5,NaN\n"), &[], ":3:");
+    expect_input_error(
+        d,
+        Some("position_um,error_um\n0,1\n5,2\n5,3\n"),
+        &[],
+        "duplicate",
+    );
+    expect_input_error(
+        d,
+        Some("position_um,error_um\n0,1\n7,2\n"),
+        &[],
+        "not on the grid",
+    );
+    expect_input_error(d, Some("position_um,error_um\n0,1\n"), &[], "at least 2");
+    let many: String = std::iter::once("position_um,error_um\n".to_string())
+        .chain((0..=21).map(|i| format!("{},{}\n", i * 5, i)))
+        .collect();
+    expect_input_error(d, Some(&many), &[], "not on the grid");
+    expect_input_error(
+        d,
+        Some("position_um,error_um\n0,1\n5,2\n"),
+        &["--method", "magic"],
+        "unknown method",
+    );
+}
+
+#[test]
+fn reconstruct_with_clarabel_matches_fast_solver() {
+    let dir = tempfile::tempdir().unwrap();
+    let full = dir.path().join("full.csv");
+    let samples = dir.path().join("s.csv");
+    assert!(bin()
+        .args(["generate", "--grid", "0:50:9500", "--m", "50", "--out-full"])
+        .arg(&full)
+        .arg("--out-samples")
+        .arg(&samples)
+        .status()
+        .unwrap()
+        .success());
+    let mut curves = Vec::new();
+    for solver in ["fast", "clarabel"] {
+        let out = dir.path().join(format!("{solver}.csv"));
+        let o = bin()
+            .args([
+                "reconstruct",
+                "--grid",
+                "0:50:9500",
+                "--method",
+                "bp",
+                "--solver",
+                solver,
+                "--json",
+                "--samples",
+            ])
+            .arg(&samples)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        curves.push(read_curve(&out));
+    }
+    let d = curves[0]
+        .iter()
+        .zip(&curves[1])
+        .map(|(a, b)| (a.1 - b.1).abs())
+        .fold(0.0, f64::max);
+    assert!(d < 1e-6, "max difference {d} µm");
+}
