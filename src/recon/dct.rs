@@ -12,6 +12,8 @@ pub struct Dct {
     scratch: Vec<f64>,
     s0: f64,
     sk: f64,
+    /// cos(π j / 2n), j < 4n: basis entries are table lookups (dense bases are built often).
+    cos_table: Vec<f64>,
 }
 
 impl Dct {
@@ -19,12 +21,16 @@ impl Dct {
         let plan = DctPlanner::new().plan_dct2(n);
         let scratch = vec![0.0; plan.get_scratch_len()];
         let nf = n as f64;
+        let cos_table = (0..4 * n)
+            .map(|j| (std::f64::consts::PI * j as f64 / (2.0 * nf)).cos())
+            .collect();
         Self {
             n,
             plan,
             scratch,
             s0: (1.0 / nf).sqrt(),
             sk: (2.0 / nf).sqrt(),
+            cos_table,
         }
     }
 
@@ -55,13 +61,13 @@ impl Dct {
         self.plan.process_dct3_with_scratch(buf, &mut self.scratch);
     }
 
-    /// Ψ[i, k]: basis function k at grid point i.
+    /// Ψ[i, k] = c_k cos(π k (2i + 1) / 2n): basis function k at grid point i.
     pub fn basis(&self, i: usize, k: usize) -> f64 {
         if k == 0 {
             self.s0
         } else {
-            let nf = self.n as f64;
-            self.sk * (std::f64::consts::PI * k as f64 * (i as f64 + 0.5) / nf).cos()
+            let j = (k * (2 * i + 1)) % (4 * self.n);
+            self.sk * self.cos_table[j]
         }
     }
 }

@@ -5,11 +5,10 @@
 //! DCT instead of an m x n product; the ratio test is the long-step rule of l1 simplex methods
 //! (pass breakpoints while the objective still decreases), which cuts the number of pivots.
 //! Basis changes are kept as an eta file on top of one dense LU and refactored periodically.
-use nalgebra::{DMatrix, DVector};
+use faer::linalg::solvers::{PartialPivLu, Solve};
+use faer::{Col, Mat};
 
 use super::dct::Dct;
-
-type Lu = nalgebra::linalg::LU<f64, nalgebra::Dyn, nalgebra::Dyn>;
 
 /// Result of a certified simplex finish.
 pub struct SimplexResult {
@@ -21,64 +20,70 @@ pub struct SimplexResult {
     pub dual_inf_norm: f64,
 }
 
+/// Basis B = A_S as one dense LU (faer: ~2x nalgebra's speed here, and a transpose solve)
+/// plus an eta file of the pivots since.
 struct Basis {
-    lu: Lu,
-    /// Uᵀ and Lᵀ kept explicitly: nalgebra rebuilds them on every `u()`/`l()` call.
-    ut: DMatrix<f64>,
-    lt: DMatrix<f64>,
+    lu: PartialPivLu<f64>,
     /// Eta file: (position r, column d) for each pivot since the last factorization.
-    etas: Vec<(usize, DVector<f64>)>,
+    etas: Vec<(usize, Col<f64>)>,
 }
 
 impl Basis {
     fn factor(dct: &Dct, idx: &[usize], support: &[usize]) -> Option<Self> {
         let m = idx.len();
-        let b = DMatrix::from_fn(m, m, |r, c| dct.basis(idx[r], support[c]));
-        let lu = b.lu();
+        let b = Mat::<f64>::from_fn(m, m, |r, c| dct.basis(idx[r], support[c]));
+        let lu = b.partial_piv_lu();
         // Reject (near-)singular bases: a tiny pivot in U means a column nearly dependent.
-        let u = lu.u();
-        let dmax = (0..m).map(|i| u[(i, i)].abs()).fold(0.0, f64::max);
-        let dmin = (0..m)
-            .map(|i| u[(i, i)].abs())
-            .fold(f64::INFINITY, f64::min);
+        let u = lu.U();
+        let (mut dmax, mut dmin) = (0.0f64, f64::INFINITY);
+        for i in 0..m {
+            dmax = dmax.max(u[(i, i)].abs());
+            dmin = dmin.min(u[(i, i)].abs());
+        }
         if dmin.is_nan() || dmin <= 1e-12 * dmax {
             return None;
         }
-        let ut = u.transpose();
-        let lt = lu.l().transpose();
         Some(Self {
             lu,
-            ut,
-            lt,
             etas: Vec::new(),
         })
     }
 
     /// x = B⁻¹ b
-    fn ftran(&self, b: &DVector<f64>) -> Option<DVector<f64>> {
-        let mut x = self.lu.solve(b)?;
+    fn ftran(&self, b: &Col<f64>) -> Col<f64> {
+        let mut x = self.lu.solve(b);
         for (r, d) in &self.etas {
             let xr = x[*r] / d[*r];
-            for i in 0..x.len() {
+            for i in 0..x.nrows() {
                 x[i] -= d[i] * xr;
             }
             x[*r] = xr;
         }
-        Some(x)
+        x
     }
 
     /// y = B⁻ᵀ c
-    fn btran(&self, c: &DVector<f64>) -> Option<DVector<f64>> {
+    fn btran(&self, c: &Col<f64>) -> Col<f64> {
         let mut c = c.clone();
         for (r, d) in self.etas.iter().rev() {
-            let dot: f64 = (0..c.len()).filter(|&i| i != *r).map(|i| d[i] * c[i]).sum();
+            let mut dot = 0.0;
+            for i in 0..c.nrows() {
+                if i != *r {
+                    dot += d[i] * c[i];
+                }
+            }
             c[*r] = (c[*r] - dot) / d[*r];
         }
-        let w = self.ut.solve_lower_triangular(&c)?;
-        let mut y = self.lt.solve_upper_triangular(&w)?;
-        self.lu.p().inv_permute_rows(&mut y);
-        Some(y)
+        self.lu.solve_transpose(&c)
     }
+}
+
+fn finite(v: &Col<f64>) -> bool {
+    (0..v.nrows()).all(|i| v[i].is_finite())
+}
+
+fn amax(v: &Col<f64>) -> f64 {
+    (0..v.nrows()).map(|i| v[i].abs()).fold(0.0, f64::max)
 }
 
 fn sign(v: f64) -> f64 {
@@ -101,20 +106,23 @@ pub fn finish(
 ) -> Option<SimplexResult> {
     let n = dct.len();
     let m = idx.len();
-    let hv = DVector::from_column_slice(h);
-    let scale = hv.amax().max(1e-300);
+    let hv = Col::<f64>::from_fn(m, |r| h[r]);
+    let scale = amax(&hv).max(1e-300);
     let mut basis = Basis::factor(dct, idx, &support)?;
-    let mut theta_s = basis.ftran(&hv)?;
+    let mut theta_s = basis.ftran(&hv);
     let mut in_basis = vec![false; n];
     for &k in &support {
         in_basis[k] = true;
     }
     let mut w = vec![0.0; n];
-    let mut col = DVector::zeros(m);
+    let mut col = Col::<f64>::zeros(m);
     let zero_tol = 1e-13 * scale;
     for pivots in 0..=max_pivots {
-        let signs = theta_s.map(sign);
-        let y = basis.btran(&signs)?;
+        let signs = Col::<f64>::from_fn(m, |r| sign(theta_s[r]));
+        let y = basis.btran(&signs);
+        if !finite(&y) {
+            return None;
+        }
         w.iter_mut().for_each(|v| *v = 0.0);
         for (r, &i) in idx.iter().enumerate() {
             w[i] = y[r];
@@ -138,7 +146,7 @@ pub fn finish(
         for (r, &i) in idx.iter().enumerate() {
             col[r] = dct.basis(i, j);
         }
-        let d = basis.ftran(&col)?;
+        let d = basis.ftran(&col);
         // θ_S(t) = θ_S - t·sj·d for the entering θ_j = sj·t; f'(0+) = 1 - |w_j| on a non-degenerate basis.
         let mut slope = 1.0;
         let mut breaks: Vec<(f64, usize)> = Vec::new();
@@ -177,7 +185,7 @@ pub fn finish(
             found
         };
         let (t, r) = leave?;
-        if d[r].abs() < 1e-10 * d.amax() {
+        if d[r].abs() < 1e-10 * amax(&d) {
             return None;
         }
         for q in 0..m {
@@ -190,7 +198,7 @@ pub fn finish(
         basis.etas.push((r, d));
         if basis.etas.len() >= 64 {
             basis = Basis::factor(dct, idx, &support)?;
-            theta_s = basis.ftran(&hv)?;
+            theta_s = basis.ftran(&hv);
         }
     }
     None
@@ -200,31 +208,36 @@ pub fn finish(
 fn certify(
     dct: &mut Dct,
     idx: &[usize],
-    hv: &DVector<f64>,
+    hv: &Col<f64>,
     support: &[usize],
     pivots: usize,
     tol: f64,
 ) -> Option<SimplexResult> {
     let n = dct.len();
+    let m = idx.len();
     let basis = Basis::factor(dct, idx, support)?;
-    let theta_s = basis.ftran(hv)?;
-    let y = basis.btran(&theta_s.map(sign))?;
+    let theta_s = basis.ftran(hv);
+    let y = basis.btran(&Col::<f64>::from_fn(m, |r| sign(theta_s[r])));
+    if !finite(&theta_s) || !finite(&y) {
+        return None;
+    }
     let mut w = vec![0.0; n];
     for (r, &i) in idx.iter().enumerate() {
         w[i] = y[r];
     }
     dct.forward(&mut w);
     let inf = w.iter().map(|v| v.abs()).fold(0.0, f64::max);
-    if inf > 1.0 + tol || theta_s.iter().any(|v| !v.is_finite()) {
+    if inf > 1.0 + tol {
         return None;
     }
     let mut theta = vec![0.0; n];
     for (c, &k) in support.iter().enumerate() {
         theta[k] = theta_s[c];
     }
+    let dual_objective = (0..m).map(|r| hv[r] * y[r]).sum();
     Some(SimplexResult {
         theta,
-        dual_objective: hv.dot(&y),
+        dual_objective,
         pivots,
         dual_inf_norm: inf,
     })
