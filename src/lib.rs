@@ -1,6 +1,7 @@
 //! csmetro: compressive-sensing characterization of micropositioning stages.
 pub mod cli;
 pub mod grid;
+pub mod iso230;
 pub mod recon;
 pub mod samples;
 pub mod sampling;

@@ -228,24 +228,14 @@ pub fn reconstruct(
             out.candidates = scores;
             if chosen.0 == Method::Physics {
                 out.params = Some(best_params);
-                let full = physics::design(
-                    &best_params,
-                    n,
-                    grid.start_um,
-                    grid.step_um,
-                    &(0..n).collect::<Vec<_>>(),
-                );
-                out.values = physics::fit_predict(
-                    &best_params,
-                    &full,
-                    n,
-                    grid.step_um,
-                    &samples.idx,
-                    &samples.values,
-                    s.noise_um,
-                )
-                .ok_or("physics model fit failed (singular system)")?
-                .values;
+                let p = &best_params;
+                let (start, step) = (grid.start_um, grid.step_um);
+                let rows = physics::design(p, n, start, step, &samples.idx);
+                let all: Vec<usize> = (0..n).collect();
+                out.values =
+                    physics::fit(p, &rows, n, step, &samples.idx, &samples.values, s.noise_um)
+                        .ok_or("physics model fit failed (singular system)")?
+                        .predict(&physics::design(p, n, start, step, &all), &all);
             } else {
                 out.values = interpolate(chosen.0, grid, &samples.idx, &samples.values);
             }
@@ -339,18 +329,32 @@ impl<'a> CrossValidation<'a> {
 
     fn score_physics(&self, p: &PhysicsParams) -> f64 {
         let n = self.grid.n;
-        let all: Vec<usize> = (0..n).collect();
-        let full = physics::design(p, n, self.grid.start_um, self.grid.step_um, &all);
+        let rows = physics::design(
+            p,
+            n,
+            self.grid.start_um,
+            self.grid.step_um,
+            &self.samples.idx,
+        );
         let (mut sum, mut cnt) = (0.0, 0usize);
         for (train, test) in &self.folds {
             let (ti, ty) = self.subset(train);
-            let Some(fit) =
-                physics::fit_predict(p, &full, n, self.grid.step_um, &ti, &ty, self.s.noise_um)
-            else {
+            let train_rows = rows.select_rows(train.iter());
+            let Some(fit) = physics::fit(
+                p,
+                &train_rows,
+                n,
+                self.grid.step_um,
+                &ti,
+                &ty,
+                self.s.noise_um,
+            ) else {
                 return f64::INFINITY;
             };
-            for &r in test {
-                sum += (fit.values[self.samples.idx[r]] - self.samples.values[r]).abs();
+            let test_rows = rows.select_rows(test.iter());
+            let at: Vec<usize> = test.iter().map(|&r| self.samples.idx[r]).collect();
+            for (pred, &r) in fit.predict(&test_rows, &at).iter().zip(test) {
+                sum += (pred - self.samples.values[r]).abs();
                 cnt += 1;
             }
         }
@@ -372,7 +376,7 @@ impl<'a> CrossValidation<'a> {
             (&[0.0, 2.0, 4.0], |p, v| p.harmonics = v as usize),
             (&[0.0, 1.0, 3.0, 4.0], |p, v| p.envelope_deg = v as usize),
             (&[6.0, 10.0, 24.0, 32.0], |p, v| p.trend_k = v as usize),
-            (&[4.0, 8.0, 20.0, 40.0], |p, v| p.corr_um = v),
+            (&[4.0, 8.0, 20.0, 40.0, 80.0], |p, v| p.corr_um = v),
             (&[1e-6, 1e-2, 1.0], |p, v| p.ridge = v),
         ];
         for (values, set) in axes {

@@ -123,27 +123,40 @@ pub fn ou_smooth(
     ms
 }
 
-/// A fitted model, ready to predict anywhere on the grid.
-pub struct Fit {
-    pub values: Vec<f64>,
+/// A fitted model: trend coefficients and the kriged residual on the whole grid.
+pub struct Fitted {
+    beta: DVector<f64>,
+    rough: Vec<f64>,
 }
 
-/// Fits on samples (idx ascending, y) and predicts the whole grid. `full` is the design matrix on
-/// all n grid points (precomputed once for cross-validation).
-pub fn fit_predict(
+impl Fitted {
+    /// Predictions at grid indices `at`, whose design rows are `rows` (same order).
+    pub fn predict(&self, rows: &DMatrix<f64>, at: &[usize]) -> Vec<f64> {
+        let cols = self.beta.len();
+        let trend = rows.columns(0, cols) * &self.beta;
+        at.iter()
+            .enumerate()
+            .map(|(r, &i)| trend[r] + self.rough[i])
+            .collect()
+    }
+}
+
+/// Fits on samples at grid indices `idx` (ascending) with values `y`; `rows` holds their design
+/// rows. Only the sampled rows are needed, so cross-validation never builds the full n-row design.
+pub fn fit(
     p: &PhysicsParams,
-    full: &DMatrix<f64>,
+    rows: &DMatrix<f64>,
     n: usize,
     step_um: f64,
     idx: &[usize],
     y: &[f64],
     noise_um: f64,
-) -> Option<Fit> {
+) -> Option<Fitted> {
     let m = idx.len();
-    let cols = full.ncols().min(m.saturating_sub(1)).max(1);
-    let a = DMatrix::from_fn(m, cols, |r, c| full[(idx[r], c)]);
+    let cols = rows.ncols().min(m.saturating_sub(1)).max(1);
+    let a = rows.columns(0, cols);
     let yv = DVector::from_column_slice(y);
-    let mut ata = a.transpose() * &a;
+    let mut ata = a.transpose() * a;
     let aty = a.transpose() * &yv;
     let lambda = p.ridge * m as f64;
     for c in 1..cols {
@@ -151,17 +164,13 @@ pub fn fit_predict(
     }
     ata[(0, 0)] += 1e-12 * m as f64;
     let beta = ata.cholesky()?.solve(&aty);
-    let resid: Vec<f64> = (0..m)
-        .map(|r| y[r] - a.row(r).dot(&beta.transpose()))
-        .collect();
+    let fitted = a * &beta;
+    let resid: Vec<f64> = (0..m).map(|r| y[r] - fitted[r]).collect();
     let var = resid.iter().map(|v| v * v).sum::<f64>() / m as f64;
     let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
     let sigma2 = (var - noise2).max(noise2);
     let rough = ou_smooth(n, step_um, idx, &resid, sigma2, p.corr_um, noise2);
-    let trend = full.columns(0, cols) * beta;
-    Some(Fit {
-        values: (0..n).map(|i| trend[i] + rough[i]).collect(),
-    })
+    Some(Fitted { beta, rough })
 }
 
 #[cfg(test)]
@@ -199,10 +208,12 @@ mod tests {
             .unwrap();
         let y: Vec<f64> = idx.iter().map(|&i| truth[i]).collect();
         let p = PhysicsParams::default_for(400.0);
-        let full = design(&p, n, 0.0, step, &(0..n).collect::<Vec<_>>());
-        let fit = fit_predict(&p, &full, n, step, &idx, &y, 0.0).unwrap();
-        let mae = fit
-            .values
+        let all: Vec<usize> = (0..n).collect();
+        let rows = design(&p, n, 0.0, step, &idx);
+        let values = fit(&p, &rows, n, step, &idx, &y, 0.0)
+            .unwrap()
+            .predict(&design(&p, n, 0.0, step, &all), &all);
+        let mae = values
             .iter()
             .zip(&truth)
             .map(|(a, b)| (a - b).abs())
