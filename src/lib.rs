@@ -1,5 +1,6 @@
 //! csmetro: compressive-sensing characterization of micropositioning stages.
 pub mod cli;
+pub mod gap;
 pub mod grid;
 pub mod iso230;
 pub mod recon;

@@ -29,6 +29,8 @@ enum Command {
     Ppp(cli::ppp::Args),
     /// Simulated devices (C-863 controller, camera).
     Sim(cli::sim::Args),
+    /// Sim-to-real gap diagnosis: where measured data leave the stage model, and which effect explains it.
+    Gap(cli::gap::Args),
 }
 
 fn main() -> ExitCode {
@@ -40,6 +42,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => cli::bench::run(a),
         Command::Ppp(a) => cli::ppp::run(a),
         Command::Sim(a) => cli::sim::run(a),
+        Command::Gap(a) => cli::gap::run(a),
     };
     cli::finish(result)
 }

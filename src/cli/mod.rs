@@ -3,6 +3,7 @@ use std::process::ExitCode;
 
 pub mod bench;
 pub mod demo;
+pub mod gap;
 pub mod generate;
 pub mod ppp;
 pub mod reconstruct;

@@ -1,0 +1,184 @@
+//! `csmetro gap`: where measured campaign data leave the stage model, which library effect explains
+//! the gap, and how far the held-out gap shrinks once it is added.
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use csmetro_sim::model::StageModel;
+use serde_json::json;
+
+use super::{CliError, CliResult};
+use crate::gap::{self, data, selftest};
+
+#[derive(clap::Args)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct Args {
+    #[command(subcommand)]
+    pub command: Option<Sub>,
+    /// The simulator's stage model (TOML with [[effect]] tables).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Measured data: a campaign CSV (run,axis,direction,target_x_um,target_y_um,time_s,meas_x_um,meas_y_um).
+    /// Stored campaign ids are not supported yet (there is no campaign storage).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Print one JSON object on stdout instead of the text report.
+    #[arg(long)]
+    pub json: bool,
+    /// Output directory: model.toml (updated model with the fitted effects) and gap.json.
+    #[arg(long, default_value = "gap-out")]
+    pub out: PathBuf,
+    /// Candidate kinds, comma separated (default: the whole library).
+    #[arg(long, value_delimiter = ',')]
+    pub kinds: Option<Vec<String>>,
+    /// Motor/encoder period tried when the model has no motor_cyclic of that axis, µm.
+    #[arg(long)]
+    pub motor_period_um: Option<f64>,
+}
+
+#[derive(clap::Subcommand)]
+pub enum Sub {
+    /// Benchmark on simulated data whose effect the diagnosed model lacks.
+    Selftest(SelftestArgs),
+    /// Simulate a line campaign (X lines at static Y, Y lines at static X, forward+backward,
+    /// repeated runs) from a "real" stage model and write DATA.csv.
+    Simulate(SimulateArgs),
+}
+
+#[derive(clap::Args)]
+pub struct SelftestArgs {
+    #[arg(long)]
+    pub json: bool,
+    /// Small size for CI (6 cases per category).
+    #[arg(long)]
+    pub quick: bool,
+    /// Cases per category (default 40; no-gap gets twice as many).
+    #[arg(long)]
+    pub cases: Option<usize>,
+    #[arg(long, default_value_t = 2026)]
+    pub seed: u64,
+    /// Exit with code 1 when a target is not met.
+    #[arg(long)]
+    pub strict: bool,
+}
+
+#[derive(clap::Args)]
+pub struct SimulateArgs {
+    /// The "real" stage model (its `noise` effects give σ unless --noise-um).
+    #[arg(long)]
+    pub truth: PathBuf,
+    /// Output DATA.csv.
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    #[arg(long, default_value_t = 40)]
+    pub targets: usize,
+    /// Static positions of the other axis per moving axis.
+    #[arg(long, default_value_t = 3)]
+    pub statics: usize,
+    #[arg(long)]
+    pub noise_um: Option<f64>,
+}
+
+fn load_model(path: &std::path::Path) -> Result<StageModel, CliError> {
+    StageModel::load(path).map_err(|e| CliError::input(e.to_string()))
+}
+
+pub fn run(args: Args) -> CliResult {
+    match args.command {
+        Some(Sub::Selftest(a)) => return run_selftest(a),
+        Some(Sub::Simulate(a)) => return run_simulate(a),
+        None => {}
+    }
+    let model_path = args
+        .model
+        .ok_or_else(|| CliError::input("gap: --model MODEL.toml is required"))?;
+    let data_path = args
+        .data
+        .ok_or_else(|| CliError::input("gap: --data DATA.csv is required"))?;
+    let model = load_model(&model_path)?;
+    let samples = data::read_csv(&data_path).map_err(CliError::input)?;
+    let mut opts = gap::Options {
+        kinds: args.kinds,
+        ..Default::default()
+    };
+    if let Some(p) = args.motor_period_um {
+        if !(p.is_finite() && p > 0.0) {
+            return Err(CliError::input("gap: --motor-period-um must be > 0"));
+        }
+        opts.motor_period_um = p;
+    }
+    let d = gap::diagnose(&model, &samples, &opts)
+        .map_err(|e| CliError::input(format!("{}: {e}", data_path.display())))?;
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| CliError::failure(format!("{}: {e}", args.out.display())))?;
+    let model_out = args.out.join("model.toml");
+    let header = format!(
+        "# Updated by `csmetro gap` from {} on {}: {} effect(s) added.\n",
+        model_path.display(),
+        data_path.display(),
+        d.added.len()
+    );
+    std::fs::write(&model_out, header + &d.model.to_toml_string())
+        .map_err(|e| CliError::failure(format!("{}: {e}", model_out.display())))?;
+    let mut j = d.to_json();
+    j["model_out"] = json!(model_out.display().to_string());
+    let json_out = args.out.join("gap.json");
+    std::fs::write(&json_out, format!("{j:#}\n"))
+        .map_err(|e| CliError::failure(format!("{}: {e}", json_out.display())))?;
+    if args.json {
+        println!("{j}");
+    } else {
+        print!("{}", d.summary());
+        println!("updated model: {}", model_out.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_selftest(a: SelftestArgs) -> CliResult {
+    let cases = a.cases.unwrap_or(if a.quick { 6 } else { 40 });
+    if cases == 0 {
+        return Err(CliError::input("gap selftest: --cases must be >= 1"));
+    }
+    let o = selftest::SelftestOptions {
+        cases,
+        seed: a.seed,
+        ..Default::default()
+    };
+    let report = selftest::run(&o);
+    if a.json {
+        println!("{report}");
+    } else {
+        println!("{report:#}");
+    }
+    let met = report["all_targets_met"] == json!(true);
+    Ok(if a.strict && !met {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+fn run_simulate(a: SimulateArgs) -> CliResult {
+    let truth = load_model(&a.truth)?;
+    if a.runs == 0 || a.targets == 0 {
+        return Err(CliError::input(
+            "gap simulate: --runs and --targets must be >= 1",
+        ));
+    }
+    let spec = data::CampaignSpec {
+        runs: a.runs,
+        targets_per_line: a.targets,
+        static_positions: a.statics,
+        noise_um: a.noise_um,
+        seed: a.seed,
+        ..Default::default()
+    };
+    let s = data::simulate_campaign(&truth, &spec, None);
+    data::write_csv(&a.out, &s)
+        .map_err(|e| CliError::failure(format!("{}: {e}", a.out.display())))?;
+    eprintln!("wrote {} samples to {}", s.len(), a.out.display());
+    Ok(ExitCode::SUCCESS)
+}

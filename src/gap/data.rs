@@ -1,0 +1,339 @@
+//! Measured line-campaign data: the CSV format `csmetro gap` reads, and a seeded generator that
+//! simulates the paper's line campaigns from a "real" stage model (for the benchmark and tests).
+use std::fmt::Write as _;
+use std::path::Path;
+
+use csmetro_sim::model::{AxisId, Deviation, SampleContext, StageModel};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+/// The CSV header, in this order when written (any column order is accepted when read).
+pub const HEADER: [&str; 8] = [
+    "run",
+    "axis",
+    "direction",
+    "target_x_um",
+    "target_y_um",
+    "time_s",
+    "meas_x_um",
+    "meas_y_um",
+];
+
+/// One measured sample of a line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    /// Repeated cycle number.
+    pub run: i64,
+    /// The moving axis of the line.
+    pub moving: AxisId,
+    /// +1 forward, -1 backward.
+    pub direction: f64,
+    pub target_x_um: f64,
+    pub target_y_um: f64,
+    /// Seconds since the start of the data.
+    pub time_s: f64,
+    pub meas_x_um: f64,
+    pub meas_y_um: f64,
+}
+
+impl Sample {
+    pub fn context(&self) -> SampleContext {
+        SampleContext {
+            moving: self.moving,
+            direction: self.direction,
+            target_x_um: self.target_x_um,
+            target_y_um: self.target_y_um,
+            time_s: self.time_s,
+        }
+    }
+    pub fn target(&self, a: AxisId) -> f64 {
+        match a {
+            AxisId::X => self.target_x_um,
+            AxisId::Y => self.target_y_um,
+        }
+    }
+    pub fn meas(&self, a: AxisId) -> f64 {
+        match a {
+            AxisId::X => self.meas_x_um,
+            AxisId::Y => self.meas_y_um,
+        }
+    }
+}
+
+/// Parses campaign CSV text; errors are one line and name `origin` and the line number.
+pub fn parse_csv(origin: &str, text: &str) -> Result<Vec<Sample>, String> {
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines.next().ok_or_else(|| {
+        format!(
+            "{origin}: empty file (expected header {})",
+            HEADER.join(",")
+        )
+    })?;
+    let names: Vec<String> = header
+        .split(',')
+        .map(|s| s.trim().trim_start_matches('\u{feff}').to_ascii_lowercase())
+        .collect();
+    let mut idx = [0usize; 8];
+    let missing: Vec<&str> = HEADER
+        .iter()
+        .enumerate()
+        .filter_map(|(k, h)| match names.iter().position(|n| n == h) {
+            Some(i) => {
+                idx[k] = i;
+                None
+            }
+            None => Some(*h),
+        })
+        .collect();
+    if !missing.is_empty() {
+        return Err(format!(
+            "{origin}:1: missing column(s) {} (header must have {})",
+            missing.join(", "),
+            HEADER.join(",")
+        ));
+    }
+    let mut out = Vec::new();
+    for (i, line) in lines {
+        let ln = i + 1;
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if f.len() != names.len() {
+            return Err(format!(
+                "{origin}:{ln}: {} fields, header has {}",
+                f.len(),
+                names.len()
+            ));
+        }
+        let num = |k: usize| -> Result<f64, String> {
+            let s = f[idx[k]];
+            let v: f64 = s
+                .parse()
+                .map_err(|_| format!("{origin}:{ln}: `{}` = {s:?} is not a number", HEADER[k]))?;
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(format!(
+                    "{origin}:{ln}: `{}` is {s} (must be finite)",
+                    HEADER[k]
+                ))
+            }
+        };
+        let run_s = f[idx[0]];
+        let run: i64 = run_s
+            .parse()
+            .map_err(|_| format!("{origin}:{ln}: `run` = {run_s:?} is not an integer"))?;
+        let moving = AxisId::parse(f[idx[1]])
+            .ok_or_else(|| format!("{origin}:{ln}: `axis` = {:?} must be x or y", f[idx[1]]))?;
+        let direction = match f[idx[2]].to_ascii_lowercase().as_str() {
+            "forward" | "+1" | "1" => 1.0,
+            "backward" | "-1" => -1.0,
+            s => {
+                return Err(format!(
+                    "{origin}:{ln}: `direction` = {s:?} must be forward or backward"
+                ))
+            }
+        };
+        out.push(Sample {
+            run,
+            moving,
+            direction,
+            target_x_um: num(3)?,
+            target_y_um: num(4)?,
+            time_s: num(5)?,
+            meas_x_um: num(6)?,
+            meas_y_um: num(7)?,
+        });
+    }
+    if out.is_empty() {
+        return Err(format!("{origin}: no data rows"));
+    }
+    Ok(out)
+}
+
+/// Reads a campaign CSV file (campaign ids are not supported yet: there is no campaign storage).
+pub fn read_csv(path: &Path) -> Result<Vec<Sample>, String> {
+    if !path.is_file() {
+        return Err(format!(
+            "{}: not a file (only DATA.csv files are accepted for now: campaign storage does not exist yet, so campaign ids cannot be resolved)",
+            path.display()
+        ));
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    parse_csv(&path.display().to_string(), &text)
+}
+
+pub fn to_csv_string(samples: &[Sample]) -> String {
+    let mut s = HEADER.join(",");
+    s.push('\n');
+    for x in samples {
+        let _ = writeln!(
+            s,
+            "{},{},{},{:.3},{:.3},{:.3},{:.6},{:.6}",
+            x.run,
+            x.moving,
+            if x.direction > 0.0 {
+                "forward"
+            } else {
+                "backward"
+            },
+            x.target_x_um,
+            x.target_y_um,
+            x.time_s,
+            x.meas_x_um,
+            x.meas_y_um
+        );
+    }
+    s
+}
+
+pub fn write_csv(path: &Path, samples: &[Sample]) -> std::io::Result<()> {
+    std::fs::write(path, to_csv_string(samples))
+}
+
+/// A line campaign like the paper's 1-DoF characterisation lines: X lines at a few static Y,
+/// Y lines at a few static X, each forward then backward over the same targets, repeated `runs`
+/// times, time monotone.
+#[derive(Debug, Clone)]
+pub struct CampaignSpec {
+    pub runs: usize,
+    pub targets_per_line: usize,
+    pub static_positions: usize,
+    /// Seconds per sample (move, settle, image).
+    pub dt_s: f64,
+    /// White measurement noise σ (µm); `None` = the truth model's `noise` effects.
+    pub noise_um: Option<f64>,
+    /// σ of the per-line unknown constant offsets (static axis error, sensor zero), µm.
+    pub line_offset_um: f64,
+    pub seed: u64,
+}
+
+impl Default for CampaignSpec {
+    fn default() -> Self {
+        Self {
+            runs: 5,
+            targets_per_line: 40,
+            static_positions: 3,
+            dt_s: 2.0,
+            noise_um: None,
+            line_offset_um: 2.0,
+            seed: 1,
+        }
+    }
+}
+
+/// An extra deviation outside the model (e.g. a drift of a shape the library does not have).
+pub type Extra<'a> = &'a dyn Fn(&SampleContext) -> Deviation;
+
+/// Target positions of the lines of one moving axis: one random point per cell of a regular
+/// partition of the travel (ISO 230-2 style, so periodic errors are sampled), the same every run.
+fn line_targets(travel: [f64; 2], n: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    let span = travel[1] - travel[0];
+    let (lo, span) = (travel[0] + 0.01 * span, 0.98 * span);
+    (0..n)
+        .map(|i| lo + (i as f64 + rng.random_range(0.1..0.9)) * span / n as f64)
+        .collect()
+}
+
+/// Simulates a campaign on `truth` (+ `extra`), with noise and per-line offsets.
+pub fn simulate_campaign(
+    truth: &StageModel,
+    spec: &CampaignSpec,
+    extra: Option<Extra>,
+) -> Vec<Sample> {
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
+    let sigma = spec.noise_um.unwrap_or_else(|| truth.noise_sigma_um());
+    let noise = Normal::new(0.0, sigma.max(0.0)).expect("finite sigma");
+    let offs = Normal::new(0.0, spec.line_offset_um.max(0.0)).expect("finite sigma");
+    let tx = line_targets(truth.travel_x_um, spec.targets_per_line, &mut rng);
+    let ty = line_targets(truth.travel_y_um, spec.targets_per_line, &mut rng);
+    let statics = |tr: [f64; 2]| -> Vec<f64> {
+        let k = spec.static_positions.max(1);
+        (0..k)
+            .map(|i| tr[0] + (tr[1] - tr[0]) * (i as f64 + 1.0) / (k as f64 + 1.0))
+            .collect()
+    };
+    let sy = statics(truth.travel_y_um);
+    let sx = statics(truth.travel_x_um);
+    let mut t = 0.0;
+    let mut out = Vec::new();
+    for run in 1..=spec.runs as i64 {
+        for (moving, targets, stat) in [(AxisId::X, &tx, &sy), (AxisId::Y, &ty, &sx)] {
+            for &st in stat.iter() {
+                let (ox, oy) = (offs.sample(&mut rng), offs.sample(&mut rng));
+                let fwd = targets.iter().map(|&p| (p, 1.0));
+                let bwd = targets.iter().rev().map(|&p| (p, -1.0));
+                for (p, d) in fwd.chain(bwd) {
+                    let (x, y) = match moving {
+                        AxisId::X => (p, st),
+                        AxisId::Y => (st, p),
+                    };
+                    let c = SampleContext {
+                        moving,
+                        direction: d,
+                        target_x_um: x,
+                        target_y_um: y,
+                        time_s: t,
+                    };
+                    let (mut mx, mut my) = truth.predict(&c);
+                    if let Some(f) = extra {
+                        let e = f(&c);
+                        mx += e.x_um;
+                        my += e.y_um;
+                    }
+                    out.push(Sample {
+                        run,
+                        moving,
+                        direction: d,
+                        target_x_um: x,
+                        target_y_um: y,
+                        time_s: t,
+                        meas_x_um: mx + ox + noise.sample(&mut rng),
+                        meas_y_um: my + oy + noise.sample(&mut rng),
+                    });
+                    t += spec.dt_s;
+                }
+                t += 10.0 * spec.dt_s;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_round_trip_and_errors_name_the_line() {
+        let m = StageModel::default();
+        let spec = CampaignSpec {
+            runs: 2,
+            targets_per_line: 5,
+            noise_um: Some(0.05),
+            ..Default::default()
+        };
+        let s = simulate_campaign(&m, &spec, None);
+        assert_eq!(s.len(), 2 * 6 * 10);
+        assert!(s.windows(2).all(|w| w[1].time_s > w[0].time_s));
+        let text = to_csv_string(&s);
+        let back = parse_csv("d.csv", &text).unwrap();
+        assert_eq!(back.len(), s.len());
+        assert!((back[7].meas_x_um - s[7].meas_x_um).abs() < 1e-5);
+        let bad = text.replacen("forward", "sideways", 1);
+        let e = parse_csv("d.csv", &bad).unwrap_err();
+        assert!(e.starts_with("d.csv:2:") && e.contains("direction"), "{e}");
+        let mut rows: Vec<&str> = text.lines().collect();
+        let nan_row = rows[3].rsplit_once(',').unwrap().0.to_string() + ",NaN";
+        rows[3] = &nan_row;
+        let e = parse_csv("d.csv", &rows.join("\n")).unwrap_err();
+        assert!(e.starts_with("d.csv:4:") && e.contains("meas_y_um"), "{e}");
+        let e = parse_csv("d.csv", "run,axis,direction,target_x_um\n1,x,forward,3\n").unwrap_err();
+        assert!(
+            e.contains("missing column") && e.contains("meas_x_um"),
+            "{e}"
+        );
+    }
+}
