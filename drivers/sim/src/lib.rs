@@ -1,4 +1,5 @@
 //! The simulator: one stage model (effect library) and the simulated devices built on it.
+pub mod camera;
 pub mod controller;
 pub mod model;
 pub mod reference;
