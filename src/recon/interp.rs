@@ -3,22 +3,27 @@
 //! Hand-written because they are a few lines each and no maintained crate covers PCHIP on an
 //! arbitrary grid; both are tested on exact cases below.
 
-/// Linear interpolation of (xs, ys) at every position; constant beyond the end samples.
-pub fn linear(xs: &[f64], ys: &[f64], at: &[f64]) -> Vec<f64> {
+/// Evaluates `segment(k, t)` on the interval [xs[k], xs[k+1]] holding x at relative place t;
+/// outside the samples the end values are held.
+fn held_ends(xs: &[f64], ys: &[f64], at: &[f64], segment: impl Fn(usize, f64) -> f64) -> Vec<f64> {
     let n = xs.len();
     at.iter()
         .map(|&x| {
             if x <= xs[0] {
-                return ys[0];
+                ys[0]
+            } else if x >= xs[n - 1] {
+                ys[n - 1]
+            } else {
+                let k = xs.partition_point(|&v| v <= x).clamp(1, n - 1) - 1;
+                segment(k, (x - xs[k]) / (xs[k + 1] - xs[k]))
             }
-            if x >= xs[n - 1] {
-                return ys[n - 1];
-            }
-            let k = xs.partition_point(|&v| v <= x).clamp(1, n - 1);
-            let t = (x - xs[k - 1]) / (xs[k] - xs[k - 1]);
-            ys[k - 1] + t * (ys[k] - ys[k - 1])
         })
         .collect()
+}
+
+/// Linear interpolation of (xs, ys) at every position; constant beyond the end samples.
+pub fn linear(xs: &[f64], ys: &[f64], at: &[f64]) -> Vec<f64> {
+    held_ends(xs, ys, at, |k, t| ys[k] + t * (ys[k + 1] - ys[k]))
 }
 
 /// Fritsch–Carlson monotone cubic (PCHIP) slopes, with the usual one-sided end formula.
@@ -55,27 +60,16 @@ fn pchip_slopes(xs: &[f64], ys: &[f64]) -> Vec<f64> {
 
 /// PCHIP interpolation at every position; constant beyond the end samples.
 pub fn pchip(xs: &[f64], ys: &[f64], at: &[f64]) -> Vec<f64> {
-    let n = xs.len();
     let d = pchip_slopes(xs, ys);
-    at.iter()
-        .map(|&x| {
-            if x <= xs[0] {
-                return ys[0];
-            }
-            if x >= xs[n - 1] {
-                return ys[n - 1];
-            }
-            let k = xs.partition_point(|&v| v <= x).clamp(1, n - 1) - 1;
-            let h = xs[k + 1] - xs[k];
-            let t = (x - xs[k]) / h;
-            let (t2, t3) = (t * t, t * t * t);
-            let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
-            let h10 = t3 - 2.0 * t2 + t;
-            let h01 = -2.0 * t3 + 3.0 * t2;
-            let h11 = t3 - t2;
-            h00 * ys[k] + h10 * h * d[k] + h01 * ys[k + 1] + h11 * h * d[k + 1]
-        })
-        .collect()
+    held_ends(xs, ys, at, |k, t| {
+        let h = xs[k + 1] - xs[k];
+        let (t2, t3) = (t * t, t * t * t);
+        let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
+        let h10 = t3 - 2.0 * t2 + t;
+        let h01 = -2.0 * t3 + 3.0 * t2;
+        let h11 = t3 - t2;
+        h00 * ys[k] + h10 * h * d[k] + h01 * ys[k + 1] + h11 * h * d[k + 1]
+    })
 }
 
 #[cfg(test)]
