@@ -27,7 +27,10 @@ use std::path::Path;
 use toml::{Table, Value};
 
 /// A stage axis.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum AxisId {
     X,
     Y,

@@ -1,0 +1,213 @@
+//! The records a campaign produces, shared by the engine, the store, the reconstruction worker,
+//! the reports and the API. Positions in µm, times in s.
+use serde::{Deserialize, Serialize};
+
+pub use csmetro_hal::Direction;
+pub use csmetro_sim::model::AxisId;
+
+/// Which design a run belongs to: the compressive-sensing sample or the full reference scan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Phase {
+    /// The random (or jittered) sample that compressive sensing reconstructs from.
+    Cs,
+    /// Every grid point, the conventional scan the paper compares against.
+    Full,
+}
+
+impl Phase {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Phase::Cs => "cs",
+            Phase::Full => "full",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "cs" => Some(Phase::Cs),
+            "full" => Some(Phase::Full),
+            _ => None,
+        }
+    }
+}
+
+/// One run = one monotonic sweep of one axis in one direction: the unit a curve is made of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct RunKey {
+    pub phase: Phase,
+    pub axis: AxisId,
+    pub direction: Direction,
+    pub cycle: u32,
+}
+
+impl RunKey {
+    /// e.g. `cs-x-forward-0`.
+    pub fn label(&self) -> String {
+        format!(
+            "{}-{}-{}-{}",
+            self.phase.as_str(),
+            self.axis.as_str(),
+            self.direction.as_str(),
+            self.cycle
+        )
+    }
+    /// The two error components this run measures: (driving, coupling), e.g. (ef_xx, ef_xy).
+    pub fn components(&self) -> [Component; 2] {
+        [
+            Component {
+                moving: self.axis,
+                direction: self.direction,
+                measured: self.axis,
+            },
+            Component {
+                moving: self.axis,
+                direction: self.direction,
+                measured: self.axis.other(),
+            },
+        ]
+    }
+}
+
+/// One of the paper's eight error components: e{f|b}_{moving}{measured}, e.g. `eb_xy` = error
+/// along y while x moves backward. Error = measured - target (ISO 230-2 sign: P - Pt).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct Component {
+    pub moving: AxisId,
+    pub direction: Direction,
+    pub measured: AxisId,
+}
+
+impl Component {
+    /// `ef_xx`, `eb_xy`, ...
+    pub fn name(&self) -> String {
+        let d = match self.direction {
+            Direction::Forward => 'f',
+            Direction::Backward => 'b',
+        };
+        format!("e{d}_{}{}", self.moving.as_str(), self.measured.as_str())
+    }
+
+    /// The eight components in the paper's order.
+    pub fn all() -> Vec<Component> {
+        let mut v = Vec::with_capacity(8);
+        for moving in [AxisId::X, AxisId::Y] {
+            for direction in [Direction::Forward, Direction::Backward] {
+                for measured in [moving, moving.other()] {
+                    v.push(Component {
+                        moving,
+                        direction,
+                        measured,
+                    });
+                }
+            }
+        }
+        v
+    }
+
+    pub fn parse(s: &str) -> Option<Component> {
+        Component::all().into_iter().find(|c| c.name() == s)
+    }
+}
+
+/// A planned measurement. `seq` is its place in the campaign plan, unique within a campaign:
+/// the store keys samples by it, so a resumed campaign never measures a target twice.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Target {
+    pub seq: u64,
+    pub run: RunKey,
+    /// Index on the axis grid.
+    pub grid_index: usize,
+    pub target_x_um: f64,
+    pub target_y_um: f64,
+}
+
+impl Target {
+    /// Commanded position of the moving axis, µm.
+    pub fn target_um(&self) -> f64 {
+        match self.run.axis {
+            AxisId::X => self.target_x_um,
+            AxisId::Y => self.target_y_um,
+        }
+    }
+}
+
+/// One stored measurement: a decoded, accepted frame (or the mean of several) at a target.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SampleRecord {
+    pub target: Target,
+    /// Decoded stage position, µm (pattern frame, mean over the averaged frames).
+    pub meas_x_um: f64,
+    pub meas_y_um: f64,
+    pub theta_mrad: f64,
+    /// Position the controller reported (encoder), µm.
+    pub encoder_um: f64,
+    /// Physical time since the campaign started, s (the time axis of drift effects).
+    pub time_s: f64,
+    /// Wall-clock time the sample was taken, s since the Unix epoch.
+    pub unix_s: f64,
+    /// Decode quality: fraction of code bits agreeing with the window, worst frame.
+    pub quality: f64,
+    /// Frames averaged and frames rejected (retried) for this sample.
+    pub frames: u32,
+    pub rejected: u32,
+    /// Physical time this point took (move, settle, dwell, frames), s.
+    pub point_s: f64,
+}
+
+impl SampleRecord {
+    /// Error = measured - target along `measured`, µm.
+    pub fn error_um(&self, measured: AxisId) -> f64 {
+        match measured {
+            AxisId::X => self.meas_x_um - self.target.target_x_um,
+            AxisId::Y => self.meas_y_um - self.target.target_y_um,
+        }
+    }
+}
+
+/// Campaign lifecycle as stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CampaignState {
+    Queued,
+    Running,
+    Paused,
+    /// Stopped by a crash or a lost device; `resume` continues from the last stored sample.
+    Interrupted,
+    Aborted,
+    Failed,
+    Done,
+}
+
+impl CampaignState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CampaignState::Queued => "queued",
+            CampaignState::Running => "running",
+            CampaignState::Paused => "paused",
+            CampaignState::Interrupted => "interrupted",
+            CampaignState::Aborted => "aborted",
+            CampaignState::Failed => "failed",
+            CampaignState::Done => "done",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Self> {
+        [
+            CampaignState::Queued,
+            CampaignState::Running,
+            CampaignState::Paused,
+            CampaignState::Interrupted,
+            CampaignState::Aborted,
+            CampaignState::Failed,
+            CampaignState::Done,
+        ]
+        .into_iter()
+        .find(|c| c.as_str() == s)
+    }
+    /// Finished for good (no resume).
+    pub fn is_final(self) -> bool {
+        matches!(
+            self,
+            CampaignState::Aborted | CampaignState::Failed | CampaignState::Done
+        )
+    }
+}
