@@ -31,6 +31,10 @@ enum Command {
     Sim(cli::sim::Args),
     /// Sim-to-real gap diagnosis: where measured data leave the stage model, and which effect explains it.
     Gap(cli::gap::Args),
+    /// Run a campaign file in the foreground: acquisition, reconstruction, report.
+    Run(cli::run::Args),
+    /// Continue an interrupted campaign from its last stored sample.
+    Resume(cli::run::ResumeArgs),
 }
 
 fn main() -> ExitCode {
@@ -43,6 +47,8 @@ fn main() -> ExitCode {
         Command::Ppp(a) => cli::ppp::run(a),
         Command::Sim(a) => cli::sim::run(a),
         Command::Gap(a) => cli::gap::run(a),
+        Command::Run(a) => cli::run::run(a),
+        Command::Resume(a) => cli::run::resume(a),
     };
     cli::finish(result)
 }

@@ -1,5 +1,12 @@
 //! Campaigns: plans as data (a TOML file), the acquisition engine that runs them on any
 //! hardware behind the `csmetro-hal` traits, and the reconstruction worker.
+pub mod engine;
+pub mod plan;
+pub mod results;
+pub mod session;
+pub mod worker;
+pub mod rig;
+pub mod spec;
 pub mod types;
 
 pub use types::*;

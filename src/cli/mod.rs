@@ -7,6 +7,7 @@ pub mod gap;
 pub mod generate;
 pub mod ppp;
 pub mod reconstruct;
+pub mod run;
 pub mod sim;
 
 /// An error that ends a command: a one-line message and the process exit code.

@@ -135,10 +135,20 @@ pub enum CameraError {
     Other(String),
 }
 
+/// The rest of a triggered exposure: run it (on any thread) to get the frame.
+pub type PendingFrame = Box<dyn FnOnce() -> Result<Frame, CameraError> + Send>;
+
 /// A triggered area camera (software trigger: one `grab` = one new exposure).
 pub trait Camera: Send {
     /// Trigger one exposure and return its frame, waiting at most `timeout`.
     fn grab(&mut self, timeout: Duration) -> Result<Frame, CameraError>;
+    /// Trigger one exposure; returns once the exposure is taken (the stage may move on) with
+    /// the work still needed to deliver the frame. The default grabs the whole frame at once;
+    /// the simulated camera defers its rendering so that callers can overlap it with motion.
+    fn trigger(&mut self, timeout: Duration) -> Result<PendingFrame, CameraError> {
+        let frame = self.grab(timeout)?;
+        Ok(Box::new(move || Ok(frame)))
+    }
     /// Human-readable identity (vendor, model, serial).
     fn describe(&self) -> String;
 }

@@ -6,7 +6,7 @@
 //! stage really did, errors included.
 use std::time::{Duration, Instant};
 
-use csmetro_hal::{Camera, CameraError, Frame};
+use csmetro_hal::{Camera, CameraError, Frame, PendingFrame};
 use csmetro_ppp::render::render;
 use csmetro_ppp::{Optics, Pattern, Pose};
 
@@ -105,6 +105,31 @@ impl Camera for SimCamera {
         }
         frame.timestamp_s = timestamp_s;
         Ok(frame)
+    }
+
+    /// Samples the true position now and defers the rendering to the returned job.
+    fn trigger(&mut self, timeout: Duration) -> Result<PendingFrame, CameraError> {
+        let start = Instant::now();
+        let (x_um, y_um) = self.source.position_um();
+        if !(x_um.is_finite() && y_um.is_finite()) {
+            return Err(CameraError::Other(format!(
+                "position source gave ({x_um}, {y_um})"
+            )));
+        }
+        let timestamp_s = start.duration_since(self.t0).as_secs_f64();
+        let pose = Pose::new(x_um, y_um, self.theta_mrad);
+        let (pattern, optics) = (self.pattern.clone(), self.optics.clone());
+        let seed = self.seed.wrapping_add(self.frames);
+        self.frames += 1;
+        Ok(Box::new(move || {
+            let t = Instant::now();
+            let mut frame = render(&pattern, &optics, pose, seed);
+            if t.elapsed() > timeout {
+                return Err(CameraError::Timeout(timeout));
+            }
+            frame.timestamp_s = timestamp_s;
+            Ok(frame)
+        }))
     }
 
     fn describe(&self) -> String {

@@ -365,6 +365,13 @@ impl SimStage {
     /// model's deviation for the last moving axis and its approach direction. Noise is not
     /// included (the camera adds it).
     pub fn true_position_um(&self) -> (f64, f64) {
+        self.true_position_at_um(None)
+    }
+
+    /// As [`true_position_um`](Self::true_position_um), with the model's time-dependent
+    /// effects (drift) evaluated at `time_s` instead of the simulator clock: a campaign passes
+    /// its own physical time, which excludes the wall time the simulation itself spends.
+    pub fn true_position_at_um(&self, time_s: Option<f64>) -> (f64, f64) {
         let now = self.clock.now_s();
         // One lock for a consistent snapshot of both axes.
         let (x, y, moving, direction) = {
@@ -385,7 +392,7 @@ impl SimStage {
             direction,
             target_x_um: x,
             target_y_um: y,
-            time_s: now,
+            time_s: time_s.unwrap_or(now),
         });
         (x + d.x_um, y + d.y_um)
     }

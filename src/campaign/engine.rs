@@ -1,0 +1,491 @@
+//! The acquisition engine: reference the axes, then for each planned target move → on-target →
+//! settle → trigger → decode → a sample, committed at once and streamed to the reconstruction
+//! worker. Decoding (and the simulated camera's rendering) runs on blocking threads while the
+//! stage moves on; a rejected frame is re-measured later, re-approached from its run's
+//! direction, and never stored. Pause, resume and abort are checked between points; abort, an
+//! unrecoverable error and the end of the campaign stop motion.
+use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
+
+use csmetro_hal::{AxisError, CameraError, Frame, PendingFrame};
+use csmetro_ppp::Decoder;
+use serde::Serialize;
+use serde_json::json;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+use super::plan::{Batch, Plan};
+use super::rig::Rig;
+use super::spec::Campaign;
+use super::types::{AxisId, Phase, RunKey, SampleRecord, Target};
+
+/// What the operator (or the service) asks of a running campaign.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Control {
+    Run,
+    Pause,
+    Abort,
+}
+
+/// Where samples and events go: the store, the worker, the API. Called on the engine's task.
+pub trait Recorder: Send {
+    /// Commits one sample; `Ok(false)` when its target was stored already.
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String>;
+    fn event(&mut self, kind: &str, data: serde_json::Value);
+    /// A run (one sweep) has all its samples.
+    fn run_done(&mut self, run: RunKey);
+    /// Cross-validated error estimate of a CS run from the samples so far (adaptive mode).
+    fn cv_error_um(&mut self, run: RunKey) -> Option<f64>;
+}
+
+/// Time and counts of one (phase, axis).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct PhaseStats {
+    pub measurements: u64,
+    /// Physical acquisition time: moves, settling, dwell, frames, approaches, referencing, s.
+    pub acquisition_s: f64,
+    /// Wall time decoding frames, s.
+    pub decode_s: f64,
+    pub frames: u64,
+    pub rejected_frames: u64,
+    pub failed_points: u64,
+    /// Targets not measured because the adaptive mode met its error target.
+    pub saved_by_adaptive: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EndState {
+    Done,
+    Aborted,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Outcome {
+    pub end: EndState,
+    pub stats: BTreeMap<String, PhaseStats>,
+    pub wall_s: f64,
+}
+
+pub fn stats_key(phase: Phase, axis: AxisId) -> String {
+    format!("{}-{}", phase.as_str(), axis.as_str())
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum EngineError {
+    #[error("axis {axis}: {source}")]
+    Axis { axis: AxisId, source: AxisError },
+    #[error("camera: {0}")]
+    Camera(#[from] CameraError),
+    #[error("storage: {0}")]
+    Store(String),
+    #[error("{0}")]
+    Other(String),
+}
+
+fn ax(axis: AxisId) -> impl FnOnce(AxisError) -> EngineError {
+    move |source| EngineError::Axis { axis, source }
+}
+
+/// A frame set in flight: the target, when it was taken, and its decode job.
+struct InFlight {
+    target: Target,
+    encoder_um: f64,
+    time_s: f64,
+    unix_s: f64,
+    point_s: f64,
+    job: JoinHandle<Decoded>,
+}
+
+struct Decoded {
+    ok: Option<(f64, f64, f64, f64)>,
+    reason: Option<String>,
+    frames: u32,
+    wall_s: f64,
+}
+
+fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0)
+}
+
+/// Decodes and averages the frames of one point; any rejected frame rejects the point.
+fn decode_all(decoder: &Decoder, jobs: Vec<PendingFrame>) -> Decoded {
+    // Decoding only: a simulated camera's rendering is not processing.
+    let mut wall = 0.0;
+    let n = jobs.len() as u32;
+    let (mut sx, mut sy, mut st, mut q) = (0.0, 0.0, 0.0, f64::INFINITY);
+    for job in jobs {
+        let frame: Frame = match job() {
+            Ok(f) => f,
+            Err(e) => {
+                return Decoded {
+                    ok: None,
+                    reason: Some(format!("camera: {e}")),
+                    frames: n,
+                    wall_s: wall,
+                }
+            }
+        };
+        let t = Instant::now();
+        let r = decoder.decode(&frame);
+        wall += t.elapsed().as_secs_f64();
+        if !r.ok {
+            return Decoded {
+                ok: None,
+                reason: r.reason.or(Some("rejected".into())),
+                frames: n,
+                wall_s: wall,
+            };
+        }
+        sx += r.x_um;
+        sy += r.y_um;
+        st += r.theta_mrad;
+        let bits = (r.quality.bits_x + r.quality.bits_y).max(1) as f64;
+        let agree = 1.0 - (r.quality.bit_errors_x + r.quality.bit_errors_y) as f64 / bits;
+        q = q.min(agree);
+    }
+    let k = n as f64;
+    Decoded {
+        ok: Some((sx / k, sy / k, st / k, q)),
+        reason: None,
+        frames: n,
+        wall_s: wall,
+    }
+}
+
+pub struct Engine<'a> {
+    pub campaign: &'a Campaign,
+    pub rig: &'a mut Rig,
+    pub recorder: &'a mut dyn Recorder,
+    pub control: watch::Receiver<Control>,
+    /// Targets stored by an earlier attempt (resume): skipped, never measured twice.
+    pub done: BTreeMap<u64, SampleRecord>,
+    /// Physical time already spent by earlier attempts, s.
+    pub start_time_s: f64,
+    stats: BTreeMap<String, PhaseStats>,
+    /// Decode jobs in flight at most (2 cores: keep both busy while the stage moves).
+    pub depth: usize,
+}
+
+impl<'a> Engine<'a> {
+    pub fn new(
+        campaign: &'a Campaign,
+        rig: &'a mut Rig,
+        recorder: &'a mut dyn Recorder,
+        control: watch::Receiver<Control>,
+        done: BTreeMap<u64, SampleRecord>,
+    ) -> Self {
+        let start_time_s = done.values().map(|s| s.time_s + s.point_s).fold(0.0, f64::max);
+        Self {
+            campaign,
+            rig,
+            recorder,
+            control,
+            done,
+            start_time_s,
+            stats: BTreeMap::new(),
+            depth: std::thread::available_parallelism().map_or(2, |n| n.get()).clamp(2, 8),
+        }
+    }
+
+    fn stat(&mut self, run: RunKey) -> &mut PhaseStats {
+        self.stats.entry(stats_key(run.phase, run.axis)).or_default()
+    }
+
+    fn advance(&mut self, run: RunKey, physical_s: f64) {
+        self.stat(run).acquisition_s += physical_s;
+        let t = self.rig.clock.get() + physical_s;
+        self.rig.clock.set(t);
+    }
+
+    /// Runs the plan; on error or abort the axes are stopped before returning.
+    pub async fn run(&mut self, plan: &Plan) -> Result<Outcome, EngineError> {
+        let t0 = Instant::now();
+        self.rig.clock.set(self.start_time_s);
+        let r = self.run_inner(plan).await;
+        if !matches!(r, Ok(EndState::Done)) {
+            self.rig.stop_all().await;
+        }
+        let end = r?;
+        Ok(Outcome {
+            end,
+            stats: self.stats.clone(),
+            wall_s: t0.elapsed().as_secs_f64(),
+        })
+    }
+
+    async fn run_inner(&mut self, plan: &Plan) -> Result<EndState, EngineError> {
+        // Earlier samples first, so the worker reconstructs from everything.
+        for s in self.done.values() {
+            let _ = self.recorder.sample(s);
+        }
+        let timeout = Duration::from_secs_f64(self.campaign.spec.hardware.reference_timeout_s);
+        for a in [AxisId::X, AxisId::Y] {
+            let info = self.rig.axis(a).identify().await.map_err(ax(a))?;
+            self.recorder.event(
+                "axis",
+                json!({"axis": a.as_str(), "idn": info.idn, "stage": info.stage, "travel_um": [info.travel_um.0, info.travel_um.1]}),
+            );
+            let t = Instant::now();
+            self.rig.axis(a).reference(timeout).await.map_err(ax(a))?;
+            let phys = self.rig.time.physical_since(t);
+            let t = self.rig.clock.get() + phys;
+            self.rig.clock.set(t);
+            self.recorder.event("referenced", json!({"axis": a.as_str(), "physical_s": phys}));
+        }
+        let runs = plan.runs();
+        for run in runs {
+            if self.control_point().await == Control::Abort {
+                return Ok(EndState::Aborted);
+            }
+            let batches: Vec<Batch> = plan.run_batches(run).cloned().collect();
+            let todo = batches
+                .iter()
+                .flat_map(|b| &b.targets)
+                .filter(|t| !self.done.contains_key(&t.seq))
+                .count();
+            self.recorder.event(
+                "run_start",
+                json!({"run": run.label(), "targets": batches.iter().map(|b| b.targets.len()).sum::<usize>(), "to_measure": todo}),
+            );
+            let mut stopped = false;
+            for (bi, b) in batches.iter().enumerate() {
+                if stopped {
+                    let n = b.targets.len() as u64;
+                    self.stat(run).saved_by_adaptive += n;
+                    continue;
+                }
+                if self.batch(b).await? == Control::Abort {
+                    return Ok(EndState::Aborted);
+                }
+                if let (Some(goal), true) = (b.target_error_um, bi + 1 < batches.len()) {
+                    let cv = self.recorder.cv_error_um(run);
+                    let stop = cv.is_some_and(|e| e <= goal);
+                    self.recorder.event(
+                        "adaptive",
+                        json!({"run": run.label(), "batch": bi, "cv_error_um": cv, "target_error_um": goal, "stop": stop}),
+                    );
+                    stopped = stop;
+                }
+            }
+            self.recorder.run_done(run);
+            self.recorder.event("run_done", json!({"run": run.label()}));
+        }
+        self.rig.stop_all().await;
+        Ok(EndState::Done)
+    }
+
+    /// Waits while paused; returns Run or Abort.
+    async fn control_point(&mut self) -> Control {
+        loop {
+            let c = *self.control.borrow_and_update();
+            match c {
+                Control::Run | Control::Abort => return c,
+                Control::Pause => {
+                    self.recorder.event("paused", json!({}));
+                    if self.control.changed().await.is_err() {
+                        return Control::Abort;
+                    }
+                    if *self.control.borrow() == Control::Run {
+                        self.recorder.event("resumed", json!({}));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Moves `axis` to `target_um` and waits for on-target; returns the physical time taken.
+    async fn move_axis(&mut self, axis: AxisId, target_um: f64) -> Result<f64, EngineError> {
+        let timeout = Duration::from_secs_f64(self.campaign.spec.hardware.move_timeout_s);
+        let t = Instant::now();
+        let a = self.rig.axis(axis);
+        let from = a.position_um().await.map_err(ax(axis))?;
+        a.move_to(target_um).await.map_err(ax(axis))?;
+        a.wait_on_target(timeout).await.map_err(ax(axis))?;
+        Ok(self.rig.motion_s(axis, (target_um - from).abs(), t))
+    }
+
+    /// Puts the stage where a sweep to `first` in `direction` approaches it from the right side.
+    async fn approach(&mut self, run: RunKey, first: &Target) -> Result<(), EngineError> {
+        let other = run.axis.other();
+        let other_at = match other {
+            AxisId::X => first.target_x_um,
+            AxisId::Y => first.target_y_um,
+        };
+        let pre = self.campaign.spec.acquisition.approach_um;
+        let (lo, hi) = self.rig.axis(run.axis).soft_limits_um();
+        let start = (first.target_um() - run.direction.sign() * pre).clamp(lo, hi);
+        let mut phys = 0.0;
+        // The other axis stands still during a run: put it in place first.
+        phys += self.move_axis(other, other_at).await?;
+        phys += self.move_axis(run.axis, start).await?;
+        self.advance(run, phys);
+        Ok(())
+    }
+
+    async fn trigger(&mut self, frames: u32) -> Result<Vec<PendingFrame>, EngineError> {
+        let mut cam = self
+            .rig
+            .camera
+            .take()
+            .ok_or_else(|| EngineError::Other("camera lost".into()))?;
+        let timeout = Duration::from_secs(5);
+        // A real camera blocks for its exposure: keep the runtime's threads free.
+        let (cam, jobs) = tokio::task::spawn_blocking(move || {
+            let mut jobs = Vec::new();
+            for _ in 0..frames {
+                match cam.trigger(timeout) {
+                    Ok(j) => jobs.push(j),
+                    Err(e) => return (cam, Err(e)),
+                }
+            }
+            (cam, Ok(jobs))
+        })
+        .await
+        .map_err(|e| EngineError::Other(format!("camera task: {e}")))?;
+        self.rig.camera = Some(cam);
+        Ok(jobs?)
+    }
+
+    /// Measures at one target: move, settle, trigger; returns the decode job in flight.
+    async fn measure(&mut self, t: &Target) -> Result<InFlight, EngineError> {
+        let acq = &self.campaign.spec.acquisition;
+        let (settle, dwell, frames) = (acq.settle_s, acq.dwell_s, acq.frames_per_point);
+        let move_s = self.move_axis(t.run.axis, t.target_um()).await?;
+        let wait = settle + dwell;
+        tokio::time::sleep(self.rig.time.wall(wait)).await;
+        let encoder_um = self.rig.axis(t.run.axis).position_um().await.map_err(ax(t.run.axis))?;
+        let time_s = self.rig.clock.get() + move_s + wait;
+        self.rig.clock.set(time_s);
+        let trig = Instant::now();
+        let jobs = self.trigger(frames).await?;
+        let frame_s = match self.rig.frame_time_s {
+            Some(f) => f * frames as f64,
+            None => self.rig.time.physical_since(trig),
+        };
+        let point_s = move_s + wait + frame_s;
+        self.advance(t.run, frame_s);
+        self.stat(t.run).acquisition_s += move_s + wait;
+        let decoder = self.rig.decoder.clone();
+        let job = tokio::task::spawn_blocking(move || decode_all(&decoder, jobs));
+        Ok(InFlight {
+            target: *t,
+            encoder_um,
+            time_s,
+            unix_s: unix_now(),
+            point_s,
+            job,
+        })
+    }
+
+    /// Finishes a point: a stored sample, or the target back for a retry.
+    async fn land(&mut self, f: InFlight, rejected_before: u32) -> Result<Option<Target>, EngineError> {
+        let d = f.job.await.map_err(|e| EngineError::Other(format!("decode task: {e}")))?;
+        let run = f.target.run;
+        {
+            let st = self.stat(run);
+            st.decode_s += d.wall_s;
+            st.frames += d.frames as u64;
+        }
+        match d.ok {
+            Some((x, y, theta, quality)) => {
+                let rec = SampleRecord {
+                    target: f.target,
+                    meas_x_um: x,
+                    meas_y_um: y,
+                    theta_mrad: theta,
+                    encoder_um: f.encoder_um,
+                    time_s: f.time_s,
+                    unix_s: f.unix_s,
+                    quality,
+                    frames: d.frames,
+                    rejected: rejected_before,
+                    point_s: f.point_s,
+                };
+                let fresh = self.recorder.sample(&rec).map_err(EngineError::Store)?;
+                if fresh {
+                    self.stat(run).measurements += 1;
+                }
+                self.done.insert(rec.target.seq, rec);
+                Ok(None)
+            }
+            None => {
+                self.stat(run).rejected_frames += 1;
+                self.recorder.event(
+                    "frame_rejected",
+                    json!({"seq": f.target.seq, "target_um": f.target.target_um(), "reason": d.reason}),
+                );
+                Ok(Some(f.target))
+            }
+        }
+    }
+
+    /// One sweep: pipelined over the targets, then bounded retries of rejected frames.
+    async fn batch(&mut self, b: &Batch) -> Result<Control, EngineError> {
+        let todo: Vec<Target> = b
+            .targets
+            .iter()
+            .filter(|t| !self.done.contains_key(&t.seq))
+            .copied()
+            .collect();
+        if todo.is_empty() {
+            return Ok(Control::Run);
+        }
+        self.approach(b.run, &todo[0]).await?;
+        let mut flight: VecDeque<InFlight> = VecDeque::new();
+        let mut retry: Vec<Target> = Vec::new();
+        let mut aborted = false;
+        for t in &todo {
+            let c = *self.control.borrow();
+            if c != Control::Run {
+                // Land what is in flight before pausing or stopping.
+                while let Some(f) = flight.pop_front() {
+                    retry.extend(self.land(f, 0).await?);
+                }
+                if self.control_point().await == Control::Abort {
+                    aborted = true;
+                    break;
+                }
+                // Resumed: approach again from the run's side.
+                self.approach(b.run, t).await?;
+            }
+            let f = self.measure(t).await?;
+            flight.push_back(f);
+            if flight.len() >= self.depth {
+                let f = flight.pop_front().expect("non-empty");
+                retry.extend(self.land(f, 0).await?);
+            }
+        }
+        while let Some(f) = flight.pop_front() {
+            retry.extend(self.land(f, 0).await?);
+        }
+        if aborted {
+            return Ok(Control::Abort);
+        }
+        // Rejected frames: re-approach each target from the run's side, measure again.
+        let max = self.campaign.spec.acquisition.max_retries;
+        for t in retry {
+            let mut attempt = 1;
+            loop {
+                if attempt > max {
+                    self.stat(b.run).failed_points += 1;
+                    self.recorder.event(
+                        "point_failed",
+                        json!({"seq": t.seq, "target_um": t.target_um(), "attempts": attempt}),
+                    );
+                    break;
+                }
+                self.approach(b.run, &t).await?;
+                let f = self.measure(&t).await?;
+                if self.land(f, attempt).await?.is_none() {
+                    break;
+                }
+                attempt += 1;
+            }
+        }
+        Ok(Control::Run)
+    }
+}

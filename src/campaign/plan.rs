@@ -1,0 +1,242 @@
+//! A campaign expanded into its ordered measurements: plans as data. The plan is a pure
+//! function of the campaign file, so a resumed campaign regenerates the same plan and skips the
+//! targets already stored.
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::spec::{AxisPlan, Campaign};
+use super::types::{AxisId, Direction, Phase, RunKey, Target};
+use crate::sampling::{Design, DesignKind};
+
+/// A monotonic sweep of one run: approached from its direction, targets in visiting order.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    pub run: RunKey,
+    /// Batch number within the run (adaptive runs have several).
+    pub index: usize,
+    pub targets: Vec<Target>,
+    /// Adaptive: after this batch, stop the run once the CV error estimate is at most this.
+    pub target_error_um: Option<f64>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Plan {
+    pub batches: Vec<Batch>,
+}
+
+impl Plan {
+    pub fn total(&self) -> usize {
+        self.batches.iter().map(|b| b.targets.len()).sum()
+    }
+
+    /// Batches of one run, in order.
+    pub fn run_batches(&self, run: RunKey) -> impl Iterator<Item = &Batch> {
+        self.batches.iter().filter(move |b| b.run == run)
+    }
+
+    pub fn runs(&self) -> Vec<RunKey> {
+        let mut v: Vec<RunKey> = Vec::new();
+        for b in &self.batches {
+            if v.last() != Some(&b.run) {
+                v.push(b.run);
+            }
+        }
+        v
+    }
+}
+
+/// Seed of an axis's design: the same targets for every cycle and both directions, so that
+/// repeated approaches give ISO 230-2 repeatability and reversal at the same targets.
+fn axis_seed(seed: u64, axis: AxisId) -> u64 {
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(match axis {
+            AxisId::X => 1,
+            AxisId::Y => 2,
+        })
+}
+
+/// Expands a validated campaign.
+pub fn plan(c: &Campaign) -> Plan {
+    let s = &c.spec.sampling;
+    let a = &c.spec.acquisition;
+    let mut batches = Vec::new();
+    let mut seq = 0u64;
+    let mut phases = vec![Phase::Cs];
+    if s.design == DesignKind::Full {
+        phases = vec![Phase::Full];
+    } else if s.full_scan {
+        phases.push(Phase::Full);
+    }
+    for ax in &c.axes {
+        let n = ax.grid.n;
+        for &phase in &phases {
+            let (idx, chunks): (Vec<usize>, Vec<usize>) = match phase {
+                Phase::Full => ((0..n).collect(), vec![n]),
+                Phase::Cs => cs_design(ax, s.design, s.seed, s.batch),
+            };
+            for cycle in 0..a.cycles {
+                for &direction in &a.directions {
+                    let run = RunKey {
+                        phase,
+                        axis: ax.axis,
+                        direction,
+                        cycle,
+                    };
+                    let mut start = 0;
+                    for (bi, &len) in chunks.iter().enumerate() {
+                        let mut chunk: Vec<usize> = idx[start..start + len].to_vec();
+                        start += len;
+                        chunk.sort_unstable();
+                        if direction == Direction::Backward {
+                            chunk.reverse();
+                        }
+                        let targets = chunk
+                            .into_iter()
+                            .map(|i| {
+                                let p = ax.grid.position(i);
+                                let (tx, ty) = match ax.axis {
+                                    AxisId::X => (p, ax.other_at_um),
+                                    AxisId::Y => (ax.other_at_um, p),
+                                };
+                                let t = Target {
+                                    seq,
+                                    run,
+                                    grid_index: i,
+                                    target_x_um: tx,
+                                    target_y_um: ty,
+                                };
+                                seq += 1;
+                                t
+                            })
+                            .collect();
+                        batches.push(Batch {
+                            run,
+                            index: bi,
+                            targets,
+                            target_error_um: if phase == Phase::Cs {
+                                ax.target_error_um
+                            } else {
+                                None
+                            },
+                        });
+                    }
+                }
+            }
+        }
+    }
+    Plan { batches }
+}
+
+/// CS targets of an axis in measuring order and the batch sizes: one batch of m, or for
+/// adaptive runs the design's points in a seeded random order cut into batches.
+fn cs_design(ax: &AxisPlan, kind: DesignKind, seed: u64, batch: usize) -> (Vec<usize>, Vec<usize>) {
+    let n = ax.grid.n;
+    let seed = axis_seed(seed, ax.axis);
+    let idx = Design::new(kind, ax.m, seed)
+        .indices(n)
+        .expect("m validated against the grid");
+    match ax.target_error_um {
+        None => {
+            let m = idx.len();
+            (idx, vec![m])
+        }
+        Some(_) => {
+            let mut idx = idx;
+            idx.shuffle(&mut ChaCha8Rng::seed_from_u64(seed ^ 0xADA9));
+            let m = idx.len();
+            let mut chunks = Vec::new();
+            let mut left = m;
+            while left > 0 {
+                let take = batch.min(left);
+                chunks.push(take);
+                left -= take;
+            }
+            (idx, chunks)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn campaign(extra: &str) -> Campaign {
+        let t = format!(
+            r#"
+[campaign]
+name = "p"
+[hardware]
+kind = "sim"
+[axes.x]
+range_um = [0.0, 1000.0]
+step_um = 5.0
+other_at_um = 100.0
+[axes.y]
+range_um = [0.0, 500.0]
+step_um = 5.0
+other_at_um = 200.0
+m = 20
+{extra}
+"#
+        );
+        Campaign::parse(&t, "p.toml", Path::new(".")).unwrap()
+    }
+
+    #[test]
+    fn runs_are_sorted_sweeps_with_unique_seqs_and_shared_targets() {
+        let c = campaign("[sampling]\nm = 40\nfull_scan = true\n[acquisition]\ncycles = 2\n");
+        let p = plan(&c);
+        // x: cs (2 cycles x 2 dirs) + full (2 x 2); y the same.
+        assert_eq!(p.runs().len(), 16);
+        assert_eq!(p.total(), 2 * 2 * (40 + 201) + 2 * 2 * (20 + 101));
+        let seqs: Vec<u64> = p.batches.iter().flat_map(|b| b.targets.iter().map(|t| t.seq)).collect();
+        assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1) && seqs[0] == 0);
+        for b in &p.batches {
+            let pos: Vec<f64> = b.targets.iter().map(|t| t.target_um()).collect();
+            match b.run.direction {
+                Direction::Forward => assert!(pos.windows(2).all(|w| w[0] < w[1])),
+                Direction::Backward => assert!(pos.windows(2).all(|w| w[0] > w[1])),
+            }
+            let other = if b.run.axis == AxisId::X { 100.0 } else { 200.0 };
+            assert!(b.targets.iter().all(|t| match b.run.axis {
+                AxisId::X => t.target_y_um == other,
+                AxisId::Y => t.target_x_um == other,
+            }));
+        }
+        // Same CS targets for both directions and both cycles of an axis.
+        let set = |d: Direction, cycle: u32| {
+            let mut v: Vec<usize> = p
+                .batches
+                .iter()
+                .filter(|b| b.run.axis == AxisId::X && b.run.phase == Phase::Cs && b.run.direction == d && b.run.cycle == cycle)
+                .flat_map(|b| b.targets.iter().map(|t| t.grid_index))
+                .collect();
+            v.sort_unstable();
+            v
+        };
+        assert_eq!(set(Direction::Forward, 0), set(Direction::Backward, 1));
+        assert_eq!(set(Direction::Forward, 0).len(), 40);
+        // Same file, same plan.
+        let q = plan(&campaign("[sampling]\nm = 40\nfull_scan = true\n[acquisition]\ncycles = 2\n"));
+        assert_eq!(format!("{:?}", p.batches), format!("{:?}", q.batches));
+    }
+
+    #[test]
+    fn adaptive_runs_come_in_batches_of_distinct_targets() {
+        let c = campaign("[sampling]\nm = 120\nbatch = 50\ntarget_error_um = 0.05\n");
+        let p = plan(&c);
+        let x_fwd: Vec<&Batch> = p
+            .batches
+            .iter()
+            .filter(|b| b.run.axis == AxisId::X && b.run.direction == Direction::Forward)
+            .collect();
+        assert_eq!(x_fwd.iter().map(|b| b.targets.len()).collect::<Vec<_>>(), vec![50, 50, 20]);
+        let mut all: Vec<usize> = x_fwd.iter().flat_map(|b| b.targets.iter().map(|t| t.grid_index)).collect();
+        all.sort_unstable();
+        all.dedup();
+        assert_eq!(all.len(), 120);
+        assert!(x_fwd.iter().all(|b| b.target_error_um == Some(0.05)));
+    }
+}

@@ -1,0 +1,267 @@
+//! Results of a finished campaign: curves, the JSON summary (the paper's Table III as a
+//! report: measurements, physical acquisition time, processing time, recovery error), the
+//! summary table `csmetro run` prints, and the files written to the output directory.
+use std::path::PathBuf;
+
+use serde_json::{json, Value};
+
+use super::engine::Outcome;
+use super::session::{stat, TruthSource};
+use super::spec::Campaign;
+use super::types::{AxisId, Component, Phase, SampleRecord};
+use super::worker::Curve;
+
+pub struct Report {
+    pub summary: Value,
+    pub table: String,
+    /// (file name, content type, bytes)
+    pub files: Vec<(String, String, Vec<u8>)>,
+}
+
+pub fn out_dir(c: &Campaign, id: i64) -> PathBuf {
+    PathBuf::from(
+        c.spec
+            .outputs
+            .dir
+            .replace("{id}", &id.to_string())
+            .replace("{name}", &c.spec.campaign.name),
+    )
+}
+
+/// mean |a - b|, max |a - b|, std of (a - b), µm.
+pub fn diff_stats(a: &[f64], b: &[f64]) -> Value {
+    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+    let n = d.len().max(1) as f64;
+    let mean_abs = d.iter().map(|v| v.abs()).sum::<f64>() / n;
+    let max_abs = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let mean = d.iter().sum::<f64>() / n;
+    let std = (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    json!({"mean_abs_um": mean_abs, "max_abs_um": max_abs, "std_um": std})
+}
+
+fn hms(s: f64) -> String {
+    let t = s.round() as u64;
+    format!("{}:{:02}:{:02}", t / 3600, (t / 60) % 60, t % 60)
+}
+
+pub fn build(
+    c: &Campaign,
+    id: i64,
+    outcome: &Outcome,
+    curves: &[Curve],
+    samples: &[SampleRecord],
+    truth: &TruthSource,
+) -> Report {
+    let mut files = Vec::new();
+    let mut axes_json = Vec::new();
+    let mut table = String::new();
+    table.push_str(&format!(
+        "{:<6} {:<10} {:>7} {:>12} {:>11} {:>12} {:>13} {:>13}\n",
+        "axis", "method", "meas.", "acquisition", "processing", "saved", "err vs full", "err vs truth"
+    ));
+    table.push_str(&format!(
+        "{:<6} {:<10} {:>7} {:>12} {:>11} {:>12} {:>13} {:>13}\n",
+        "", "", "", "h:mm:ss", "s", "acq. %", "mean/max µm", "mean/max µm"
+    ));
+    let mut tot = [[0.0f64; 3]; 2]; // [phase][meas, acq_s, proc_s]
+    for ax in &c.axes {
+        let a = ax.axis;
+        let mut comps = Vec::new();
+        let mut proc_s = [0.0f64; 2];
+        let curve = |phase: Phase, comp: &Component, cycle: u32| {
+            curves.iter().find(|k| {
+                k.run.phase == phase && k.component == *comp && k.run.cycle == cycle
+            })
+        };
+        for k in curves.iter().filter(|k| k.run.axis == a) {
+            proc_s[(k.run.phase == Phase::Full) as usize] += k.solve_ms / 1000.0;
+        }
+        for comp in Component::all().into_iter().filter(|k| k.moving == a) {
+            let cs = curve(Phase::Cs, &comp, 0);
+            let full = curve(Phase::Full, &comp, 0);
+            let Some(main) = cs.or(full) else { continue };
+            let t = truth.curve(main, ax.other_at_um);
+            let mut j = json!({"component": comp.name()});
+            if let Some(k) = cs {
+                j["cs"] = json!({"method": k.method, "m": k.samples.len(), "cv_error_um": k.cv_error_um, "solve_ms": k.solve_ms});
+                if let Some(f) = full {
+                    j["cs_vs_full"] = diff_stats(&k.values_um, &f.values_um);
+                }
+                if let Some(t) = &t {
+                    j["cs_vs_truth"] = diff_stats(&k.values_um, t);
+                }
+            }
+            if let (Some(f), Some(t)) = (full, &t) {
+                j["full_vs_truth"] = diff_stats(&f.values_um, t);
+            }
+            comps.push(j);
+            // Curve file with every available column.
+            let mut csv = String::from("position_um");
+            let mut cols: Vec<&[f64]> = Vec::new();
+            if let Some(k) = cs {
+                csv.push_str(",cs_um");
+                cols.push(&k.values_um);
+            }
+            if let Some(f) = full {
+                csv.push_str(",full_scan_um");
+                cols.push(&f.values_um);
+            }
+            if let Some(t) = &t {
+                csv.push_str(",truth_um");
+                cols.push(t);
+            }
+            csv.push('\n');
+            for (i, p) in main.positions_um.iter().enumerate() {
+                csv.push_str(&p.to_string());
+                for col in &cols {
+                    csv.push_str(&format!(",{:.6}", col[i]));
+                }
+                csv.push('\n');
+            }
+            files.push((format!("{}.csv", comp.name()), "text/csv".into(), csv.into_bytes()));
+        }
+        let full_st = stat(outcome, Phase::Full, a);
+        let cs_st = stat(outcome, Phase::Cs, a);
+        let mut phase_json = serde_json::Map::new();
+        for (pi, (phase, st)) in [(Phase::Cs, &cs_st), (Phase::Full, &full_st)].into_iter().enumerate() {
+            if st.measurements == 0 && st.acquisition_s == 0.0 {
+                continue;
+            }
+            let processing = st.decode_s + proc_s[pi];
+            tot[pi][0] += st.measurements as f64;
+            tot[pi][1] += st.acquisition_s;
+            tot[pi][2] += processing;
+            phase_json.insert(
+                phase.as_str().into(),
+                json!({"measurements": st.measurements, "acquisition_s": st.acquisition_s, "processing_s": processing,
+                       "decode_s": st.decode_s, "reconstruction_s": proc_s[pi], "frames": st.frames,
+                       "rejected_frames": st.rejected_frames, "failed_points": st.failed_points,
+                       "saved_by_adaptive": st.saved_by_adaptive}),
+            );
+        }
+        let saved = (full_st.acquisition_s > 0.0 && cs_st.acquisition_s > 0.0)
+            .then(|| 100.0 * (1.0 - cs_st.acquisition_s / full_st.acquisition_s));
+        let drive = |key: &str| -> String {
+            comps
+                .iter()
+                .find(|j| j["component"].as_str().is_some_and(|n| n.ends_with(&format!("_{a}{a}"))) && j.get(key).is_some())
+                .map(|j| {
+                    format!(
+                        "{:.3}/{:.3}",
+                        j[key]["mean_abs_um"].as_f64().unwrap_or(f64::NAN),
+                        j[key]["max_abs_um"].as_f64().unwrap_or(f64::NAN)
+                    )
+                })
+                .unwrap_or_else(|| "-".into())
+        };
+        let method = comps
+            .iter()
+            .find_map(|j| j["cs"]["method"].as_str().map(str::to_string))
+            .unwrap_or_else(|| "-".into());
+        if full_st.measurements > 0 {
+            table.push_str(&format!(
+                "{:<6} {:<10} {:>7} {:>12} {:>11.2} {:>12} {:>13} {:>13}\n",
+                a.as_str().to_uppercase(),
+                "full scan",
+                full_st.measurements,
+                hms(full_st.acquisition_s),
+                full_st.decode_s + proc_s[1],
+                "",
+                "",
+                drive_truth_full(&comps, a)
+            ));
+        }
+        if cs_st.measurements > 0 {
+            table.push_str(&format!(
+                "{:<6} {:<10} {:>7} {:>12} {:>11.2} {:>12} {:>13} {:>13}\n",
+                a.as_str().to_uppercase(),
+                format!("CS {method}"),
+                cs_st.measurements,
+                hms(cs_st.acquisition_s),
+                cs_st.decode_s + proc_s[0],
+                saved.map_or("-".into(), |s| format!("{s:.2}")),
+                drive("cs_vs_full"),
+                drive("cs_vs_truth"),
+            ));
+        }
+        axes_json.push(json!({"axis": a.as_str(), "grid_points": ax.grid.n, "phases": phase_json,
+                              "acquisition_saved_pct": saved, "components": comps}));
+    }
+    let total_saved = (tot[1][1] > 0.0 && tot[0][1] > 0.0).then(|| 100.0 * (1.0 - tot[0][1] / tot[1][1]));
+    let total_saved_all = (tot[1][1] > 0.0 && tot[0][1] > 0.0)
+        .then(|| 100.0 * (1.0 - (tot[0][1] + tot[0][2]) / (tot[1][1] + tot[1][2])));
+    if let Some(s) = total_saved {
+        table.push_str(&format!(
+            "total: CS {} measurements in {} vs full scan {} in {}: acquisition time saved {s:.2} %\n",
+            tot[0][0],
+            hms(tot[0][1]),
+            tot[1][0],
+            hms(tot[1][1])
+        ));
+    }
+    let summary = json!({
+        "id": id,
+        "name": c.spec.campaign.name,
+        "state": format!("{:?}", outcome.end).to_lowercase(),
+        "wall_s": outcome.wall_s,
+        "samples": samples.len(),
+        "axes": axes_json,
+        "total": {
+            "cs": {"measurements": tot[0][0], "acquisition_s": tot[0][1], "processing_s": tot[0][2]},
+            "full": {"measurements": tot[1][0], "acquisition_s": tot[1][1], "processing_s": tot[1][2]},
+            "acquisition_saved_pct": total_saved,
+            "acquisition_and_processing_saved_pct": total_saved_all,
+        },
+        "units": {"position": "µm", "error": "µm (measured - target)", "time": "s"},
+    });
+    files.push((
+        "summary.json".into(),
+        "application/json".into(),
+        serde_json::to_vec_pretty(&summary).unwrap_or_default(),
+    ));
+    files.push(("summary.txt".into(), "text/plain".into(), table.clone().into_bytes()));
+    let mut sc = String::from(
+        "seq,phase,axis,direction,cycle,target_x_um,target_y_um,meas_x_um,meas_y_um,theta_mrad,encoder_um,time_s,quality,frames,rejected\n",
+    );
+    for s in samples {
+        let t = &s.target;
+        sc.push_str(&format!(
+            "{},{},{},{},{},{},{},{:.6},{:.6},{:.5},{:.6},{:.3},{:.4},{},{}\n",
+            t.seq,
+            t.run.phase.as_str(),
+            t.run.axis.as_str(),
+            t.run.direction.as_str(),
+            t.run.cycle,
+            t.target_x_um,
+            t.target_y_um,
+            s.meas_x_um,
+            s.meas_y_um,
+            s.theta_mrad,
+            s.encoder_um,
+            s.time_s,
+            s.quality,
+            s.frames,
+            s.rejected
+        ));
+    }
+    files.push(("samples.csv".into(), "text/csv".into(), sc.into_bytes()));
+    Report {
+        summary,
+        table,
+        files,
+    }
+}
+
+fn drive_truth_full(comps: &[Value], a: AxisId) -> String {
+    comps
+        .iter()
+        .find(|j| j["component"].as_str().is_some_and(|n| n.ends_with(&format!("_{a}{a}"))) && j.get("full_vs_truth").is_some())
+        .map(|j| {
+            format!(
+                "{:.3}/{:.3}",
+                j["full_vs_truth"]["mean_abs_um"].as_f64().unwrap_or(f64::NAN),
+                j["full_vs_truth"]["max_abs_um"].as_f64().unwrap_or(f64::NAN)
+            )
+        })
+        .unwrap_or_else(|| "-".into())
+}

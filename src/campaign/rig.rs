@@ -1,0 +1,288 @@
+//! The devices a campaign runs on, behind the `csmetro-hal` traits: two axes, a camera and a
+//! clock. `sim` builds simulated C-863s (served over a pty or TCP and driven by the same GCS
+//! driver as real ones) and a simulated camera looking at the simulated stage.
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use csmetro_gcs::{C863Config, C863};
+use csmetro_hal::{Axis, AxisError, Camera};
+use csmetro_ppp::{DecodeConfig, Decoder, Pattern};
+use csmetro_sim::camera::SimCamera;
+use csmetro_sim::controller::{ControllerConfig, Endpoint, SimController};
+use csmetro_sim::model::StageModel;
+use csmetro_sim::stage::SimStage;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+use super::spec::{Campaign, HardwareKind, SimTransport};
+use super::types::AxisId;
+
+/// Physical time: the wall clock on hardware, the scaled simulator clock in simulation.
+#[derive(Debug, Clone, Copy)]
+pub enum TimeBase {
+    Real,
+    Sim { scale: f64 },
+}
+
+impl TimeBase {
+    /// Wall time that a physical wait of `s` seconds takes.
+    pub fn wall(&self, s: f64) -> Duration {
+        match self {
+            TimeBase::Real => Duration::from_secs_f64(s.max(0.0)),
+            TimeBase::Sim { scale } => Duration::from_secs_f64((s / scale).max(0.0)),
+        }
+    }
+    /// Physical seconds elapsed since `t0` (wall time times the scale in simulation).
+    pub fn physical_since(&self, t0: Instant) -> f64 {
+        let w = t0.elapsed().as_secs_f64();
+        match self {
+            TimeBase::Real => w,
+            TimeBase::Sim { scale } => w * scale,
+        }
+    }
+}
+
+/// A campaign's physical time, s, shared with the simulated camera (f64 bits).
+#[derive(Debug, Clone, Default)]
+pub struct PhysicalClock(Arc<AtomicU64>);
+
+impl PhysicalClock {
+    pub fn get(&self) -> f64 {
+        f64::from_bits(self.0.load(Ordering::Relaxed))
+    }
+    pub fn set(&self, s: f64) {
+        self.0.store(s.to_bits(), Ordering::Relaxed)
+    }
+}
+
+pub struct Rig {
+    pub x: Box<dyn Axis>,
+    pub y: Box<dyn Axis>,
+    /// Taken out while a blocking trigger runs.
+    pub camera: Option<Box<dyn Camera>>,
+    pub decoder: Arc<Decoder>,
+    pub time: TimeBase,
+    /// Physical time one frame takes when the camera cannot tell (simulation), s.
+    pub frame_time_s: Option<f64>,
+    pub clock: PhysicalClock,
+    /// The simulator's stage model: ground truth of a simulated campaign.
+    pub truth: Option<Arc<StageModel>>,
+    /// What the rig is (for the record).
+    pub describe: String,
+    /// Motion parameters of the simulated axes (physical move time).
+    pub motion: Option<SimMotion>,
+    sims: Vec<SimController>,
+}
+
+#[derive(Debug, Clone, Copy)]
+pub struct SimMotion {
+    pub velocity_mm_s: f64,
+    pub acceleration_mm_s2: f64,
+    /// On-target settling window time of the controller, s.
+    pub settle_s: f64,
+}
+
+/// Trapezoidal move time over `d_mm` at velocity `v` (mm/s) and acceleration `a` (mm/s²), s.
+pub fn trapezoid_s(d_mm: f64, v: f64, a: f64) -> f64 {
+    if d_mm <= 0.0 {
+        0.0
+    } else if d_mm < v * v / a {
+        2.0 * (d_mm / a).sqrt()
+    } else {
+        d_mm / v + v / a
+    }
+}
+
+impl Rig {
+    /// Physical time of a move of `d_um` that started (wall) at `t0` and is now on target.
+    /// Hardware: the wall time. Simulation: the stage's motion and settling time plus the
+    /// unscaled wall time of the exchanges (a real line takes about as long), never the
+    /// exchange time multiplied by the time scale.
+    pub fn motion_s(&self, _axis: AxisId, d_um: f64, t0: Instant) -> f64 {
+        match (self.time, self.motion) {
+            (TimeBase::Sim { .. }, Some(m)) => {
+                trapezoid_s(d_um / 1000.0, m.velocity_mm_s, m.acceleration_mm_s2)
+                    + m.settle_s
+                    + t0.elapsed().as_secs_f64()
+            }
+            _ => self.time.physical_since(t0),
+        }
+    }
+
+    pub fn axis(&mut self, a: AxisId) -> &mut dyn Axis {
+        match a {
+            AxisId::X => self.x.as_mut(),
+            AxisId::Y => self.y.as_mut(),
+        }
+    }
+
+    /// Stops both axes (best effort, each bounded by the driver's timeouts).
+    pub async fn stop_all(&mut self) {
+        for a in [AxisId::X, AxisId::Y] {
+            if let Err(e) = self.axis(a).stop().await {
+                tracing::warn!(axis = %a, error = %e, "stop failed");
+            }
+        }
+    }
+
+    /// Shuts the simulators down (after the axes were stopped).
+    pub async fn close(mut self) {
+        for s in self.sims.drain(..) {
+            s.shutdown().await;
+        }
+    }
+}
+
+/// Builds the rig of a campaign.
+pub async fn build(c: &Campaign) -> Result<Rig, String> {
+    let h = &c.spec.hardware;
+    let pattern = Pattern::new(h.pattern.clone()).map_err(|e| e.to_string())?;
+    let decoder = Arc::new(Decoder::new(
+        pattern.clone(),
+        DecodeConfig::for_optics(&pattern, &h.optics),
+    ));
+    match h.kind {
+        HardwareKind::Sim => build_sim(c, pattern, decoder).await,
+        HardwareKind::Real => build_real(c, decoder).await,
+    }
+}
+
+async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Result<Rig, String> {
+    let s = &c.spec.hardware.sim;
+    let model = match &s.model {
+        Some(p) => {
+            let path = c.resolve(p);
+            StageModel::load(&path).map_err(|e| format!("{}: {e}", path.display()))?
+        }
+        None => StageModel::default(),
+    };
+    let start_mm = [
+        (c.axis(AxisId::X).map_or(0.0, |a| a.grid.start_um)) / 1000.0,
+        (c.axis(AxisId::Y).map_or(0.0, |a| a.grid.start_um)) / 1000.0,
+    ];
+    let stage = SimStage::new(model.clone(), s.time_scale, start_mm, s.velocity_mm_s, s.acceleration_mm_s2);
+    let mut sims = Vec::new();
+    let mut axes: Vec<Box<dyn Axis>> = Vec::new();
+    for (a, limits) in [(AxisId::X, s.soft_limits_x_um), (AxisId::Y, s.soft_limits_y_um)] {
+        let cfg = ControllerConfig {
+            travel_mm: s.travel_mm,
+            velocity_mm_s: s.velocity_mm_s,
+            acceleration_mm_s2: s.acceleration_mm_s2,
+            start_mm: start_mm[if a == AxisId::X { 0 } else { 1 }],
+            reference_switch_mm: (s.travel_mm[0] + s.travel_mm[1]) / 2.0,
+            ..ControllerConfig::default()
+        };
+        let sim = match s.transport {
+            SimTransport::Pty => SimController::start_pty(stage.clone(), a, cfg, None).await,
+            SimTransport::Tcp => {
+                SimController::start_tcp(stage.clone(), a, cfg, "127.0.0.1:0".parse().unwrap()).await
+            }
+        }
+        .map_err(|e| format!("cannot start the simulated C-863 of axis {a}: {e}"))?;
+        let mut dc = match sim.endpoint() {
+            Endpoint::Tcp(addr) => C863Config::tcp(addr.to_string()),
+            Endpoint::Pty(path) => C863Config::serial(path.display().to_string()),
+        };
+        dc.soft_limits_um = (limits[0], limits[1]);
+        // Simulated time runs fast: poll at the pace of the scaled motion.
+        dc.poll_interval_ms = 1;
+        let drv = C863::connect(dc)
+            .await
+            .map_err(|e| format!("cannot connect to the simulated C-863 of axis {a}: {e}"))?;
+        axes.push(Box::new(drv));
+        sims.push(sim);
+    }
+    let clock = PhysicalClock::default();
+    let source_stage = stage.clone();
+    let source_clock = clock.clone();
+    let noise = model.noise_sigma_um();
+    let rng = Mutex::new(ChaCha8Rng::seed_from_u64(s.seed));
+    let normal = Normal::new(0.0, noise.max(0.0)).map_err(|e| e.to_string())?;
+    let source = move || {
+        let (x, y) = source_stage.true_position_at_um(Some(source_clock.get()));
+        if noise > 0.0 {
+            let mut r = rng.lock().unwrap_or_else(|e| e.into_inner());
+            (x + normal.sample(&mut *r), y + normal.sample(&mut *r))
+        } else {
+            (x, y)
+        }
+    };
+    let optics = s.render_optics.clone().unwrap_or_else(|| c.spec.hardware.optics.clone());
+    let camera = SimCamera::new(pattern, optics, Box::new(source))
+        .map_err(|e| e.to_string())?
+        .with_seed(s.seed);
+    let y = axes.pop().expect("two axes");
+    let x = axes.pop().expect("two axes");
+    Ok(Rig {
+        describe: format!(
+            "simulated: 2 x C-863.11 over {:?}, time scale {}, {}",
+            s.transport,
+            s.time_scale,
+            camera.describe()
+        ),
+        x,
+        y,
+        camera: Some(Box::new(camera)),
+        decoder,
+        time: TimeBase::Sim { scale: s.time_scale },
+        frame_time_s: Some(s.frame_time_s),
+        clock,
+        truth: Some(Arc::new(model)),
+        motion: Some(SimMotion {
+            velocity_mm_s: s.velocity_mm_s,
+            acceleration_mm_s2: s.acceleration_mm_s2,
+            settle_s: ControllerConfig::default().settle_time_s,
+        }),
+        sims,
+    })
+}
+
+async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> {
+    let h = &c.spec.hardware;
+    let connect = |a: AxisId| async move {
+        let cfg = h
+            .controllers
+            .get(a.as_str())
+            .cloned()
+            .ok_or_else(|| format!("no [hardware.controllers.{a}]"))?;
+        C863::connect(cfg)
+            .await
+            .map_err(|e: AxisError| format!("axis {a}: {e}"))
+    };
+    let x = connect(AxisId::X).await?;
+    let y = connect(AxisId::Y).await?;
+    let camera = real_camera(c)?;
+    Ok(Rig {
+        describe: format!("PI C-863 x2, {}", camera.describe()),
+        x: Box::new(x),
+        y: Box::new(y),
+        camera: Some(camera),
+        decoder,
+        time: TimeBase::Real,
+        frame_time_s: None,
+        clock: PhysicalClock::default(),
+        truth: None,
+        motion: None,
+        sims: Vec::new(),
+    })
+}
+
+#[cfg(feature = "aravis")]
+fn real_camera(c: &Campaign) -> Result<Box<dyn Camera>, String> {
+    let cfg = c
+        .spec
+        .hardware
+        .camera
+        .clone()
+        .ok_or("a real campaign needs [hardware.camera]")?;
+    csmetro_camera::AravisCamera::open(cfg)
+        .map(|cam| Box::new(cam) as Box<dyn Camera>)
+        .map_err(|e| format!("camera: {e}"))
+}
+
+#[cfg(not(feature = "aravis"))]
+fn real_camera(_: &Campaign) -> Result<Box<dyn Camera>, String> {
+    Err("this csmetro was built without the `aravis` feature: rebuild with `--features aravis` to use a real camera".into())
+}

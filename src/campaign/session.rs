@@ -1,0 +1,319 @@
+//! One campaign from file to results: stored, run (or resumed) on its rig, reconstructed,
+//! reported. Used by `csmetro run`, `csmetro resume` and the service alike.
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use serde::Serialize;
+use serde_json::{json, Value};
+use tokio::sync::{broadcast, watch};
+
+use super::engine::{stats_key, Control, EndState, Engine, Outcome, PhaseStats, Recorder};
+use super::plan::{plan, Plan};
+use super::rig::{self, Rig};
+use super::spec::Campaign;
+use super::types::{AxisId, CampaignState, Phase, RunKey, SampleRecord};
+use super::worker::{reconstruct_run, settings, Curve, Worker};
+use crate::store::Store;
+
+/// A campaign event as stored and streamed (server-sent events, `csmetro watch`).
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+pub struct Event {
+    pub id: i64,
+    pub campaign: i64,
+    pub unix_s: f64,
+    pub kind: String,
+    pub data: Value,
+}
+
+pub type SharedStore = Arc<Mutex<Store>>;
+
+fn lock(s: &SharedStore) -> std::sync::MutexGuard<'_, Store> {
+    s.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Stores a new campaign (state queued) and returns its id.
+pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, String> {
+    let p = plan(c);
+    lock(store)
+        .create_campaign(
+            &c.spec.campaign.name,
+            &c.text,
+            &c.origin,
+            &c.spec.campaign.stage,
+            p.total() as u64,
+        )
+        .map_err(|e| e.to_string())
+}
+
+/// Reloads a stored campaign's file (its text was stored with it).
+pub fn load_stored(store: &SharedStore, id: i64) -> Result<Campaign, String> {
+    let row = lock(store)
+        .campaign(id)
+        .map_err(|e| e.to_string())?
+        .ok_or_else(|| format!("no campaign {id} in the store"))?;
+    let base = PathBuf::from(&row.spec_path)
+        .parent()
+        .map(|p| p.to_path_buf())
+        .unwrap_or_default();
+    Campaign::parse(&row.spec_toml, &row.spec_path, &base).map_err(|e| e.to_string())
+}
+
+struct StoreRecorder {
+    store: SharedStore,
+    id: i64,
+    worker: Worker,
+    events: broadcast::Sender<Event>,
+    samples: Vec<SampleRecord>,
+    campaign: Campaign,
+    on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
+}
+
+fn emit(store: &SharedStore, events: &broadcast::Sender<Event>, id: i64, kind: &str, data: Value) {
+    let unix_s = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0);
+    match lock(store).add_event(id, kind, &data) {
+        Ok(eid) => {
+            let _ = events.send(Event {
+                id: eid,
+                campaign: id,
+                unix_s,
+                kind: kind.into(),
+                data,
+            });
+        }
+        Err(e) => tracing::warn!(error = %e, kind, "event not stored"),
+    }
+}
+
+impl Recorder for StoreRecorder {
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
+        let fresh = lock(&self.store)
+            .insert_sample(self.id, s)
+            .map_err(|e| e.to_string())?;
+        self.samples.push(*s);
+        self.worker.sample(s);
+        (self.on_sample)(s);
+        if fresh {
+            let _ = self.events.send(Event {
+                id: 0,
+                campaign: self.id,
+                unix_s: s.unix_s,
+                kind: "sample".into(),
+                data: json!(s),
+            });
+        }
+        Ok(fresh)
+    }
+    fn event(&mut self, kind: &str, data: Value) {
+        emit(&self.store, &self.events, self.id, kind, data);
+    }
+    fn run_done(&mut self, run: RunKey) {
+        self.worker.run_done(run);
+    }
+    fn cv_error_um(&mut self, run: RunKey) -> Option<f64> {
+        let grid = self.campaign.axis(run.axis)?.grid;
+        let st = settings(&self.campaign);
+        let curves = tokio::task::block_in_place(|| reconstruct_run(&grid, &st, run, &self.samples));
+        curves
+            .into_iter()
+            .filter_map(|c| c.ok())
+            .filter(|c| c.component.measured == run.axis)
+            .filter_map(|c| c.cv_error_um)
+            .next()
+    }
+}
+
+/// What a finished campaign reports.
+#[derive(Debug, Clone, Serialize)]
+pub struct Finished {
+    pub id: i64,
+    pub state: CampaignState,
+    pub outcome: Outcome,
+    pub summary: Option<Value>,
+    pub table: Option<String>,
+    pub out_dir: Option<PathBuf>,
+}
+
+/// Runs (or resumes) stored campaign `id`: skips targets already stored, stops motion on
+/// abort and on error, reconstructs, reports, and records the final state.
+pub async fn execute(
+    store: SharedStore,
+    id: i64,
+    c: Campaign,
+    control: watch::Receiver<Control>,
+    events: broadcast::Sender<Event>,
+    on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
+) -> Result<Finished, String> {
+    let p: Plan = plan(&c);
+    let done: BTreeMap<u64, SampleRecord> = lock(&store)
+        .samples(id)
+        .map_err(|e| e.to_string())?
+        .into_iter()
+        .map(|s| (s.target.seq, s))
+        .collect();
+    let resumed = !done.is_empty();
+    {
+        let s = lock(&store);
+        s.set_planned(id, p.total() as u64).map_err(|e| e.to_string())?;
+        s.set_state(id, CampaignState::Running, None).map_err(|e| e.to_string())?;
+    }
+    emit(
+        &store,
+        &events,
+        id,
+        if resumed { "resumed_from_store" } else { "started" },
+        json!({"planned": p.total(), "stored": done.len(), "name": c.spec.campaign.name}),
+    );
+    let fail = |msg: String| {
+        let s = lock(&store);
+        let _ = s.set_state(id, CampaignState::Interrupted, Some(&msg));
+        msg
+    };
+    let mut rig: Rig = rig::build(&c).await.map_err(|e| fail(format!("hardware: {e}")))?;
+    emit(&store, &events, id, "rig", json!({"describe": rig.describe}));
+
+    let (st2, ev2) = (store.clone(), events.clone());
+    let worker = Worker::start(&c, move |r| match r {
+        Ok(curve) => {
+            let name = format!("curves/{}-{}.csv", curve.run.label(), curve.component.name());
+            let _ = lock(&st2).put_result(id, &name, "text/csv", curve.csv().as_bytes());
+            emit(
+                &st2,
+                &ev2,
+                id,
+                "reconstructed",
+                json!({"run": curve.run.label(), "component": curve.component.name(), "method": curve.method,
+                       "cv_error_um": curve.cv_error_um, "solve_ms": curve.solve_ms, "m": curve.samples.len()}),
+            );
+        }
+        Err(e) => emit(&st2, &ev2, id, "reconstruction_failed", json!({"error": e})),
+    });
+    let mut rec = StoreRecorder {
+        store: store.clone(),
+        id,
+        worker,
+        events: events.clone(),
+        samples: Vec::new(),
+        campaign: c.clone(),
+        on_sample,
+    };
+    let outcome = {
+        let mut engine = Engine::new(&c, &mut rig, &mut rec, control, done);
+        engine.run(&p).await
+    };
+    let StoreRecorder { worker, samples, .. } = rec;
+    let outcome = match outcome {
+        Ok(o) => o,
+        Err(e) => {
+            rig.stop_all().await;
+            rig.close().await;
+            drop(worker.finish());
+            let msg = fail(format!("stopped: {e}"));
+            emit(&store, &events, id, "finished", json!({"state": "interrupted", "error": msg}));
+            return Err(format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` continues from the last stored sample"));
+        }
+    };
+    let curves = tokio::task::spawn_blocking(move || worker.finish())
+        .await
+        .unwrap_or_default();
+    let truth = TruthSource::new(&rig, &c);
+    rig.close().await;
+    if outcome.end == EndState::Aborted {
+        let s = lock(&store);
+        let _ = s.set_state(id, CampaignState::Aborted, Some("aborted by the operator"));
+        drop(s);
+        emit(&store, &events, id, "finished", json!({"state": "aborted"}));
+        return Ok(Finished {
+            id,
+            state: CampaignState::Aborted,
+            outcome,
+            summary: None,
+            table: None,
+            out_dir: None,
+        });
+    }
+    let rep = super::results::build(&c, id, &outcome, &curves, &samples, &truth);
+    let out_dir = super::results::out_dir(&c, id);
+    let files = rep.files.clone();
+    {
+        let s = lock(&store);
+        for (name, ctype, bytes) in &files {
+            let _ = s.put_result(id, name, ctype, bytes);
+        }
+    }
+    let mut write_err = None;
+    for (name, _, bytes) in &files {
+        let p = out_dir.join(name);
+        if let Some(d) = p.parent() {
+            let _ = std::fs::create_dir_all(d);
+        }
+        if let Err(e) = std::fs::write(&p, bytes) {
+            write_err = Some(format!("{}: {e}", p.display()));
+        }
+    }
+    if let Some(e) = &write_err {
+        tracing::warn!(error = %e, "result file not written (results are in the store)");
+    }
+    lock(&store)
+        .set_state(id, CampaignState::Done, None)
+        .map_err(|e| e.to_string())?;
+    emit(&store, &events, id, "finished", json!({"state": "done", "summary": rep.summary}));
+    Ok(Finished {
+        id,
+        state: CampaignState::Done,
+        outcome,
+        summary: Some(rep.summary),
+        table: Some(rep.table),
+        out_dir: Some(out_dir),
+    })
+}
+
+/// Ground truth of a simulated campaign, detached from the rig.
+pub struct TruthSource {
+    model: Option<Arc<csmetro_sim::model::StageModel>>,
+}
+
+impl TruthSource {
+    fn new(rig: &Rig, _c: &Campaign) -> Self {
+        Self {
+            model: rig.truth.clone(),
+        }
+    }
+
+    /// Noise-free error of a component at each (target_x, target_y).
+    pub fn curve(&self, curve: &Curve, other_at_um: f64) -> Option<Vec<f64>> {
+        let m = self.model.as_ref()?;
+        let run = curve.run;
+        Some(
+            curve
+                .positions_um
+                .iter()
+                .map(|&p| {
+                    let (tx, ty) = match run.axis {
+                        AxisId::X => (p, other_at_um),
+                        AxisId::Y => (other_at_um, p),
+                    };
+                    let d = m.deviation(&csmetro_sim::model::SampleContext {
+                        moving: run.axis,
+                        direction: run.direction.sign(),
+                        target_x_um: tx,
+                        target_y_um: ty,
+                        time_s: 0.0,
+                    });
+                    match curve.component.measured {
+                        AxisId::X => d.x_um,
+                        AxisId::Y => d.y_um,
+                    }
+                })
+                .collect(),
+        )
+    }
+}
+
+/// Stats of one (phase, axis), zero when absent.
+pub fn stat(o: &Outcome, phase: Phase, axis: AxisId) -> PhaseStats {
+    o.stats.get(&stats_key(phase, axis)).cloned().unwrap_or_default()
+}

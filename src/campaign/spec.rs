@@ -1,0 +1,780 @@
+//! A campaign file (TOML): hardware, axes, sampling, acquisition, reconstruction, outputs.
+//! Parsed and validated completely before anything moves; every error names the file, the
+//! line and the key.
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use csmetro_camera::CameraConfig;
+use csmetro_gcs::C863Config;
+use csmetro_ppp::{Optics, PatternConfig};
+use serde::{Deserialize, Serialize};
+
+use super::types::{AxisId, Direction};
+use crate::grid::Grid;
+use crate::recon::{Method, Solver};
+use crate::sampling::DesignKind;
+
+/// A campaign file as written.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CampaignSpec {
+    pub campaign: Meta,
+    pub hardware: Hardware,
+    /// `[axes.x]`, `[axes.y]`: the axes to characterize, in that order.
+    pub axes: BTreeMap<String, AxisSpec>,
+    #[serde(default)]
+    pub sampling: Sampling,
+    #[serde(default)]
+    pub acquisition: Acquisition,
+    #[serde(default)]
+    pub reconstruction: Reconstruction,
+    #[serde(default)]
+    pub outputs: Outputs,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Meta {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    /// The stage this campaign runs on; one campaign runs per stage at a time.
+    #[serde(default = "default_stage")]
+    pub stage: String,
+}
+
+fn default_stage() -> String {
+    "xy".into()
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum HardwareKind {
+    /// Simulated C-863s (over a pty or TCP) and a simulated camera: no hardware needed.
+    Sim,
+    /// PI C-863 controllers on serial ports (or terminal servers) and an Aravis camera.
+    Real,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Hardware {
+    pub kind: HardwareKind,
+    /// The PPP pattern on the stage.
+    #[serde(default)]
+    pub pattern: PatternConfig,
+    /// Optics of the camera as the decoder sees them (pixel pitch, magnification, frame size).
+    #[serde(default)]
+    pub optics: Optics,
+    /// Settings of the simulation (`kind = "sim"`).
+    #[serde(default)]
+    pub sim: SimHardware,
+    /// Controllers of the real axes (`kind = "real"`), `[hardware.controllers.x]`.
+    #[serde(default)]
+    pub controllers: BTreeMap<String, C863Config>,
+    /// The real camera (`kind = "real"`, needs the `aravis` build feature).
+    #[serde(default)]
+    pub camera: Option<CameraConfig>,
+    /// Longest reference move, s.
+    #[serde(default = "default_reference_timeout_s")]
+    pub reference_timeout_s: f64,
+    /// Longest wait for on-target after a move, s.
+    #[serde(default = "default_move_timeout_s")]
+    pub move_timeout_s: f64,
+}
+
+fn default_reference_timeout_s() -> f64 {
+    60.0
+}
+fn default_move_timeout_s() -> f64 {
+    20.0
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SimTransport {
+    /// A pseudo-terminal the driver opens like a serial device.
+    Pty,
+    /// TCP on 127.0.0.1.
+    Tcp,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimHardware {
+    /// Stage model TOML (relative to the campaign file); the simulator's ground truth.
+    pub model: Option<String>,
+    /// Simulated time runs this many times faster than wall time.
+    pub time_scale: f64,
+    pub transport: SimTransport,
+    /// Physical time one frame takes (exposure + readout + transfer), s.
+    pub frame_time_s: f64,
+    /// Optics the simulated camera renders with; defaults to `[hardware.optics]`.
+    pub render_optics: Option<Optics>,
+    /// Seed of the camera noise and of the model's white measurement noise.
+    pub seed: u64,
+    /// Travel of the simulated controllers (`TMN?`, `TMX?`), mm. A C-863 can place its zero
+    /// anywhere in the 15 mm of an M-111.1DG; `[-1, 14]` leaves room to approach 0 from below.
+    pub travel_mm: [f64; 2],
+    /// Soft limits of the simulated axes, µm (x, y).
+    pub soft_limits_x_um: [f64; 2],
+    pub soft_limits_y_um: [f64; 2],
+    /// Controller velocity, mm/s (GCS units) and acceleration, mm/s².
+    pub velocity_mm_s: f64,
+    pub acceleration_mm_s2: f64,
+}
+
+impl Default for SimHardware {
+    fn default() -> Self {
+        Self {
+            model: None,
+            time_scale: 1000.0,
+            transport: SimTransport::Pty,
+            frame_time_s: 0.1,
+            render_optics: None,
+            seed: 1,
+            travel_mm: [-1.0, 14.0],
+            soft_limits_x_um: [-500.0, 13_500.0],
+            soft_limits_y_um: [-500.0, 13_500.0],
+            velocity_mm_s: 1.5,
+            acceleration_mm_s2: 5.0,
+        }
+    }
+}
+
+/// One axis to characterize.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisSpec {
+    /// Grid `[start, end]`, µm, and its step, µm.
+    pub range_um: [f64; 2],
+    pub step_um: f64,
+    /// Where the other axis stands while this one is characterized, µm.
+    pub other_at_um: f64,
+    /// Overrides of `[sampling]` for this axis.
+    #[serde(default)]
+    pub m: Option<usize>,
+    #[serde(default)]
+    pub fraction: Option<f64>,
+    #[serde(default)]
+    pub target_error_um: Option<f64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Sampling {
+    /// random | jittered | full
+    pub design: DesignKind,
+    /// Measurements per run (one direction of one cycle), or a fraction of the grid.
+    pub m: Option<usize>,
+    pub fraction: Option<f64>,
+    pub seed: u64,
+    /// Adaptive mode: measure in batches until the cross-validated error estimate is at most
+    /// this (µm); `m` (or `fraction`) is then the budget.
+    pub target_error_um: Option<f64>,
+    /// Adaptive batch size (first batch: `batch`, then `batch` more each time).
+    pub batch: usize,
+    /// Also measure the full scan (every grid point) to compare against.
+    pub full_scan: bool,
+}
+
+impl Default for Sampling {
+    fn default() -> Self {
+        Self {
+            design: DesignKind::Random,
+            m: None,
+            fraction: None,
+            seed: 1,
+            target_error_um: None,
+            batch: 50,
+            full_scan: false,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Acquisition {
+    pub directions: Vec<Direction>,
+    pub cycles: u32,
+    /// Wait after on-target before the frame, s.
+    pub settle_s: f64,
+    /// Extra dwell per point (e.g. thermal), s.
+    pub dwell_s: f64,
+    /// Frames decoded and averaged per point.
+    pub frames_per_point: u32,
+    /// Attempts at a rejected frame before the point fails.
+    pub max_retries: u32,
+    /// Pre-travel before each run so every target is approached from its run's direction, µm.
+    pub approach_um: f64,
+}
+
+impl Default for Acquisition {
+    fn default() -> Self {
+        Self {
+            directions: vec![Direction::Forward, Direction::Backward],
+            cycles: 1,
+            settle_s: 0.5,
+            dwell_s: 0.0,
+            frames_per_point: 1,
+            max_retries: 3,
+            approach_um: 50.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Reconstruction {
+    pub method: String,
+    pub solver: String,
+    /// Sensor noise σ, µm.
+    pub noise_um: f64,
+    /// Leadscrew pitch, µm.
+    pub pitch_um: f64,
+}
+
+impl Default for Reconstruction {
+    fn default() -> Self {
+        Self {
+            method: "auto".into(),
+            solver: "fast".into(),
+            noise_um: 0.01,
+            pitch_um: 400.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Outputs {
+    /// Where result files go (relative to the working directory); `{id}` and `{name}` expand.
+    pub dir: String,
+    pub plots: bool,
+}
+
+impl Default for Outputs {
+    fn default() -> Self {
+        Self {
+            dir: "csmetro-results/{name}-{id}".into(),
+            plots: true,
+        }
+    }
+}
+
+/// A validation error pointing into the campaign file.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("{origin}:{line}: {key}: {message}")]
+pub struct SpecError {
+    pub origin: String,
+    pub line: usize,
+    pub key: String,
+    pub message: String,
+}
+
+/// A validated campaign: the spec plus what it resolves to.
+#[derive(Debug, Clone)]
+pub struct Campaign {
+    pub spec: CampaignSpec,
+    /// The file text as given (stored with the campaign, so a resume runs the same plan).
+    pub text: String,
+    pub origin: String,
+    /// Directory of the campaign file (relative paths in it resolve from here).
+    pub base_dir: PathBuf,
+    pub axes: Vec<AxisPlan>,
+    pub method: Method,
+    pub solver: Solver,
+}
+
+/// One axis, resolved.
+#[derive(Debug, Clone)]
+pub struct AxisPlan {
+    pub axis: AxisId,
+    pub grid: Grid,
+    pub other_at_um: f64,
+    /// Measurements per CS run.
+    pub m: usize,
+    pub target_error_um: Option<f64>,
+}
+
+impl Campaign {
+    /// Reads and validates a campaign file.
+    pub fn load(path: &Path) -> Result<Campaign, SpecError> {
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| SpecError {
+            origin: origin.clone(),
+            line: 0,
+            key: "-".into(),
+            message: format!("cannot read: {e}"),
+        })?;
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Campaign::parse(&text, &origin, &base)
+    }
+
+    /// Parses and validates campaign text; `origin` names it in errors.
+    pub fn parse(text: &str, origin: &str, base_dir: &Path) -> Result<Campaign, SpecError> {
+        let err = |span: Option<Range<usize>>, key: String, message: String| SpecError {
+            origin: origin.into(),
+            line: span.map(|s| line_of(text, s.start)).unwrap_or(0),
+            key,
+            message,
+        };
+        let spec: CampaignSpec = toml::from_str(text).map_err(|e| {
+            let span = e.span();
+            let key = span
+                .clone()
+                .and_then(|s| key_at(text, s))
+                .unwrap_or_else(|| "-".into());
+            err(span, key, e.message().trim().to_string())
+        })?;
+        let fail = |path: &str, message: String| {
+            let span = span_of(text, path);
+            err(span, path.to_string(), message)
+        };
+        validate(&spec, base_dir, &fail).map(|(axes, method, solver)| Campaign {
+            spec,
+            text: text.to_string(),
+            origin: origin.into(),
+            base_dir: base_dir.to_path_buf(),
+            axes,
+            method,
+            solver,
+        })
+    }
+
+    /// Resolves a path written in the campaign file.
+    pub fn resolve(&self, p: &str) -> PathBuf {
+        let p = Path::new(p);
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.base_dir.join(p)
+        }
+    }
+
+    pub fn axis(&self, a: AxisId) -> Option<&AxisPlan> {
+        self.axes.iter().find(|p| p.axis == a)
+    }
+}
+
+type Validated = (Vec<AxisPlan>, Method, Solver);
+
+fn validate(
+    spec: &CampaignSpec,
+    base_dir: &Path,
+    fail: &dyn Fn(&str, String) -> SpecError,
+) -> Result<Validated, SpecError> {
+    let pos = |v: f64| v.is_finite() && v > 0.0;
+    let nonneg = |v: f64| v.is_finite() && v >= 0.0;
+    if spec.campaign.name.trim().is_empty() {
+        return Err(fail("campaign.name", "must not be empty".into()));
+    }
+    if spec.axes.is_empty() {
+        return Err(fail("axes", "no axis to characterize: add [axes.x] and/or [axes.y]".into()));
+    }
+    let h = &spec.hardware;
+    if !pos(h.reference_timeout_s) {
+        return Err(fail("hardware.reference_timeout_s", "must be > 0 s".into()));
+    }
+    if !pos(h.move_timeout_s) {
+        return Err(fail("hardware.move_timeout_s", "must be > 0 s".into()));
+    }
+    h.optics
+        .validate()
+        .map_err(|e| fail("hardware.optics", e))?;
+    csmetro_ppp::Pattern::new(h.pattern.clone()).map_err(|e| fail("hardware.pattern", e.to_string()))?;
+    let limits_of = |a: AxisId| -> Result<(f64, f64), SpecError> {
+        match h.kind {
+            HardwareKind::Sim => {
+                let l = match a {
+                    AxisId::X => h.sim.soft_limits_x_um,
+                    AxisId::Y => h.sim.soft_limits_y_um,
+                };
+                Ok((l[0], l[1]))
+            }
+            HardwareKind::Real => h
+                .controllers
+                .get(a.as_str())
+                .map(|c| c.soft_limits_um)
+                .ok_or_else(|| {
+                    fail(
+                        "hardware.controllers",
+                        format!("no controller for axis {a} ([hardware.controllers.{a}])"),
+                    )
+                }),
+        }
+    };
+    match h.kind {
+        HardwareKind::Sim => {
+            let s = &h.sim;
+            if !(pos(s.time_scale) && s.time_scale <= 1e6) {
+                return Err(fail("hardware.sim.time_scale", "must be in (0, 1e6]".into()));
+            }
+            if !nonneg(s.frame_time_s) {
+                return Err(fail("hardware.sim.frame_time_s", "must be ≥ 0 s".into()));
+            }
+            if !(pos(s.velocity_mm_s) && s.velocity_mm_s <= 1.5) {
+                return Err(fail(
+                    "hardware.sim.velocity_mm_s",
+                    "must be in (0, 1.5] mm/s (M-111.1DG)".into(),
+                ));
+            }
+            if !(pos(s.acceleration_mm_s2) && s.acceleration_mm_s2 <= 10.0) {
+                return Err(fail(
+                    "hardware.sim.acceleration_mm_s2",
+                    "must be in (0, 10] mm/s²".into(),
+                ));
+            }
+            if let Some(o) = &s.render_optics {
+                o.validate().map_err(|e| fail("hardware.sim.render_optics", e))?;
+            }
+            if let Some(m) = &s.model {
+                let p = if Path::new(m).is_absolute() {
+                    PathBuf::from(m)
+                } else {
+                    base_dir.join(m)
+                };
+                csmetro_sim::model::StageModel::load(&p)
+                    .map_err(|e| fail("hardware.sim.model", format!("{}: {e}", p.display())))?;
+            }
+            let [tlo, thi] = s.travel_mm;
+            if !(tlo.is_finite() && thi.is_finite() && tlo < thi && thi - tlo <= 15.0) {
+                return Err(fail(
+                    "hardware.sim.travel_mm",
+                    "must be [lo, hi] mm with lo < hi and at most 15 mm (M-111.1DG)".into(),
+                ));
+            }
+            for (k, l) in [
+                ("hardware.sim.soft_limits_x_um", s.soft_limits_x_um),
+                ("hardware.sim.soft_limits_y_um", s.soft_limits_y_um),
+            ] {
+                let inside = l[0] >= tlo * 1000.0 && l[1] <= thi * 1000.0;
+                if !(l[0].is_finite() && l[1].is_finite() && l[0] < l[1] && inside) {
+                    return Err(fail(
+                        k,
+                        format!("must be [lo, hi] µm with lo < hi inside the travel [{}, {}] µm", tlo * 1000.0, thi * 1000.0),
+                    ));
+                }
+            }
+        }
+        HardwareKind::Real => {
+            for name in spec.axes.keys() {
+                if AxisId::parse(name).is_some() && !h.controllers.contains_key(name) {
+                    return Err(fail(
+                        "hardware.controllers",
+                        format!("no controller for axis {name} ([hardware.controllers.{name}])"),
+                    ));
+                }
+            }
+            for (name, c) in &h.controllers {
+                if AxisId::parse(name).is_none() {
+                    return Err(fail(
+                        &format!("hardware.controllers.{name}"),
+                        "axis names are x and y".into(),
+                    ));
+                }
+                let (lo, hi) = c.soft_limits_um;
+                if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                    return Err(fail(
+                        &format!("hardware.controllers.{name}.soft_limits_um"),
+                        "must be [lo, hi] with lo < hi (µm)".into(),
+                    ));
+                }
+            }
+            match &h.camera {
+                None => {
+                    return Err(fail(
+                        "hardware.camera",
+                        "a real campaign needs [hardware.camera]".into(),
+                    ))
+                }
+                Some(c) => c.validate().map_err(|e| fail("hardware.camera", e.to_string()))?,
+            }
+        }
+    }
+
+    let s = &spec.sampling;
+    if s.batch < 2 {
+        return Err(fail("sampling.batch", "must be ≥ 2".into()));
+    }
+    if let Some(f) = s.fraction {
+        if !(f > 0.0 && f <= 1.0) {
+            return Err(fail("sampling.fraction", "must be in (0, 1]".into()));
+        }
+    }
+    if let Some(t) = s.target_error_um {
+        if !pos(t) {
+            return Err(fail("sampling.target_error_um", "must be > 0 µm".into()));
+        }
+    }
+    let a = &spec.acquisition;
+    if a.directions.is_empty() {
+        return Err(fail("acquisition.directions", "needs forward and/or backward".into()));
+    }
+    let mut dirs = a.directions.clone();
+    dirs.dedup();
+    if dirs.len() != a.directions.len() {
+        return Err(fail("acquisition.directions", "a direction is listed twice".into()));
+    }
+    if !(1..=1000).contains(&a.cycles) {
+        return Err(fail("acquisition.cycles", "must be in 1..=1000".into()));
+    }
+    if !(nonneg(a.settle_s) && a.settle_s <= 600.0) {
+        return Err(fail("acquisition.settle_s", "must be in [0, 600] s".into()));
+    }
+    if !(nonneg(a.dwell_s) && a.dwell_s <= 3600.0) {
+        return Err(fail("acquisition.dwell_s", "must be in [0, 3600] s".into()));
+    }
+    if !(1..=100).contains(&a.frames_per_point) {
+        return Err(fail("acquisition.frames_per_point", "must be in 1..=100".into()));
+    }
+    if a.max_retries > 100 {
+        return Err(fail("acquisition.max_retries", "must be ≤ 100".into()));
+    }
+    if !(nonneg(a.approach_um) && a.approach_um <= 1000.0) {
+        return Err(fail("acquisition.approach_um", "must be in [0, 1000] µm".into()));
+    }
+
+    let r = &spec.reconstruction;
+    let method: Method = r
+        .method
+        .parse()
+        .map_err(|e: String| fail("reconstruction.method", e))?;
+    let solver: Solver = r
+        .solver
+        .parse()
+        .map_err(|e: String| fail("reconstruction.solver", e))?;
+    if !nonneg(r.noise_um) {
+        return Err(fail("reconstruction.noise_um", "must be ≥ 0 µm".into()));
+    }
+    if !pos(r.pitch_um) {
+        return Err(fail("reconstruction.pitch_um", "must be > 0 µm".into()));
+    }
+    if spec.outputs.dir.trim().is_empty() {
+        return Err(fail("outputs.dir", "must not be empty".into()));
+    }
+
+    let mut plans = Vec::new();
+    for (name, ax) in &spec.axes {
+        let key = |k: &str| format!("axes.{name}.{k}");
+        let axis = AxisId::parse(name)
+            .ok_or_else(|| fail(&format!("axes.{name}"), "axis names are x and y".into()))?;
+        let [start, end] = ax.range_um;
+        let grid = Grid::new(start, ax.step_um, end).map_err(|e| fail(&key("range_um"), e))?;
+        let (lo, hi) = limits_of(axis)?;
+        let pre = a.approach_um;
+        if start - pre < lo - 1e-9 || end + pre > hi + 1e-9 {
+            return Err(fail(
+                &key("range_um"),
+                format!(
+                    "[{start}, {end}] µm with {pre} µm approach travel leaves the soft limits [{lo}, {hi}] µm"
+                ),
+            ));
+        }
+        let (olo, ohi) = limits_of(axis.other())?;
+        if !(ax.other_at_um.is_finite() && ax.other_at_um >= olo && ax.other_at_um <= ohi) {
+            return Err(fail(
+                &key("other_at_um"),
+                format!("{} µm is outside the soft limits [{olo}, {ohi}] µm of axis {}", ax.other_at_um, axis.other()),
+            ));
+        }
+        let n = grid.n;
+        let (m, mkey) = match (ax.m.or(s.m), ax.fraction.or(s.fraction)) {
+            (Some(m), _) => (m, if ax.m.is_some() { key("m") } else { "sampling.m".into() }),
+            (None, Some(f)) => (
+                ((f * n as f64).round() as usize).max(2),
+                if ax.fraction.is_some() { key("fraction") } else { "sampling.fraction".into() },
+            ),
+            (None, None) if s.design == DesignKind::Full => (n, "sampling.design".into()),
+            (None, None) => {
+                return Err(fail(
+                    "sampling.m",
+                    format!("give m or fraction (axis {name} has {n} grid points)"),
+                ))
+            }
+        };
+        if let Some(f) = ax.fraction {
+            if !(f > 0.0 && f <= 1.0) {
+                return Err(fail(&key("fraction"), "must be in (0, 1]".into()));
+            }
+        }
+        if s.design != DesignKind::Full && !(2..=n).contains(&m) {
+            return Err(fail(&mkey, format!("m = {m} must be in 2..={n} (grid points)")));
+        }
+        let target_error_um = ax.target_error_um.or(s.target_error_um);
+        if let Some(t) = ax.target_error_um {
+            if !pos(t) {
+                return Err(fail(&key("target_error_um"), "must be > 0 µm".into()));
+            }
+        }
+        if target_error_um.is_some() && s.design == DesignKind::Full {
+            return Err(fail(
+                "sampling.target_error_um",
+                "adaptive sampling needs a random or jittered design".into(),
+            ));
+        }
+        plans.push(AxisPlan {
+            axis,
+            grid,
+            other_at_um: ax.other_at_um,
+            m: if s.design == DesignKind::Full { n } else { m },
+            target_error_um,
+        });
+    }
+    Ok((plans, method, solver))
+}
+
+/// 1-based line of a byte offset.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+/// Span of the value (or the table header) at a dotted key path, e.g. `axes.x.range_um`.
+fn span_of(text: &str, path: &str) -> Option<Range<usize>> {
+    use toml::de::{DeTable, DeValue};
+    let doc = DeTable::parse(text).ok()?;
+    let mut table = doc.get_ref();
+    let mut best = None;
+    let parts: Vec<&str> = path.split('.').collect();
+    for (i, part) in parts.iter().enumerate() {
+        let (k, v) = table.iter().find(|(k, _)| k.get_ref().as_ref() == *part)?;
+        best = Some(k.span());
+        match v.get_ref() {
+            DeValue::Table(t) if i + 1 < parts.len() => table = t,
+            _ => return best,
+        }
+    }
+    best
+}
+
+/// The dotted key whose key or value contains `span` (the deepest one).
+fn key_at(text: &str, span: Range<usize>) -> Option<String> {
+    use toml::de::{DeTable, DeValue};
+    let doc = DeTable::parse(text).ok()?;
+    fn walk(t: &DeTable<'_>, span: &Range<usize>, prefix: &str) -> Option<String> {
+        for (k, v) in t.iter() {
+            let name = if prefix.is_empty() {
+                k.get_ref().to_string()
+            } else {
+                format!("{prefix}.{}", k.get_ref())
+            };
+            let (ks, vs) = (k.span(), v.span());
+            let inside = |r: &Range<usize>| r.start <= span.start && span.start < r.end.max(r.start + 1);
+            if let DeValue::Table(sub) = v.get_ref() {
+                if let Some(deeper) = walk(sub, span, &name) {
+                    return Some(deeper);
+                }
+            }
+            if inside(&ks) || inside(&vs) {
+                return Some(name);
+            }
+        }
+        None
+    }
+    walk(doc.get_ref(), &span, "").or_else(|| {
+        // A table header line: name the table.
+        let line_start = text[..span.start.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
+        let line = text[line_start..].lines().next()?.trim();
+        line.strip_prefix('[')
+            .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+[campaign]
+name = "t"
+
+[hardware]
+kind = "sim"
+
+[axes.x]
+range_um = [0.0, 9500.0]
+step_um = 5.0
+other_at_um = 2100.0
+
+[sampling]
+m = 300
+"#;
+
+    fn line(t: &str, needle: &str) -> usize {
+        t.lines().position(|l| l.contains(needle)).unwrap() + 1
+    }
+
+    fn parse(t: &str) -> Result<Campaign, SpecError> {
+        Campaign::parse(t, "c.toml", Path::new("."))
+    }
+
+    #[test]
+    fn a_minimal_campaign_resolves_grid_and_defaults() {
+        let c = parse(GOOD).unwrap();
+        assert_eq!(c.axes.len(), 1);
+        assert_eq!(c.axes[0].grid.n, 1901);
+        assert_eq!(c.axes[0].m, 300);
+        assert_eq!(c.spec.acquisition.directions.len(), 2);
+        assert_eq!(c.method, Method::Auto);
+    }
+
+    #[test]
+    fn unknown_key_names_file_line_and_key() {
+        let t = GOOD.replace("step_um = 5.0", "step_um = 5.0\nstpe = 3");
+        let e = parse(&t).unwrap_err();
+        let l = line(&t, "stpe");
+        assert_eq!(e.line, l, "{e}");
+        assert!(e.to_string().starts_with(&format!("c.toml:{l}: axes.x.stpe:")), "{e}");
+        assert!(e.message.contains("stpe"), "{e}");
+    }
+
+    #[test]
+    fn wrong_type_names_the_key() {
+        let t = GOOD.replace("m = 300", "m = \"many\"");
+        let e = parse(&t).unwrap_err();
+        assert_eq!(e.key, "sampling.m", "{e}");
+        assert_eq!(e.line, line(&t, "many"), "{e}");
+    }
+
+    #[test]
+    fn semantic_errors_point_at_the_key() {
+        let t = GOOD.replace("m = 300", "m = 5000");
+        let e = parse(&t).unwrap_err();
+        assert_eq!((e.key.as_str(), e.line), ("sampling.m", line(&t, "m = 5000")), "{e}");
+
+        let t = GOOD.replace("range_um = [0.0, 9500.0]", "range_um = [0.0, 13500.0]");
+        let e = parse(&t).unwrap_err();
+        assert_eq!((e.key.as_str(), e.line), ("axes.x.range_um", line(&t, "13500")), "{e}");
+        assert!(e.message.contains("soft limits"), "{e}");
+
+        let t = GOOD.replace("range_um = [0.0, 9500.0]", "range_um = [0.0, 9502.0]");
+        let e = parse(&t).unwrap_err();
+        assert_eq!(e.key, "axes.x.range_um", "{e}");
+
+        let t = format!("{GOOD}\n[reconstruction]\nmethod = \"magic\"\n");
+        let e = parse(&t).unwrap_err();
+        assert_eq!(e.key, "reconstruction.method", "{e}");
+        assert!(e.message.contains("unknown method"), "{e}");
+
+        let t = GOOD.replace("name = \"t\"", "name = \"\"");
+        assert_eq!(parse(&t).unwrap_err().key, "campaign.name");
+
+        let t = GOOD.replace("kind = \"sim\"", "kind = \"real\"");
+        assert_eq!(parse(&t).unwrap_err().key, "hardware.controllers");
+    }
+
+    #[test]
+    fn a_missing_model_file_is_refused_before_anything_runs() {
+        let t = GOOD.replace("kind = \"sim\"", "kind = \"sim\"\n[hardware.sim]\nmodel = \"nope.toml\"");
+        let e = parse(&t).unwrap_err();
+        assert_eq!(e.key, "hardware.sim.model", "{e}");
+        assert!(e.message.contains("nope.toml"), "{e}");
+    }
+
+    #[test]
+    fn syntax_errors_give_a_line() {
+        let e = parse("[campaign\nname = 1").unwrap_err();
+        assert_eq!(e.line, 1, "{e}");
+    }
+}

@@ -1,0 +1,167 @@
+//! `csmetro run CAMPAIGN.toml` (foreground, progress bar, summary table) and
+//! `csmetro resume ID` (continue an interrupted campaign from its last stored sample).
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::{Arc, Mutex};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use tokio::sync::{broadcast, watch};
+
+use super::{CliError, CliResult};
+use crate::campaign::engine::Control;
+use crate::campaign::session::{self, SharedStore};
+use crate::campaign::spec::Campaign;
+use crate::campaign::types::CampaignState;
+use crate::store::Store;
+
+/// Default store of foreground runs (the service's config names its own).
+pub const DEFAULT_DB: &str = "csmetro-data/csmetro.db";
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Campaign file (TOML).
+    campaign: PathBuf,
+    /// SQLite store; campaigns, samples and results are committed there as they happen.
+    #[arg(long, env = "CSMETRO_DB", default_value = DEFAULT_DB)]
+    db: PathBuf,
+    /// Print the summary as one JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+#[derive(clap::Args)]
+pub struct ResumeArgs {
+    /// Campaign id (see `csmetro status` or the store).
+    id: i64,
+    #[arg(long, env = "CSMETRO_DB", default_value = DEFAULT_DB)]
+    db: PathBuf,
+    #[arg(long)]
+    json: bool,
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn open(db: &PathBuf) -> Result<SharedStore, CliError> {
+    Store::open(db)
+        .map(|s| Arc::new(Mutex::new(s)))
+        .map_err(|e| CliError::failure(format!("store {}: {e}", db.display())))
+}
+
+pub fn run(a: Args) -> CliResult {
+    let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
+    let store = open(&a.db)?;
+    let id = session::create(&store, &c).map_err(CliError::failure)?;
+    eprintln!(
+        "campaign {id} \"{}\" stored in {} (resume with `csmetro resume {id}`)",
+        c.spec.campaign.name,
+        a.db.display()
+    );
+    foreground(store, id, c, a.json, a.quiet)
+}
+
+pub fn resume(a: ResumeArgs) -> CliResult {
+    let store = open(&a.db)?;
+    let row = store
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .campaign(a.id)
+        .map_err(|e| CliError::failure(e.to_string()))?
+        .ok_or_else(|| CliError::input(format!("no campaign {} in {}", a.id, a.db.display())))?;
+    if row.state.is_final() {
+        return Err(CliError::input(format!(
+            "campaign {} is {}: nothing to resume",
+            a.id,
+            row.state.as_str()
+        )));
+    }
+    let c = session::load_stored(&store, a.id).map_err(CliError::failure)?;
+    foreground(store, a.id, c, a.json, a.quiet)
+}
+
+fn foreground(store: SharedStore, id: i64, c: Campaign, json: bool, quiet: bool) -> CliResult {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::failure(e.to_string()))?;
+    rt.block_on(async move {
+        let planned = crate::campaign::plan::plan(&c).total() as u64;
+        let stored = store
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .sample_count(id)
+            .unwrap_or(0);
+        let bar = if quiet {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(planned)
+        };
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} targets  {msg}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        bar.set_position(stored);
+        let (ctl_tx, ctl_rx) = watch::channel(Control::Run);
+        let (ev_tx, mut ev_rx) = broadcast::channel::<session::Event>(1024);
+        // Ctrl-C / SIGTERM: abort, which stops motion before anything else.
+        tokio::spawn(async move {
+            let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending::<()>().await } } => {}
+            }
+            let _ = ctl_tx.send(Control::Abort);
+        });
+        let b2 = bar.clone();
+        tokio::spawn(async move {
+            while let Ok(e) = ev_rx.recv().await {
+                match e.kind.as_str() {
+                    "run_start" => b2.set_message(e.data["run"].as_str().unwrap_or("").to_string()),
+                    "reconstructed" => b2.println(format!(
+                        "reconstructed {} {}: {} (CV error {} µm, {:.0} ms)",
+                        e.data["run"].as_str().unwrap_or(""),
+                        e.data["component"].as_str().unwrap_or(""),
+                        e.data["method"].as_str().unwrap_or(""),
+                        e.data["cv_error_um"].as_f64().map_or("-".into(), |v| format!("{v:.3}")),
+                        e.data["solve_ms"].as_f64().unwrap_or(0.0)
+                    )),
+                    "frame_rejected" | "point_failed" | "adaptive" => {
+                        b2.println(format!("{}: {}", e.kind, e.data))
+                    }
+                    _ => {}
+                }
+            }
+        });
+        let b3 = bar.clone();
+        let on_sample = Box::new(move |_: &crate::campaign::types::SampleRecord| b3.inc(1));
+        let r = session::execute(store, id, c, ctl_rx, ev_tx, on_sample).await;
+        bar.finish_and_clear();
+        let fin = r.map_err(CliError::failure)?;
+        if json {
+            println!(
+                "{}",
+                serde_json::to_string(&fin.summary.clone().unwrap_or(serde_json::json!({
+                    "id": id, "state": fin.state.as_str()
+                })))
+                .unwrap_or_default()
+            );
+        } else if let Some(t) = &fin.table {
+            println!("{t}");
+        }
+        if let Some(d) = &fin.out_dir {
+            eprintln!("results: {} (and in the store, campaign {id})", d.display());
+        }
+        Ok(match fin.state {
+            CampaignState::Done => ExitCode::SUCCESS,
+            CampaignState::Aborted => {
+                eprintln!("campaign {id} aborted; motion stopped");
+                ExitCode::from(130)
+            }
+            _ => ExitCode::FAILURE,
+        })
+    })
+}
