@@ -7,4 +7,5 @@ pub mod iso230;
 pub mod recon;
 pub mod samples;
 pub mod sampling;
+pub mod store;
 pub mod synth;
