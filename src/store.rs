@@ -1,0 +1,907 @@
+//! The embedded SQLite store: campaigns, their samples, their event log and their results.
+//!
+//! One file per service, opened in WAL mode with `synchronous=NORMAL`: every call that writes
+//! is one transaction, and a committed transaction survives the process being killed (`kill -9`,
+//! a panic, a lost device taking the service down). Only a power loss or an OS crash can lose
+//! the last few transactions, never corrupt the file. A resumed campaign reads back
+//! [`Store::done_seqs`] and measures only the targets not stored yet: a target is never stored
+//! twice (`UNIQUE(campaign_id, seq)`).
+//!
+//! Every field of a [`SampleRecord`] has a real column, so the lab can query the file with the
+//! `sqlite3` shell, e.g.
+//!
+//! ```sql
+//! SELECT seq, axis, direction, target_x_um, meas_x_um - target_x_um AS err_x_um
+//!   FROM samples WHERE campaign_id = 3 AND phase = 'cs' ORDER BY seq;
+//! ```
+//!
+//! Enumerations are stored as their lowercase names (`cs`/`full`, `x`/`y`,
+//! `forward`/`backward`, `queued`/`running`/...), timestamps as REAL seconds since the Unix
+//! epoch. REAL columns hold IEEE doubles exactly, with two exceptions SQLite cannot represent:
+//! NaN is stored as NULL and -0.0 as 0.0. For those rare values the exact bits are kept in the
+//! sample's `raw_bits` column (NULL otherwise), so reading back reproduces every record bit for
+//! bit.
+//!
+//! The schema version is `PRAGMA user_version`; [`Store::open`] creates or migrates the schema and
+//! refuses a file written by a newer csmetro.
+use std::collections::BTreeSet;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use rusqlite::{params, Connection, ErrorCode, OptionalExtension, Row, TransactionBehavior};
+use serde::Serialize;
+
+use crate::campaign::types::{
+    AxisId, CampaignState, Direction, Phase, RunKey, SampleRecord, Target,
+};
+
+/// The schema this build writes. Bump it and append to [`MIGRATIONS`] to change the schema.
+pub const SCHEMA_VERSION: i32 = 1;
+
+/// `PRAGMA application_id` of a csmetro store ("CSMT"), so `file(1)`-like tools and
+/// [`Store::open`] can tell a csmetro database from another SQLite file.
+pub const APPLICATION_ID: i32 = 0x4353_4D54;
+
+/// How long a writer waits for another connection's lock before giving up.
+pub const BUSY_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// `MIGRATIONS[i]` takes the schema from version `i` to `i + 1`.
+const MIGRATIONS: &[&str] = &[
+    // 0 -> 1: the initial schema.
+    r#"
+CREATE TABLE campaigns (
+    id             INTEGER PRIMARY KEY AUTOINCREMENT,
+    name           TEXT    NOT NULL,
+    spec_toml      TEXT    NOT NULL,
+    spec_path      TEXT    NOT NULL,
+    -- The stage (instrument) the campaign runs on: at most one running campaign per stage.
+    stage          TEXT    NOT NULL,
+    state          TEXT    NOT NULL CHECK (state IN
+                       ('queued', 'running', 'paused', 'interrupted', 'aborted', 'failed', 'done')),
+    planned        INTEGER NOT NULL CHECK (planned >= 0),
+    created_unix_s REAL    NOT NULL,
+    updated_unix_s REAL    NOT NULL,
+    message        TEXT
+);
+CREATE INDEX campaigns_by_state ON campaigns (state);
+CREATE UNIQUE INDEX one_running_campaign_per_stage ON campaigns (stage) WHERE state = 'running';
+
+-- One row per stored measurement. Positions in um, times in s, angles in mrad.
+-- A NULL in a REAL column is a NaN; raw_bits keeps the exact bits of NaN and -0.0 values.
+CREATE TABLE samples (
+    id          INTEGER PRIMARY KEY,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns (id) ON DELETE CASCADE,
+    seq         INTEGER NOT NULL CHECK (seq >= 0),
+    phase       TEXT    NOT NULL CHECK (phase IN ('cs', 'full')),
+    axis        TEXT    NOT NULL CHECK (axis IN ('x', 'y')),
+    direction   TEXT    NOT NULL CHECK (direction IN ('forward', 'backward')),
+    cycle       INTEGER NOT NULL CHECK (cycle >= 0),
+    grid_index  INTEGER NOT NULL CHECK (grid_index >= 0),
+    target_x_um REAL,
+    target_y_um REAL,
+    meas_x_um   REAL,
+    meas_y_um   REAL,
+    theta_mrad  REAL,
+    encoder_um  REAL,
+    time_s      REAL,
+    unix_s      REAL,
+    quality     REAL,
+    frames      INTEGER NOT NULL CHECK (frames >= 0),
+    rejected    INTEGER NOT NULL CHECK (rejected >= 0),
+    point_s     REAL,
+    raw_bits    TEXT,
+    UNIQUE (campaign_id, seq)
+);
+
+-- The campaign's log, streamed to clients; ids only grow (AUTOINCREMENT never reuses one).
+CREATE TABLE events (
+    id          INTEGER PRIMARY KEY AUTOINCREMENT,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns (id) ON DELETE CASCADE,
+    unix_s      REAL    NOT NULL,
+    kind        TEXT    NOT NULL,
+    data        TEXT    NOT NULL
+);
+CREATE INDEX events_by_campaign ON events (campaign_id, id);
+
+-- Artifacts: curve CSVs, summary JSON, plots, compensation tables. Put again = replaced.
+CREATE TABLE results (
+    campaign_id    INTEGER NOT NULL REFERENCES campaigns (id) ON DELETE CASCADE,
+    name           TEXT    NOT NULL,
+    content_type   TEXT    NOT NULL,
+    bytes          BLOB    NOT NULL,
+    updated_unix_s REAL    NOT NULL,
+    PRIMARY KEY (campaign_id, name)
+);
+"#,
+];
+
+/// What went wrong, naming the database (`:memory:` for an in-memory store) and the operation.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("store {path}: cannot create directory {dir}: {source}")]
+    CreateDir {
+        path: String,
+        dir: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("store {path}: {op}: {source}")]
+    Sqlite {
+        path: String,
+        op: String,
+        #[source]
+        source: rusqlite::Error,
+    },
+    #[error("store {path}: schema version {found} is newer than this build supports ({supported}); upgrade csmetro")]
+    SchemaTooNew {
+        path: String,
+        found: i32,
+        supported: i32,
+    },
+    #[error("store {path}: not a csmetro store (application_id {found:#x})")]
+    NotAStore { path: String, found: i32 },
+    #[error("store {path}: {op}: no campaign {id}")]
+    UnknownCampaign { path: String, op: String, id: i64 },
+    #[error("store {path}: {op}: stage {stage:?} already runs campaign {running}")]
+    StageBusy {
+        path: String,
+        op: String,
+        stage: String,
+        running: i64,
+    },
+    #[error("store {path}: {op}: {what}")]
+    OutOfRange {
+        path: String,
+        op: String,
+        what: String,
+    },
+    #[error("store {path}: {op}: corrupt row: {what}")]
+    Corrupt {
+        path: String,
+        op: String,
+        what: String,
+    },
+}
+
+/// One campaign as stored.
+#[derive(Debug, Clone, Serialize)]
+pub struct CampaignRow {
+    pub id: i64,
+    pub name: String,
+    pub spec_toml: String,
+    pub spec_path: String,
+    /// Which stage it runs on; one running campaign per stage at a time.
+    pub stage: String,
+    pub state: CampaignState,
+    /// Number of targets in the plan.
+    pub planned: u64,
+    pub created_unix_s: f64,
+    pub updated_unix_s: f64,
+    /// Why it is in its state (error text, who paused it...), if anyone said.
+    pub message: Option<String>,
+}
+
+/// One entry of a campaign's event log.
+#[derive(Debug, Clone, Serialize)]
+pub struct EventRow {
+    /// Grows with every event of every campaign: clients resume a stream with `after_id`.
+    pub id: i64,
+    pub campaign: i64,
+    pub unix_s: f64,
+    pub kind: String,
+    pub data: serde_json::Value,
+}
+
+/// The store: one SQLite connection. `Send`, not `Sync`: share it behind a mutex or give it to
+/// one thread; other processes (the `sqlite3` shell, a second reader) may open the file at the
+/// same time.
+pub struct Store {
+    conn: Connection,
+    path: Option<PathBuf>,
+}
+
+impl fmt::Debug for Store {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Store").field("path", &self.path).finish()
+    }
+}
+
+/// Seconds since the Unix epoch, now.
+pub fn now_unix_s() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0)
+}
+
+const CAMPAIGN_COLS: &str = "id, name, spec_toml, spec_path, stage, state, planned, \
+     created_unix_s, updated_unix_s, message";
+
+const SAMPLE_COLS: &str = "seq, phase, axis, direction, cycle, grid_index, target_x_um, \
+     target_y_um, meas_x_um, meas_y_um, theta_mrad, encoder_um, time_s, unix_s, quality, frames, \
+     rejected, point_s, raw_bits";
+
+/// The REAL columns of a sample, in [`SAMPLE_COLS`] order (indices 6..=14 and 17).
+const REAL_NAMES: [&str; 10] = [
+    "target_x_um",
+    "target_y_um",
+    "meas_x_um",
+    "meas_y_um",
+    "theta_mrad",
+    "encoder_um",
+    "time_s",
+    "unix_s",
+    "quality",
+    "point_s",
+];
+
+fn reals(s: &SampleRecord) -> [f64; 10] {
+    [
+        s.target.target_x_um,
+        s.target.target_y_um,
+        s.meas_x_um,
+        s.meas_y_um,
+        s.theta_mrad,
+        s.encoder_um,
+        s.time_s,
+        s.unix_s,
+        s.quality,
+        s.point_s,
+    ]
+}
+
+/// A value SQLite stores exactly as REAL (everything but NaN and -0.0).
+fn real_is_exact(v: f64) -> bool {
+    !(v.is_nan() || (v == 0.0 && v.is_sign_negative()))
+}
+
+/// `name:hex-bits` of the values SQLite would not keep exactly, comma-separated; None if none.
+fn raw_bits(vals: &[f64; 10]) -> Option<String> {
+    let parts: Vec<String> = REAL_NAMES
+        .iter()
+        .zip(vals)
+        .filter(|(_, v)| !real_is_exact(**v))
+        .map(|(n, v)| format!("{n}:{:016x}", v.to_bits()))
+        .collect();
+    (!parts.is_empty()).then(|| parts.join(","))
+}
+
+fn u64_from(v: i64, what: &str) -> Result<u64, String> {
+    u64::try_from(v).map_err(|_| format!("{what} = {v} is negative"))
+}
+
+fn u32_from(v: i64, what: &str) -> Result<u32, String> {
+    u32::try_from(v).map_err(|_| format!("{what} = {v} does not fit in u32"))
+}
+
+fn i64_from(v: u64, what: &str) -> Result<i64, String> {
+    i64::try_from(v).map_err(|_| format!("{what} = {v} exceeds {}", i64::MAX))
+}
+
+/// A raw sample row, decoded into a record (or a description of what is wrong with it).
+fn sample_from_row(row: &Row<'_>) -> rusqlite::Result<Result<SampleRecord, String>> {
+    let seq: i64 = row.get(0)?;
+    let phase: String = row.get(1)?;
+    let axis: String = row.get(2)?;
+    let direction: String = row.get(3)?;
+    let cycle: i64 = row.get(4)?;
+    let grid_index: i64 = row.get(5)?;
+    let mut vals = [0.0f64; 10];
+    for (i, idx) in (6..=14).chain([17]).enumerate() {
+        let v: Option<f64> = row.get(idx)?;
+        vals[i] = v.unwrap_or(f64::NAN);
+    }
+    let frames: i64 = row.get(15)?;
+    let rejected: i64 = row.get(16)?;
+    let raw: Option<String> = row.get(18)?;
+    Ok((|| {
+        if let Some(raw) = raw {
+            for part in raw.split(',').filter(|p| !p.is_empty()) {
+                let (name, hex) = part
+                    .split_once(':')
+                    .ok_or_else(|| format!("raw_bits entry {part:?} is not name:hex"))?;
+                let i = REAL_NAMES
+                    .iter()
+                    .position(|n| *n == name)
+                    .ok_or_else(|| format!("raw_bits names unknown column {name:?}"))?;
+                let bits = u64::from_str_radix(hex, 16)
+                    .map_err(|e| format!("raw_bits entry {part:?}: {e}"))?;
+                vals[i] = f64::from_bits(bits);
+            }
+        }
+        let seq = u64_from(seq, "seq")?;
+        let [target_x_um, target_y_um, meas_x_um, meas_y_um, theta_mrad, encoder_um, time_s, unix_s, quality, point_s] =
+            vals;
+        Ok(SampleRecord {
+            target: Target {
+                seq,
+                run: RunKey {
+                    phase: Phase::parse(&phase)
+                        .ok_or_else(|| format!("seq {seq}: unknown phase {phase:?}"))?,
+                    axis: AxisId::parse(&axis)
+                        .ok_or_else(|| format!("seq {seq}: unknown axis {axis:?}"))?,
+                    direction: parse_direction(&direction)
+                        .ok_or_else(|| format!("seq {seq}: unknown direction {direction:?}"))?,
+                    cycle: u32_from(cycle, "cycle")?,
+                },
+                grid_index: usize::try_from(grid_index)
+                    .map_err(|_| format!("seq {seq}: grid_index = {grid_index} is negative"))?,
+                target_x_um,
+                target_y_um,
+            },
+            meas_x_um,
+            meas_y_um,
+            theta_mrad,
+            encoder_um,
+            time_s,
+            unix_s,
+            quality,
+            frames: u32_from(frames, "frames")?,
+            rejected: u32_from(rejected, "rejected")?,
+            point_s,
+        })
+    })())
+}
+
+fn parse_direction(s: &str) -> Option<Direction> {
+    [Direction::Forward, Direction::Backward]
+        .into_iter()
+        .find(|d| d.as_str() == s)
+}
+
+/// A raw campaign row, decoded (or what is wrong with it).
+fn campaign_from_row(row: &Row<'_>) -> rusqlite::Result<Result<CampaignRow, String>> {
+    let id: i64 = row.get(0)?;
+    let state: String = row.get(5)?;
+    let planned: i64 = row.get(6)?;
+    let partial = CampaignRow {
+        id,
+        name: row.get(1)?,
+        spec_toml: row.get(2)?,
+        spec_path: row.get(3)?,
+        stage: row.get(4)?,
+        state: CampaignState::Queued,
+        planned: 0,
+        created_unix_s: row.get(7)?,
+        updated_unix_s: row.get(8)?,
+        message: row.get(9)?,
+    };
+    Ok((|| {
+        Ok(CampaignRow {
+            state: CampaignState::parse(&state)
+                .ok_or_else(|| format!("campaign {id}: unknown state {state:?}"))?,
+            planned: u64_from(planned, "planned")?,
+            ..partial
+        })
+    })())
+}
+
+impl Store {
+    /// Opens (creating it, and its parent directories, if needed) the store at `path`: WAL
+    /// journal, `synchronous=NORMAL`, 5 s busy timeout, foreign keys on; creates or migrates the
+    /// schema.
+    pub fn open(path: &Path) -> Result<Store, StoreError> {
+        let shown = path.display().to_string();
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|source| StoreError::CreateDir {
+                path: shown.clone(),
+                dir: dir.display().to_string(),
+                source,
+            })?;
+        }
+        let conn = Connection::open(path).map_err(|source| StoreError::Sqlite {
+            path: shown,
+            op: "open".into(),
+            source,
+        })?;
+        Self::init(conn, Some(path.to_path_buf()))
+    }
+
+    /// A store that lives in memory and vanishes with it (tests, dry runs).
+    pub fn open_in_memory() -> Result<Store, StoreError> {
+        let conn = Connection::open_in_memory().map_err(|source| StoreError::Sqlite {
+            path: ":memory:".into(),
+            op: "open".into(),
+            source,
+        })?;
+        Self::init(conn, None)
+    }
+
+    /// The database file, None in memory.
+    pub fn path(&self) -> Option<&Path> {
+        self.path.as_deref()
+    }
+
+    fn init(conn: Connection, path: Option<PathBuf>) -> Result<Store, StoreError> {
+        let mut store = Store { conn, path };
+        store
+            .conn
+            .busy_timeout(BUSY_TIMEOUT)
+            .map_err(|e| store.err("set busy_timeout", e))?;
+        let mode: String = store
+            .conn
+            .query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0))
+            .map_err(|e| store.err("set journal_mode=WAL", e))?;
+        if store.path.is_some() && !mode.eq_ignore_ascii_case("wal") {
+            // E.g. a file system without shared memory: still crash-safe (rollback journal),
+            // just slower and without concurrent readers.
+            tracing::warn!(
+                store = %store.shown(),
+                journal_mode = %mode,
+                "SQLite refused WAL mode"
+            );
+        }
+        store
+            .conn
+            .pragma_update(None, "synchronous", "NORMAL")
+            .map_err(|e| store.err("set synchronous=NORMAL", e))?;
+        store
+            .conn
+            .pragma_update(None, "foreign_keys", true)
+            .map_err(|e| store.err("enable foreign_keys", e))?;
+        store.migrate()?;
+        Ok(store)
+    }
+
+    /// Brings the schema to [`SCHEMA_VERSION`], in one immediate transaction so two processes
+    /// opening a new file at once do not both create it.
+    fn migrate(&mut self) -> Result<(), StoreError> {
+        let shown = self.shown();
+        let sq = |op: &str| {
+            let shown = shown.clone();
+            let op = op.to_string();
+            move |source: rusqlite::Error| StoreError::Sqlite {
+                path: shown,
+                op,
+                source,
+            }
+        };
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(sq("begin schema migration"))?;
+        let app: i32 = tx
+            .query_row("PRAGMA application_id", [], |r| r.get(0))
+            .map_err(sq("read application_id"))?;
+        let version: i32 = tx
+            .query_row("PRAGMA user_version", [], |r| r.get(0))
+            .map_err(sq("read user_version"))?;
+        if app != 0 && app != APPLICATION_ID {
+            return Err(StoreError::NotAStore {
+                path: shown,
+                found: app,
+            });
+        }
+        if version > SCHEMA_VERSION {
+            return Err(StoreError::SchemaTooNew {
+                path: shown,
+                found: version,
+                supported: SCHEMA_VERSION,
+            });
+        }
+        if version == 0 {
+            // A fresh csmetro file has no tables; refuse to scribble over someone else's db.
+            let tables: i64 = tx
+                .query_row(
+                    "SELECT count(*) FROM sqlite_schema WHERE type = 'table'",
+                    [],
+                    |r| r.get(0),
+                )
+                .map_err(sq("inspect schema"))?;
+            if tables > 0 && app != APPLICATION_ID {
+                return Err(StoreError::NotAStore {
+                    path: shown,
+                    found: app,
+                });
+            }
+        }
+        for (from, sql) in MIGRATIONS.iter().enumerate().skip(version.max(0) as usize) {
+            tx.execute_batch(sql)
+                .map_err(sq(&format!("migrate schema {from} -> {}", from + 1)))?;
+        }
+        if version < SCHEMA_VERSION {
+            tx.pragma_update(None, "application_id", APPLICATION_ID)
+                .map_err(sq("set application_id"))?;
+            tx.pragma_update(None, "user_version", SCHEMA_VERSION)
+                .map_err(sq("set user_version"))?;
+        }
+        tx.commit().map_err(sq("commit schema migration"))
+    }
+
+    fn shown(&self) -> String {
+        match &self.path {
+            Some(p) => p.display().to_string(),
+            None => ":memory:".into(),
+        }
+    }
+
+    fn err(&self, op: impl Into<String>, source: rusqlite::Error) -> StoreError {
+        StoreError::Sqlite {
+            path: self.shown(),
+            op: op.into(),
+            source,
+        }
+    }
+
+    fn out_of_range(&self, op: &str, what: String) -> StoreError {
+        StoreError::OutOfRange {
+            path: self.shown(),
+            op: op.into(),
+            what,
+        }
+    }
+
+    fn corrupt(&self, op: &str, what: String) -> StoreError {
+        StoreError::Corrupt {
+            path: self.shown(),
+            op: op.into(),
+            what,
+        }
+    }
+
+    fn unknown(&self, op: &str, id: i64) -> StoreError {
+        StoreError::UnknownCampaign {
+            path: self.shown(),
+            op: op.into(),
+            id,
+        }
+    }
+
+    /// Maps a foreign-key failure to [`StoreError::UnknownCampaign`], anything else to `Sqlite`.
+    fn write_err(&self, op: &str, campaign: i64, e: rusqlite::Error) -> StoreError {
+        match &e {
+            rusqlite::Error::SqliteFailure(f, _)
+                if f.code == ErrorCode::ConstraintViolation
+                    && f.extended_code == rusqlite::ffi::SQLITE_CONSTRAINT_FOREIGNKEY =>
+            {
+                self.unknown(op, campaign)
+            }
+            _ => self.err(op, e),
+        }
+    }
+
+    /// Records a new campaign in state `Queued`; returns its id (ids only grow).
+    pub fn create_campaign(
+        &self,
+        name: &str,
+        spec_toml: &str,
+        spec_path: &str,
+        stage: &str,
+        planned: u64,
+    ) -> Result<i64, StoreError> {
+        const OP: &str = "create campaign";
+        let planned = i64_from(planned, "planned").map_err(|w| self.out_of_range(OP, w))?;
+        let now = now_unix_s();
+        self.conn
+            .prepare_cached(
+                "INSERT INTO campaigns (name, spec_toml, spec_path, stage, state, planned, \
+                 created_unix_s, updated_unix_s) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?7)",
+            )
+            .and_then(|mut st| {
+                st.execute(params![
+                    name,
+                    spec_toml,
+                    spec_path,
+                    stage,
+                    CampaignState::Queued.as_str(),
+                    planned,
+                    now
+                ])
+            })
+            .map_err(|e| self.err(OP, e))?;
+        Ok(self.conn.last_insert_rowid())
+    }
+
+    fn query_campaigns(
+        &self,
+        op: &str,
+        sql_tail: &str,
+        args: &[&dyn rusqlite::ToSql],
+    ) -> Result<Vec<CampaignRow>, StoreError> {
+        let sql = format!("SELECT {CAMPAIGN_COLS} FROM campaigns {sql_tail}");
+        let mut st = self
+            .conn
+            .prepare_cached(&sql)
+            .map_err(|e| self.err(op, e))?;
+        let rows = st
+            .query_map(args, campaign_from_row)
+            .and_then(|rows| rows.collect::<rusqlite::Result<Vec<_>>>())
+            .map_err(|e| self.err(op, e))?;
+        rows.into_iter()
+            .map(|r| r.map_err(|w| self.corrupt(op, w)))
+            .collect()
+    }
+
+    /// The campaign `id`, None if there is none.
+    pub fn campaign(&self, id: i64) -> Result<Option<CampaignRow>, StoreError> {
+        Ok(self
+            .query_campaigns("read campaign", "WHERE id = ?1", &[&id])?
+            .pop())
+    }
+
+    /// Every campaign, newest first.
+    pub fn campaigns(&self) -> Result<Vec<CampaignRow>, StoreError> {
+        self.query_campaigns("list campaigns", "ORDER BY id DESC", &[])
+    }
+
+    /// The campaigns not in a final state (queued, running, paused, interrupted), oldest first:
+    /// the service resumes these at start.
+    pub fn unfinished(&self) -> Result<Vec<CampaignRow>, StoreError> {
+        self.query_campaigns(
+            "list unfinished campaigns",
+            "WHERE state IN ('queued', 'running', 'paused', 'interrupted') ORDER BY id ASC",
+            &[],
+        )
+    }
+
+    /// Sets a campaign's state and message (None clears the message) and bumps its
+    /// `updated_unix_s`. Refuses ([`StoreError::StageBusy`]) to make a campaign `Running` while
+    /// another one runs on the same stage.
+    pub fn set_state(
+        &self,
+        id: i64,
+        state: CampaignState,
+        message: Option<&str>,
+    ) -> Result<(), StoreError> {
+        let op = format!("set campaign {id} state to {}", state.as_str());
+        let n = self
+            .conn
+            .prepare_cached(
+                "UPDATE campaigns SET state = ?2, message = ?3, updated_unix_s = ?4 WHERE id = ?1",
+            )
+            .and_then(|mut st| st.execute(params![id, state.as_str(), message, now_unix_s()]))
+            .map_err(|e| match &e {
+                rusqlite::Error::SqliteFailure(f, _)
+                    if f.code == ErrorCode::ConstraintViolation
+                        && state == CampaignState::Running =>
+                {
+                    match self.running_on_stage_of(id) {
+                        Ok(Some((stage, running))) => StoreError::StageBusy {
+                            path: self.shown(),
+                            op: op.clone(),
+                            stage,
+                            running,
+                        },
+                        _ => self.err(&op, e),
+                    }
+                }
+                _ => self.err(&op, e),
+            })?;
+        if n == 0 {
+            return Err(self.unknown(&op, id));
+        }
+        Ok(())
+    }
+
+    /// (stage, the other campaign running on it) for campaign `id`'s stage.
+    fn running_on_stage_of(&self, id: i64) -> rusqlite::Result<Option<(String, i64)>> {
+        self.conn
+            .query_row(
+                "SELECT c.stage, r.id FROM campaigns c JOIN campaigns r ON r.stage = c.stage \
+                 WHERE c.id = ?1 AND r.state = 'running' AND r.id != c.id",
+                [id],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()
+    }
+
+    /// Changes the number of planned targets (e.g. after a plan is extended on resume).
+    pub fn set_planned(&self, id: i64, planned: u64) -> Result<(), StoreError> {
+        let op = format!("set campaign {id} planned");
+        let planned = i64_from(planned, "planned").map_err(|w| self.out_of_range(&op, w))?;
+        let n = self
+            .conn
+            .prepare_cached("UPDATE campaigns SET planned = ?2, updated_unix_s = ?3 WHERE id = ?1")
+            .and_then(|mut st| st.execute(params![id, planned, now_unix_s()]))
+            .map_err(|e| self.err(&op, e))?;
+        if n == 0 {
+            return Err(self.unknown(&op, id));
+        }
+        Ok(())
+    }
+
+    /// Commits one sample in its own transaction. Returns Ok(false) and changes nothing when a
+    /// sample with the same (campaign, target.seq) exists already: a target is never stored
+    /// twice.
+    pub fn insert_sample(&self, campaign: i64, s: &SampleRecord) -> Result<bool, StoreError> {
+        const OP: &str = "insert sample";
+        let t = &s.target;
+        let seq = i64_from(t.seq, "seq").map_err(|w| self.out_of_range(OP, w))?;
+        let grid_index = i64::try_from(t.grid_index)
+            .map_err(|_| self.out_of_range(OP, format!("grid_index = {}", t.grid_index)))?;
+        let v = reals(s);
+        let raw = raw_bits(&v);
+        // NaN binds as NULL; -0.0 binds as 0.0; raw_bits has their exact bits.
+        let n = self
+            .conn
+            .prepare_cached(
+                "INSERT INTO samples (campaign_id, seq, phase, axis, direction, cycle, grid_index, \
+                 target_x_um, target_y_um, meas_x_um, meas_y_um, theta_mrad, encoder_um, time_s, \
+                 unix_s, quality, frames, rejected, point_s, raw_bits) VALUES \
+                 (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, \
+                 ?19, ?20) ON CONFLICT (campaign_id, seq) DO NOTHING",
+            )
+            .and_then(|mut st| {
+                st.execute(params![
+                    campaign,
+                    seq,
+                    t.run.phase.as_str(),
+                    t.run.axis.as_str(),
+                    t.run.direction.as_str(),
+                    t.run.cycle,
+                    grid_index,
+                    v[0],
+                    v[1],
+                    v[2],
+                    v[3],
+                    v[4],
+                    v[5],
+                    v[6],
+                    v[7],
+                    v[8],
+                    s.frames,
+                    s.rejected,
+                    v[9],
+                    raw,
+                ])
+            })
+            .map_err(|e| self.write_err(OP, campaign, e))?;
+        Ok(n == 1)
+    }
+
+    /// Every sample of a campaign, ordered by seq.
+    pub fn samples(&self, campaign: i64) -> Result<Vec<SampleRecord>, StoreError> {
+        const OP: &str = "read samples";
+        let sql = format!("SELECT {SAMPLE_COLS} FROM samples WHERE campaign_id = ?1 ORDER BY seq");
+        let mut st = self
+            .conn
+            .prepare_cached(&sql)
+            .map_err(|e| self.err(OP, e))?;
+        let rows = st
+            .query_map([campaign], sample_from_row)
+            .and_then(|rows| rows.collect::<rusqlite::Result<Vec<_>>>())
+            .map_err(|e| self.err(OP, e))?;
+        rows.into_iter()
+            .map(|r| r.map_err(|w| self.corrupt(OP, w)))
+            .collect()
+    }
+
+    /// Number of stored samples of a campaign.
+    pub fn sample_count(&self, campaign: i64) -> Result<u64, StoreError> {
+        const OP: &str = "count samples";
+        let n: i64 = self
+            .conn
+            .prepare_cached("SELECT count(*) FROM samples WHERE campaign_id = ?1")
+            .and_then(|mut st| st.query_row([campaign], |r| r.get(0)))
+            .map_err(|e| self.err(OP, e))?;
+        u64_from(n, "count").map_err(|w| self.corrupt(OP, w))
+    }
+
+    /// The seqs of the targets already stored: a resumed campaign skips these.
+    pub fn done_seqs(&self, campaign: i64) -> Result<BTreeSet<u64>, StoreError> {
+        const OP: &str = "read done seqs";
+        let mut st = self
+            .conn
+            .prepare_cached("SELECT seq FROM samples WHERE campaign_id = ?1")
+            .map_err(|e| self.err(OP, e))?;
+        let seqs = st
+            .query_map([campaign], |r| r.get::<_, i64>(0))
+            .and_then(|rows| rows.collect::<rusqlite::Result<Vec<_>>>())
+            .map_err(|e| self.err(OP, e))?;
+        seqs.into_iter()
+            .map(|s| u64_from(s, "seq").map_err(|w| self.corrupt(OP, w)))
+            .collect()
+    }
+
+    /// Appends an event to a campaign's log; returns its id, greater than every id before it.
+    pub fn add_event(
+        &self,
+        campaign: i64,
+        kind: &str,
+        data: &serde_json::Value,
+    ) -> Result<i64, StoreError> {
+        const OP: &str = "add event";
+        let text = data.to_string();
+        self.conn
+            .prepare_cached(
+                "INSERT INTO events (campaign_id, unix_s, kind, data) VALUES (?1, ?2, ?3, ?4)",
+            )
+            .and_then(|mut st| st.execute(params![campaign, now_unix_s(), kind, text]))
+            .map_err(|e| self.write_err(OP, campaign, e))?;
+        Ok(self.conn.last_insert_rowid())
+    }
+
+    /// A campaign's events with id > `after_id`, oldest first (`after_id = 0`: all of them).
+    pub fn events_after(&self, campaign: i64, after_id: i64) -> Result<Vec<EventRow>, StoreError> {
+        const OP: &str = "read events";
+        let mut st = self
+            .conn
+            .prepare_cached(
+                "SELECT id, campaign_id, unix_s, kind, data FROM events \
+                 WHERE campaign_id = ?1 AND id > ?2 ORDER BY id",
+            )
+            .map_err(|e| self.err(OP, e))?;
+        let rows = st
+            .query_map(params![campaign, after_id], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, i64>(1)?,
+                    r.get::<_, f64>(2)?,
+                    r.get::<_, String>(3)?,
+                    r.get::<_, String>(4)?,
+                ))
+            })
+            .and_then(|rows| rows.collect::<rusqlite::Result<Vec<_>>>())
+            .map_err(|e| self.err(OP, e))?;
+        rows.into_iter()
+            .map(|(id, campaign, unix_s, kind, data)| {
+                let data = serde_json::from_str(&data)
+                    .map_err(|e| self.corrupt(OP, format!("event {id}: data is not JSON: {e}")))?;
+                Ok(EventRow {
+                    id,
+                    campaign,
+                    unix_s,
+                    kind,
+                    data,
+                })
+            })
+            .collect()
+    }
+
+    /// Stores a result/artifact of a campaign (curve CSV, summary JSON, SVG/PNG plot,
+    /// compensation table), replacing any earlier one of the same name.
+    pub fn put_result(
+        &self,
+        campaign: i64,
+        name: &str,
+        content_type: &str,
+        bytes: &[u8],
+    ) -> Result<(), StoreError> {
+        let op = format!("put result {name:?}");
+        self.conn
+            .prepare_cached(
+                "INSERT INTO results (campaign_id, name, content_type, bytes, updated_unix_s) \
+                 VALUES (?1, ?2, ?3, ?4, ?5) ON CONFLICT (campaign_id, name) DO UPDATE SET \
+                 content_type = excluded.content_type, bytes = excluded.bytes, \
+                 updated_unix_s = excluded.updated_unix_s",
+            )
+            .and_then(|mut st| {
+                st.execute(params![campaign, name, content_type, bytes, now_unix_s()])
+            })
+            .map_err(|e| self.write_err(&op, campaign, e))?;
+        Ok(())
+    }
+
+    /// A result's (content type, bytes), None if the campaign has none of that name.
+    pub fn result(
+        &self,
+        campaign: i64,
+        name: &str,
+    ) -> Result<Option<(String, Vec<u8>)>, StoreError> {
+        self.conn
+            .prepare_cached(
+                "SELECT content_type, bytes FROM results WHERE campaign_id = ?1 AND name = ?2",
+            )
+            .and_then(|mut st| {
+                st.query_row(params![campaign, name], |r| Ok((r.get(0)?, r.get(1)?)))
+                    .optional()
+            })
+            .map_err(|e| self.err(format!("read result {name:?}"), e))
+    }
+
+    /// The names of a campaign's results, sorted.
+    pub fn result_names(&self, campaign: i64) -> Result<Vec<String>, StoreError> {
+        const OP: &str = "list results";
+        self.conn
+            .prepare_cached("SELECT name FROM results WHERE campaign_id = ?1 ORDER BY name")
+            .and_then(|mut st| {
+                st.query_map([campaign], |r| r.get(0))?
+                    .collect::<rusqlite::Result<Vec<String>>>()
+            })
+            .map_err(|e| self.err(OP, e))
+    }
+}
+
+#[cfg(test)]
+mod tests;
