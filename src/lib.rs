@@ -5,6 +5,7 @@ pub mod gap;
 pub mod grid;
 pub mod iso230;
 pub mod recon;
+pub mod report;
 pub mod samples;
 pub mod sampling;
 pub mod store;

@@ -1,0 +1,337 @@
+//! ISO 230-2 figures per moving axis, by [`crate::iso230::evaluate`].
+//!
+//! Two sources, reported separately:
+//! - `reconstructed`: the forward (`ef_xx`) and backward (`eb_xx`) reconstructions, every grid
+//!   point a target with one approach per direction. There is no repeatability information (s =
+//!   0), so R is not reported and A = E; B, B̄, E and M are those of the systematic curves at
+//!   grid resolution.
+//! - `measured`: the CS samples of those components, when repeated cycles exist — targets
+//!   measured at least twice in every direction present. Other targets are left out.
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use super::{ComponentCurve, ReportError};
+use crate::campaign::types::{AxisId, Component, Direction};
+use crate::iso230::{evaluate, Approach, Iso230, TargetRow};
+
+/// ISO 230-2 summary figures, µm. Unidirectional figures are `None` when that direction is
+/// absent, bidirectional ones (B, B̄, M) unless both are present, R unless every target has at
+/// least two approaches per direction.
+#[derive(Debug, Clone, Serialize)]
+pub struct IsoFigures {
+    pub targets: usize,
+    /// Fewest approaches at any target and direction.
+    pub min_approaches: usize,
+    /// Accuracy A = max(x̄ + 2s) - min(x̄ - 2s), both directions; A↑, A↓.
+    pub a_um: f64,
+    pub a_up_um: Option<f64>,
+    pub a_down_um: Option<f64>,
+    /// Reversal value B = max|B_i|, mean reversal B̄ (signed, B_i = x̄↑ - x̄↓).
+    pub b_um: Option<f64>,
+    pub b_mean_um: Option<f64>,
+    /// Systematic positioning error E (range of x̄↑ and x̄↓), E↑, E↓.
+    pub e_um: f64,
+    pub e_up_um: Option<f64>,
+    pub e_down_um: Option<f64>,
+    /// Range of the mean bidirectional deviation M.
+    pub m_um: Option<f64>,
+    /// Repeatability R (bidirectional), R↑, R↓.
+    pub r_um: Option<f64>,
+    pub r_up_um: Option<f64>,
+    pub r_down_um: Option<f64>,
+    /// Per-target figures (measured samples only).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub rows: Vec<TargetRow>,
+}
+
+impl IsoFigures {
+    fn from_iso(iso: Iso230, keep_rows: bool) -> Self {
+        let s = iso.summary;
+        let repeated = s.min_approaches >= 2;
+        Self {
+            targets: s.targets,
+            min_approaches: s.min_approaches,
+            a_um: s.a_um,
+            a_up_um: s.a_up_um,
+            a_down_um: s.a_down_um,
+            b_um: s.b_um,
+            b_mean_um: s.b_mean_um,
+            e_um: s.e_um,
+            e_up_um: s.e_up_um,
+            e_down_um: s.e_down_um,
+            m_um: s.m_um,
+            r_um: repeated.then_some(s.r_um),
+            r_up_um: s.r_up_um.filter(|_| repeated),
+            r_down_um: s.r_down_um.filter(|_| repeated),
+            rows: if keep_rows { iso.rows } else { Vec::new() },
+        }
+    }
+}
+
+/// ISO 230-2 figures of one moving axis.
+#[derive(Debug, Clone, Serialize)]
+pub struct AxisIso230 {
+    /// `x` or `y`.
+    pub axis: String,
+    /// The driving-direction components used (`ef_xx`, `eb_xx`), when present.
+    pub forward_component: Option<String>,
+    pub backward_component: Option<String>,
+    /// From the reconstructed curves at every grid point.
+    pub reconstructed: IsoFigures,
+    /// From the measured samples, when repeated cycles exist.
+    pub measured: Option<IsoFigures>,
+    /// What was left out and why, and departures from ISO 230-2's test conditions.
+    pub notes: Vec<String>,
+}
+
+/// ISO 230-2 figures of moving axis `axis` from its driving-direction curves in `curves`
+/// (coupling components are not positioning errors and are ignored). Targets closer than
+/// `tol_um` are one target. `Ok(None)` without a driving component of that axis; an error when
+/// a used curve is invalid or forward and backward curves are not on one grid.
+pub fn iso230_axis(
+    axis: AxisId,
+    curves: &[ComponentCurve],
+    tol_um: f64,
+) -> Result<Option<AxisIso230>, ReportError> {
+    let find = |direction| {
+        let comp = Component {
+            moving: axis,
+            direction,
+            measured: axis,
+        };
+        curves.iter().find(|c| c.parsed() == Some(comp))
+    };
+    let fwd = find(Direction::Forward);
+    let bwd = find(Direction::Backward);
+    let used: Vec<(&ComponentCurve, bool)> = [(fwd, true), (bwd, false)]
+        .into_iter()
+        .filter_map(|(c, f)| c.map(|c| (c, f)))
+        .collect();
+    if used.is_empty() {
+        return Ok(None);
+    }
+    for (c, _) in &used {
+        c.validate()?;
+    }
+    if let (Some(f), Some(b)) = (fwd, bwd) {
+        let same = f.grid_um.len() == b.grid_um.len()
+            && f.grid_um
+                .iter()
+                .zip(&b.grid_um)
+                .all(|(p, q)| (p - q).abs() <= tol_um.max(crate::grid::ON_GRID_TOL_UM));
+        if !same {
+            return Err(ReportError::InvalidCurve {
+                component: b.component.clone(),
+                reason: format!("grid differs from {}'s", f.component),
+            });
+        }
+    }
+    let mut notes = Vec::new();
+
+    let recon: Vec<Approach> = used
+        .iter()
+        .flat_map(|&(c, forward)| {
+            c.grid_um
+                .iter()
+                .zip(&c.reconstructed_um)
+                .filter(|(p, e)| p.is_finite() && e.is_finite())
+                .map(move |(&p, &e)| Approach {
+                    target_um: p,
+                    forward,
+                    deviation_um: e,
+                })
+        })
+        .collect();
+    let Some(recon_iso) = evaluate(&recon, tol_um) else {
+        return Err(ReportError::InvalidCurve {
+            component: used[0].0.component.clone(),
+            reason: "no finite reconstructed value".into(),
+        });
+    };
+    let reconstructed = IsoFigures::from_iso(recon_iso, false);
+    notes.push(
+        "reconstructed: one approach per target and direction (s = 0): R not reported, A = E"
+            .into(),
+    );
+    if used.len() == 1 {
+        notes.push(format!(
+            "only the {} direction was characterized: B, B̄ and M need both",
+            if used[0].1 { "forward" } else { "backward" }
+        ));
+    }
+
+    let measured = measured_figures(&used, tol_um, &mut notes);
+    Ok(Some(AxisIso230 {
+        axis: axis.as_str().into(),
+        forward_component: fwd.map(|c| c.component.clone()),
+        backward_component: bwd.map(|c| c.component.clone()),
+        reconstructed,
+        measured,
+        notes,
+    }))
+}
+
+/// Figures from the samples at targets approached at least twice in every direction present.
+fn measured_figures(
+    used: &[(&ComponentCurve, bool)],
+    tol_um: f64,
+    notes: &mut Vec<String>,
+) -> Option<IsoFigures> {
+    let key = |p: f64| (p / tol_um.max(1e-12)).round() as i64;
+    // target key -> (approaches forward, approaches backward)
+    let mut counts: BTreeMap<i64, [usize; 2]> = BTreeMap::new();
+    let mut all = Vec::new();
+    for &(c, forward) in used {
+        for &(p, e) in c
+            .samples
+            .iter()
+            .filter(|(p, e)| p.is_finite() && e.is_finite())
+        {
+            counts.entry(key(p)).or_default()[usize::from(!forward)] += 1;
+            all.push(Approach {
+                target_um: p,
+                forward,
+                deviation_um: e,
+            });
+        }
+    }
+    let dirs: Vec<usize> = used.iter().map(|&(_, f)| usize::from(!f)).collect();
+    let repeated = |k: &i64| {
+        counts
+            .get(k)
+            .is_some_and(|n| dirs.iter().all(|&d| n[d] >= 2))
+    };
+    let kept: Vec<Approach> = all
+        .into_iter()
+        .filter(|a| repeated(&key(a.target_um)))
+        .collect();
+    let n_targets = counts.keys().filter(|k| repeated(k)).count();
+    if n_targets < 2 {
+        notes.push(format!(
+            "measured: {n_targets} target(s) with repeated approaches in every direction \
+             (at least 2 needed): no figures from the samples"
+        ));
+        return None;
+    }
+    let fig = IsoFigures::from_iso(evaluate(&kept, tol_um)?, true);
+    if counts.len() > n_targets {
+        notes.push(format!(
+            "measured: {} of {} sampled targets left out (fewer than 2 approaches in a direction)",
+            counts.len() - n_targets,
+            counts.len()
+        ));
+    }
+    if n_targets < 5 || fig.min_approaches < 5 {
+        notes.push(format!(
+            "measured: {n_targets} targets, at least {} approaches per direction; ISO 230-2 asks \
+             for at least 5 targets and 5 approaches per direction",
+            fig.min_approaches
+        ));
+    }
+    Some(fig)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn line_curve(name: &str, f: impl Fn(f64) -> f64) -> ComponentCurve {
+        let grid: Vec<f64> = (0..=100).map(|i| i as f64 * 10.0).collect();
+        ComponentCurve {
+            component: name.into(),
+            reconstructed_um: grid.iter().map(|&x| f(x)).collect(),
+            grid_um: grid,
+            method: "physics".into(),
+            cv_error_um: None,
+            samples: Vec::new(),
+            full_scan_um: None,
+            truth_um: None,
+        }
+    }
+
+    #[test]
+    fn constant_backlash_and_trend_give_known_b_e_m() {
+        // f(x) = x/1000 (0..1 µm); forward +1, backward -1: reversal 2 µm everywhere.
+        let curves = [
+            line_curve("ef_xx", |x| x / 1000.0 + 1.0),
+            line_curve("eb_xx", |x| x / 1000.0 - 1.0),
+            line_curve("ef_xy", |_| 50.0), // coupling: must not count
+        ];
+        let r = iso230_axis(AxisId::X, &curves, 1e-3).unwrap().unwrap();
+        let s = &r.reconstructed;
+        assert_eq!(s.targets, 101);
+        assert!((s.b_um.unwrap() - 2.0).abs() < 1e-12);
+        assert!((s.b_mean_um.unwrap() - 2.0).abs() < 1e-12);
+        assert!((s.e_um - 3.0).abs() < 1e-12, "E from -1 to 2: {}", s.e_um);
+        assert!((s.e_up_um.unwrap() - 1.0).abs() < 1e-12);
+        assert!((s.m_um.unwrap() - 1.0).abs() < 1e-12);
+        assert!((s.a_um - s.e_um).abs() < 1e-12);
+        assert!(s.r_um.is_none() && s.r_up_um.is_none());
+        assert!(r.measured.is_none());
+        assert_eq!(r.forward_component.as_deref(), Some("ef_xx"));
+        assert!(iso230_axis(AxisId::Y, &curves, 1e-3).unwrap().is_none());
+    }
+
+    #[test]
+    fn position_dependent_hysteresis_gives_max_and_mean_reversal() {
+        // b(x) = 1 + x/1000: B = max = 2 at x = 1000, B̄ = 1.5.
+        let b = |x: f64| 1.0 + x / 1000.0;
+        let curves = [
+            line_curve("eb_yy", move |x| -b(x) / 2.0),
+            line_curve("ef_yy", move |x| b(x) / 2.0),
+        ];
+        let s = iso230_axis(AxisId::Y, &curves, 1e-3)
+            .unwrap()
+            .unwrap()
+            .reconstructed;
+        assert!((s.b_um.unwrap() - 2.0).abs() < 1e-12);
+        assert!((s.b_mean_um.unwrap() - 1.5).abs() < 1e-12);
+        assert!(s.m_um.unwrap().abs() < 1e-12);
+        assert!((s.e_um - 2.0).abs() < 1e-12); // from -1 to +1
+    }
+
+    #[test]
+    fn repeated_cycles_give_measured_figures_with_repeatability() {
+        // 6 targets, 3 cycles each direction, deviations ±1 µm backlash, scatter -0.1/0/+0.1
+        // (s = 0.1); plus one target measured once, which must be left out.
+        let mut f = line_curve("ef_xx", |_| 1.0);
+        let mut b = line_curve("eb_xx", |_| -1.0);
+        for t in 0..6 {
+            let p = 100.0 + 150.0 * t as f64;
+            for j in 0..3 {
+                let noise = 0.1 * (j as f64 - 1.0);
+                f.samples.push((p, 1.0 + noise));
+                b.samples.push((p, -1.0 + noise));
+            }
+        }
+        f.samples.push((55.0, 9.0));
+        b.samples.push((55.0, -9.0));
+        let r = iso230_axis(AxisId::X, &[f, b], 1e-3).unwrap().unwrap();
+        let m = r.measured.as_ref().expect("measured figures");
+        assert_eq!((m.targets, m.min_approaches), (6, 3));
+        assert_eq!(m.rows.len(), 6);
+        assert!((m.b_um.unwrap() - 2.0).abs() < 1e-12);
+        assert!((m.r_up_um.unwrap() - 0.4).abs() < 1e-12);
+        // R_i = 2s↑ + 2s↓ + |B_i| = 0.2 + 0.2 + 2.
+        assert!((m.r_um.unwrap() - 2.4).abs() < 1e-12);
+        // A = (1 + 0.2) - (-1 - 0.2); E = 2.
+        assert!((m.a_um - 2.4).abs() < 1e-12);
+        assert!((m.e_um - 2.0).abs() < 1e-12);
+        assert!(r.notes.iter().any(|n| n.contains("1 of 7 sampled targets")));
+        assert!(r.notes.iter().any(|n| n.contains("5 approaches")));
+    }
+
+    #[test]
+    fn single_cycle_samples_give_no_measured_figures() {
+        let mut f = line_curve("ef_xx", |_| 0.0);
+        f.samples = (0..50).map(|i| (i as f64 * 10.0, 0.1)).collect();
+        let r = iso230_axis(AxisId::X, &[f], 1e-3).unwrap().unwrap();
+        assert!(r.measured.is_none());
+        assert!(r.reconstructed.b_um.is_none());
+        assert!(r
+            .notes
+            .iter()
+            .any(|n| n.contains("no figures from the samples")));
+    }
+}
