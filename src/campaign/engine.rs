@@ -178,7 +178,10 @@ impl<'a> Engine<'a> {
         control: watch::Receiver<Control>,
         done: BTreeMap<u64, SampleRecord>,
     ) -> Self {
-        let start_time_s = done.values().map(|s| s.time_s + s.point_s).fold(0.0, f64::max);
+        let start_time_s = done
+            .values()
+            .map(|s| s.time_s + s.point_s)
+            .fold(0.0, f64::max);
         Self {
             campaign,
             rig,
@@ -187,12 +190,16 @@ impl<'a> Engine<'a> {
             done,
             start_time_s,
             stats: BTreeMap::new(),
-            depth: std::thread::available_parallelism().map_or(2, |n| n.get()).clamp(2, 8),
+            depth: std::thread::available_parallelism()
+                .map_or(2, |n| n.get())
+                .clamp(2, 8),
         }
     }
 
     fn stat(&mut self, run: RunKey) -> &mut PhaseStats {
-        self.stats.entry(stats_key(run.phase, run.axis)).or_default()
+        self.stats
+            .entry(stats_key(run.phase, run.axis))
+            .or_default()
     }
 
     fn advance(&mut self, run: RunKey, physical_s: f64) {
@@ -234,7 +241,10 @@ impl<'a> Engine<'a> {
             let phys = self.rig.time.physical_since(t);
             let t = self.rig.clock.get() + phys;
             self.rig.clock.set(t);
-            self.recorder.event("referenced", json!({"axis": a.as_str(), "physical_s": phys}));
+            self.recorder.event(
+                "referenced",
+                json!({"axis": a.as_str(), "physical_s": phys}),
+            );
         }
         let runs = plan.runs();
         for run in runs {
@@ -357,7 +367,12 @@ impl<'a> Engine<'a> {
         let move_s = self.move_axis(t.run.axis, t.target_um()).await?;
         let wait = settle + dwell;
         tokio::time::sleep(self.rig.time.wall(wait)).await;
-        let encoder_um = self.rig.axis(t.run.axis).position_um().await.map_err(ax(t.run.axis))?;
+        let encoder_um = self
+            .rig
+            .axis(t.run.axis)
+            .position_um()
+            .await
+            .map_err(ax(t.run.axis))?;
         let time_s = self.rig.clock.get() + move_s + wait;
         self.rig.clock.set(time_s);
         let trig = Instant::now();
@@ -382,8 +397,15 @@ impl<'a> Engine<'a> {
     }
 
     /// Finishes a point: a stored sample, or the target back for a retry.
-    async fn land(&mut self, f: InFlight, rejected_before: u32) -> Result<Option<Target>, EngineError> {
-        let d = f.job.await.map_err(|e| EngineError::Other(format!("decode task: {e}")))?;
+    async fn land(
+        &mut self,
+        f: InFlight,
+        rejected_before: u32,
+    ) -> Result<Option<Target>, EngineError> {
+        let d = f
+            .job
+            .await
+            .map_err(|e| EngineError::Other(format!("decode task: {e}")))?;
         let run = f.target.run;
         {
             let st = self.stat(run);

@@ -3,10 +3,10 @@
 pub mod engine;
 pub mod plan;
 pub mod results;
-pub mod session;
-pub mod worker;
 pub mod rig;
+pub mod session;
 pub mod spec;
 pub mod types;
+pub mod worker;
 
 pub use types::*;

@@ -191,7 +191,11 @@ m = 20
         // x: cs (2 cycles x 2 dirs) + full (2 x 2); y the same.
         assert_eq!(p.runs().len(), 16);
         assert_eq!(p.total(), 2 * 2 * (40 + 201) + 2 * 2 * (20 + 101));
-        let seqs: Vec<u64> = p.batches.iter().flat_map(|b| b.targets.iter().map(|t| t.seq)).collect();
+        let seqs: Vec<u64> = p
+            .batches
+            .iter()
+            .flat_map(|b| b.targets.iter().map(|t| t.seq))
+            .collect();
         assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1) && seqs[0] == 0);
         for b in &p.batches {
             let pos: Vec<f64> = b.targets.iter().map(|t| t.target_um()).collect();
@@ -199,7 +203,11 @@ m = 20
                 Direction::Forward => assert!(pos.windows(2).all(|w| w[0] < w[1])),
                 Direction::Backward => assert!(pos.windows(2).all(|w| w[0] > w[1])),
             }
-            let other = if b.run.axis == AxisId::X { 100.0 } else { 200.0 };
+            let other = if b.run.axis == AxisId::X {
+                100.0
+            } else {
+                200.0
+            };
             assert!(b.targets.iter().all(|t| match b.run.axis {
                 AxisId::X => t.target_y_um == other,
                 AxisId::Y => t.target_x_um == other,
@@ -210,7 +218,12 @@ m = 20
             let mut v: Vec<usize> = p
                 .batches
                 .iter()
-                .filter(|b| b.run.axis == AxisId::X && b.run.phase == Phase::Cs && b.run.direction == d && b.run.cycle == cycle)
+                .filter(|b| {
+                    b.run.axis == AxisId::X
+                        && b.run.phase == Phase::Cs
+                        && b.run.direction == d
+                        && b.run.cycle == cycle
+                })
                 .flat_map(|b| b.targets.iter().map(|t| t.grid_index))
                 .collect();
             v.sort_unstable();
@@ -219,7 +232,9 @@ m = 20
         assert_eq!(set(Direction::Forward, 0), set(Direction::Backward, 1));
         assert_eq!(set(Direction::Forward, 0).len(), 40);
         // Same file, same plan.
-        let q = plan(&campaign("[sampling]\nm = 40\nfull_scan = true\n[acquisition]\ncycles = 2\n"));
+        let q = plan(&campaign(
+            "[sampling]\nm = 40\nfull_scan = true\n[acquisition]\ncycles = 2\n",
+        ));
         assert_eq!(format!("{:?}", p.batches), format!("{:?}", q.batches));
     }
 
@@ -232,8 +247,14 @@ m = 20
             .iter()
             .filter(|b| b.run.axis == AxisId::X && b.run.direction == Direction::Forward)
             .collect();
-        assert_eq!(x_fwd.iter().map(|b| b.targets.len()).collect::<Vec<_>>(), vec![50, 50, 20]);
-        let mut all: Vec<usize> = x_fwd.iter().flat_map(|b| b.targets.iter().map(|t| t.grid_index)).collect();
+        assert_eq!(
+            x_fwd.iter().map(|b| b.targets.len()).collect::<Vec<_>>(),
+            vec![50, 50, 20]
+        );
+        let mut all: Vec<usize> = x_fwd
+            .iter()
+            .flat_map(|b| b.targets.iter().map(|t| t.grid_index))
+            .collect();
         all.sort_unstable();
         all.dedup();
         assert_eq!(all.len(), 120);

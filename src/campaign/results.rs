@@ -57,7 +57,14 @@ pub fn build(
     let mut table = String::new();
     table.push_str(&format!(
         "{:<6} {:<10} {:>7} {:>12} {:>11} {:>12} {:>13} {:>13}\n",
-        "axis", "method", "meas.", "acquisition", "processing", "saved", "err vs full", "err vs truth"
+        "axis",
+        "method",
+        "meas.",
+        "acquisition",
+        "processing",
+        "saved",
+        "err vs full",
+        "err vs truth"
     ));
     table.push_str(&format!(
         "{:<6} {:<10} {:>7} {:>12} {:>11} {:>12} {:>13} {:>13}\n",
@@ -69,9 +76,9 @@ pub fn build(
         let mut comps = Vec::new();
         let mut proc_s = [0.0f64; 2];
         let curve = |phase: Phase, comp: &Component, cycle: u32| {
-            curves.iter().find(|k| {
-                k.run.phase == phase && k.component == *comp && k.run.cycle == cycle
-            })
+            curves
+                .iter()
+                .find(|k| k.run.phase == phase && k.component == *comp && k.run.cycle == cycle)
         };
         for k in curves.iter().filter(|k| k.run.axis == a) {
             proc_s[(k.run.phase == Phase::Full) as usize] += k.solve_ms / 1000.0;
@@ -118,12 +125,19 @@ pub fn build(
                 }
                 csv.push('\n');
             }
-            files.push((format!("{}.csv", comp.name()), "text/csv".into(), csv.into_bytes()));
+            files.push((
+                format!("{}.csv", comp.name()),
+                "text/csv".into(),
+                csv.into_bytes(),
+            ));
         }
         let full_st = stat(outcome, Phase::Full, a);
         let cs_st = stat(outcome, Phase::Cs, a);
         let mut phase_json = serde_json::Map::new();
-        for (pi, (phase, st)) in [(Phase::Cs, &cs_st), (Phase::Full, &full_st)].into_iter().enumerate() {
+        for (pi, (phase, st)) in [(Phase::Cs, &cs_st), (Phase::Full, &full_st)]
+            .into_iter()
+            .enumerate()
+        {
             if st.measurements == 0 && st.acquisition_s == 0.0 {
                 continue;
             }
@@ -144,7 +158,12 @@ pub fn build(
         let drive = |key: &str| -> String {
             comps
                 .iter()
-                .find(|j| j["component"].as_str().is_some_and(|n| n.ends_with(&format!("_{a}{a}"))) && j.get(key).is_some())
+                .find(|j| {
+                    j["component"]
+                        .as_str()
+                        .is_some_and(|n| n.ends_with(&format!("_{a}{a}")))
+                        && j.get(key).is_some()
+                })
                 .map(|j| {
                     format!(
                         "{:.3}/{:.3}",
@@ -184,10 +203,13 @@ pub fn build(
                 drive("cs_vs_truth"),
             ));
         }
-        axes_json.push(json!({"axis": a.as_str(), "grid_points": ax.grid.n, "phases": phase_json,
-                              "acquisition_saved_pct": saved, "components": comps}));
+        axes_json.push(
+            json!({"axis": a.as_str(), "grid_points": ax.grid.n, "phases": phase_json,
+                              "acquisition_saved_pct": saved, "components": comps}),
+        );
     }
-    let total_saved = (tot[1][1] > 0.0 && tot[0][1] > 0.0).then(|| 100.0 * (1.0 - tot[0][1] / tot[1][1]));
+    let total_saved =
+        (tot[1][1] > 0.0 && tot[0][1] > 0.0).then(|| 100.0 * (1.0 - tot[0][1] / tot[1][1]));
     let total_saved_all = (tot[1][1] > 0.0 && tot[0][1] > 0.0)
         .then(|| 100.0 * (1.0 - (tot[0][1] + tot[0][2]) / (tot[1][1] + tot[1][2])));
     if let Some(s) = total_saved {
@@ -219,7 +241,11 @@ pub fn build(
         "application/json".into(),
         serde_json::to_vec_pretty(&summary).unwrap_or_default(),
     ));
-    files.push(("summary.txt".into(), "text/plain".into(), table.clone().into_bytes()));
+    files.push((
+        "summary.txt".into(),
+        "text/plain".into(),
+        table.clone().into_bytes(),
+    ));
     let mut sc = String::from(
         "seq,phase,axis,direction,cycle,target_x_um,target_y_um,meas_x_um,meas_y_um,theta_mrad,encoder_um,time_s,quality,frames,rejected\n",
     );
@@ -255,12 +281,21 @@ pub fn build(
 fn drive_truth_full(comps: &[Value], a: AxisId) -> String {
     comps
         .iter()
-        .find(|j| j["component"].as_str().is_some_and(|n| n.ends_with(&format!("_{a}{a}"))) && j.get("full_vs_truth").is_some())
+        .find(|j| {
+            j["component"]
+                .as_str()
+                .is_some_and(|n| n.ends_with(&format!("_{a}{a}")))
+                && j.get("full_vs_truth").is_some()
+        })
         .map(|j| {
             format!(
                 "{:.3}/{:.3}",
-                j["full_vs_truth"]["mean_abs_um"].as_f64().unwrap_or(f64::NAN),
-                j["full_vs_truth"]["max_abs_um"].as_f64().unwrap_or(f64::NAN)
+                j["full_vs_truth"]["mean_abs_um"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
+                j["full_vs_truth"]["max_abs_um"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN)
             )
         })
         .unwrap_or_else(|| "-".into())

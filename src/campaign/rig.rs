@@ -162,10 +162,19 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
         (c.axis(AxisId::X).map_or(0.0, |a| a.grid.start_um)) / 1000.0,
         (c.axis(AxisId::Y).map_or(0.0, |a| a.grid.start_um)) / 1000.0,
     ];
-    let stage = SimStage::new(model.clone(), s.time_scale, start_mm, s.velocity_mm_s, s.acceleration_mm_s2);
+    let stage = SimStage::new(
+        model.clone(),
+        s.time_scale,
+        start_mm,
+        s.velocity_mm_s,
+        s.acceleration_mm_s2,
+    );
     let mut sims = Vec::new();
     let mut axes: Vec<Box<dyn Axis>> = Vec::new();
-    for (a, limits) in [(AxisId::X, s.soft_limits_x_um), (AxisId::Y, s.soft_limits_y_um)] {
+    for (a, limits) in [
+        (AxisId::X, s.soft_limits_x_um),
+        (AxisId::Y, s.soft_limits_y_um),
+    ] {
         let cfg = ControllerConfig {
             travel_mm: s.travel_mm,
             velocity_mm_s: s.velocity_mm_s,
@@ -177,7 +186,8 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
         let sim = match s.transport {
             SimTransport::Pty => SimController::start_pty(stage.clone(), a, cfg, None).await,
             SimTransport::Tcp => {
-                SimController::start_tcp(stage.clone(), a, cfg, "127.0.0.1:0".parse().unwrap()).await
+                SimController::start_tcp(stage.clone(), a, cfg, "127.0.0.1:0".parse().unwrap())
+                    .await
             }
         }
         .map_err(|e| format!("cannot start the simulated C-863 of axis {a}: {e}"))?;
@@ -209,7 +219,10 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
             (x, y)
         }
     };
-    let optics = s.render_optics.clone().unwrap_or_else(|| c.spec.hardware.optics.clone());
+    let optics = s
+        .render_optics
+        .clone()
+        .unwrap_or_else(|| c.spec.hardware.optics.clone());
     let camera = SimCamera::new(pattern, optics, Box::new(source))
         .map_err(|e| e.to_string())?
         .with_seed(s.seed);
@@ -226,7 +239,9 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
         y,
         camera: Some(Box::new(camera)),
         decoder,
-        time: TimeBase::Sim { scale: s.time_scale },
+        time: TimeBase::Sim {
+            scale: s.time_scale,
+        },
         frame_time_s: Some(s.frame_time_s),
         clock,
         truth: Some(Arc::new(model)),

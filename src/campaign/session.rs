@@ -116,7 +116,8 @@ impl Recorder for StoreRecorder {
     fn cv_error_um(&mut self, run: RunKey) -> Option<f64> {
         let grid = self.campaign.axis(run.axis)?.grid;
         let st = settings(&self.campaign);
-        let curves = tokio::task::block_in_place(|| reconstruct_run(&grid, &st, run, &self.samples));
+        let curves =
+            tokio::task::block_in_place(|| reconstruct_run(&grid, &st, run, &self.samples));
         curves
             .into_iter()
             .filter_map(|c| c.ok())
@@ -157,14 +158,20 @@ pub async fn execute(
     let resumed = !done.is_empty();
     {
         let s = lock(&store);
-        s.set_planned(id, p.total() as u64).map_err(|e| e.to_string())?;
-        s.set_state(id, CampaignState::Running, None).map_err(|e| e.to_string())?;
+        s.set_planned(id, p.total() as u64)
+            .map_err(|e| e.to_string())?;
+        s.set_state(id, CampaignState::Running, None)
+            .map_err(|e| e.to_string())?;
     }
     emit(
         &store,
         &events,
         id,
-        if resumed { "resumed_from_store" } else { "started" },
+        if resumed {
+            "resumed_from_store"
+        } else {
+            "started"
+        },
         json!({"planned": p.total(), "stored": done.len(), "name": c.spec.campaign.name}),
     );
     let fail = |msg: String| {
@@ -172,13 +179,25 @@ pub async fn execute(
         let _ = s.set_state(id, CampaignState::Interrupted, Some(&msg));
         msg
     };
-    let mut rig: Rig = rig::build(&c).await.map_err(|e| fail(format!("hardware: {e}")))?;
-    emit(&store, &events, id, "rig", json!({"describe": rig.describe}));
+    let mut rig: Rig = rig::build(&c)
+        .await
+        .map_err(|e| fail(format!("hardware: {e}")))?;
+    emit(
+        &store,
+        &events,
+        id,
+        "rig",
+        json!({"describe": rig.describe}),
+    );
 
     let (st2, ev2) = (store.clone(), events.clone());
     let worker = Worker::start(&c, move |r| match r {
         Ok(curve) => {
-            let name = format!("curves/{}-{}.csv", curve.run.label(), curve.component.name());
+            let name = format!(
+                "curves/{}-{}.csv",
+                curve.run.label(),
+                curve.component.name()
+            );
             let _ = lock(&st2).put_result(id, &name, "text/csv", curve.csv().as_bytes());
             emit(
                 &st2,
@@ -204,7 +223,9 @@ pub async fn execute(
         let mut engine = Engine::new(&c, &mut rig, &mut rec, control, done);
         engine.run(&p).await
     };
-    let StoreRecorder { worker, samples, .. } = rec;
+    let StoreRecorder {
+        worker, samples, ..
+    } = rec;
     let outcome = match outcome {
         Ok(o) => o,
         Err(e) => {
@@ -212,7 +233,13 @@ pub async fn execute(
             rig.close().await;
             drop(worker.finish());
             let msg = fail(format!("stopped: {e}"));
-            emit(&store, &events, id, "finished", json!({"state": "interrupted", "error": msg}));
+            emit(
+                &store,
+                &events,
+                id,
+                "finished",
+                json!({"state": "interrupted", "error": msg}),
+            );
             return Err(format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` continues from the last stored sample"));
         }
     };
@@ -260,7 +287,13 @@ pub async fn execute(
     lock(&store)
         .set_state(id, CampaignState::Done, None)
         .map_err(|e| e.to_string())?;
-    emit(&store, &events, id, "finished", json!({"state": "done", "summary": rep.summary}));
+    emit(
+        &store,
+        &events,
+        id,
+        "finished",
+        json!({"state": "done", "summary": rep.summary}),
+    );
     Ok(Finished {
         id,
         state: CampaignState::Done,
@@ -315,5 +348,8 @@ impl TruthSource {
 
 /// Stats of one (phase, axis), zero when absent.
 pub fn stat(o: &Outcome, phase: Phase, axis: AxisId) -> PhaseStats {
-    o.stats.get(&stats_key(phase, axis)).cloned().unwrap_or_default()
+    o.stats
+        .get(&stats_key(phase, axis))
+        .cloned()
+        .unwrap_or_default()
 }

@@ -371,7 +371,10 @@ fn validate(
         return Err(fail("campaign.name", "must not be empty".into()));
     }
     if spec.axes.is_empty() {
-        return Err(fail("axes", "no axis to characterize: add [axes.x] and/or [axes.y]".into()));
+        return Err(fail(
+            "axes",
+            "no axis to characterize: add [axes.x] and/or [axes.y]".into(),
+        ));
     }
     let h = &spec.hardware;
     if !pos(h.reference_timeout_s) {
@@ -383,7 +386,8 @@ fn validate(
     h.optics
         .validate()
         .map_err(|e| fail("hardware.optics", e))?;
-    csmetro_ppp::Pattern::new(h.pattern.clone()).map_err(|e| fail("hardware.pattern", e.to_string()))?;
+    csmetro_ppp::Pattern::new(h.pattern.clone())
+        .map_err(|e| fail("hardware.pattern", e.to_string()))?;
     let limits_of = |a: AxisId| -> Result<(f64, f64), SpecError> {
         match h.kind {
             HardwareKind::Sim => {
@@ -409,7 +413,10 @@ fn validate(
         HardwareKind::Sim => {
             let s = &h.sim;
             if !(pos(s.time_scale) && s.time_scale <= 1e6) {
-                return Err(fail("hardware.sim.time_scale", "must be in (0, 1e6]".into()));
+                return Err(fail(
+                    "hardware.sim.time_scale",
+                    "must be in (0, 1e6]".into(),
+                ));
             }
             if !nonneg(s.frame_time_s) {
                 return Err(fail("hardware.sim.frame_time_s", "must be ≥ 0 s".into()));
@@ -427,7 +434,8 @@ fn validate(
                 ));
             }
             if let Some(o) = &s.render_optics {
-                o.validate().map_err(|e| fail("hardware.sim.render_optics", e))?;
+                o.validate()
+                    .map_err(|e| fail("hardware.sim.render_optics", e))?;
             }
             if let Some(m) = &s.model {
                 let p = if Path::new(m).is_absolute() {
@@ -453,7 +461,11 @@ fn validate(
                 if !(l[0].is_finite() && l[1].is_finite() && l[0] < l[1] && inside) {
                     return Err(fail(
                         k,
-                        format!("must be [lo, hi] µm with lo < hi inside the travel [{}, {}] µm", tlo * 1000.0, thi * 1000.0),
+                        format!(
+                            "must be [lo, hi] µm with lo < hi inside the travel [{}, {}] µm",
+                            tlo * 1000.0,
+                            thi * 1000.0
+                        ),
                     ));
                 }
             }
@@ -489,7 +501,9 @@ fn validate(
                         "a real campaign needs [hardware.camera]".into(),
                     ))
                 }
-                Some(c) => c.validate().map_err(|e| fail("hardware.camera", e.to_string()))?,
+                Some(c) => c
+                    .validate()
+                    .map_err(|e| fail("hardware.camera", e.to_string()))?,
             }
         }
     }
@@ -510,12 +524,18 @@ fn validate(
     }
     let a = &spec.acquisition;
     if a.directions.is_empty() {
-        return Err(fail("acquisition.directions", "needs forward and/or backward".into()));
+        return Err(fail(
+            "acquisition.directions",
+            "needs forward and/or backward".into(),
+        ));
     }
     let mut dirs = a.directions.clone();
     dirs.dedup();
     if dirs.len() != a.directions.len() {
-        return Err(fail("acquisition.directions", "a direction is listed twice".into()));
+        return Err(fail(
+            "acquisition.directions",
+            "a direction is listed twice".into(),
+        ));
     }
     if !(1..=1000).contains(&a.cycles) {
         return Err(fail("acquisition.cycles", "must be in 1..=1000".into()));
@@ -527,13 +547,19 @@ fn validate(
         return Err(fail("acquisition.dwell_s", "must be in [0, 3600] s".into()));
     }
     if !(1..=100).contains(&a.frames_per_point) {
-        return Err(fail("acquisition.frames_per_point", "must be in 1..=100".into()));
+        return Err(fail(
+            "acquisition.frames_per_point",
+            "must be in 1..=100".into(),
+        ));
     }
     if a.max_retries > 100 {
         return Err(fail("acquisition.max_retries", "must be ≤ 100".into()));
     }
     if !(nonneg(a.approach_um) && a.approach_um <= 1000.0) {
-        return Err(fail("acquisition.approach_um", "must be in [0, 1000] µm".into()));
+        return Err(fail(
+            "acquisition.approach_um",
+            "must be in [0, 1000] µm".into(),
+        ));
     }
 
     let r = &spec.reconstruction;
@@ -576,15 +602,30 @@ fn validate(
         if !(ax.other_at_um.is_finite() && ax.other_at_um >= olo && ax.other_at_um <= ohi) {
             return Err(fail(
                 &key("other_at_um"),
-                format!("{} µm is outside the soft limits [{olo}, {ohi}] µm of axis {}", ax.other_at_um, axis.other()),
+                format!(
+                    "{} µm is outside the soft limits [{olo}, {ohi}] µm of axis {}",
+                    ax.other_at_um,
+                    axis.other()
+                ),
             ));
         }
         let n = grid.n;
         let (m, mkey) = match (ax.m.or(s.m), ax.fraction.or(s.fraction)) {
-            (Some(m), _) => (m, if ax.m.is_some() { key("m") } else { "sampling.m".into() }),
+            (Some(m), _) => (
+                m,
+                if ax.m.is_some() {
+                    key("m")
+                } else {
+                    "sampling.m".into()
+                },
+            ),
             (None, Some(f)) => (
                 ((f * n as f64).round() as usize).max(2),
-                if ax.fraction.is_some() { key("fraction") } else { "sampling.fraction".into() },
+                if ax.fraction.is_some() {
+                    key("fraction")
+                } else {
+                    "sampling.fraction".into()
+                },
             ),
             (None, None) if s.design == DesignKind::Full => (n, "sampling.design".into()),
             (None, None) => {
@@ -600,7 +641,10 @@ fn validate(
             }
         }
         if s.design != DesignKind::Full && !(2..=n).contains(&m) {
-            return Err(fail(&mkey, format!("m = {m} must be in 2..={n} (grid points)")));
+            return Err(fail(
+                &mkey,
+                format!("m = {m} must be in 2..={n} (grid points)"),
+            ));
         }
         let target_error_um = ax.target_error_um.or(s.target_error_um);
         if let Some(t) = ax.target_error_um {
@@ -660,7 +704,8 @@ fn key_at(text: &str, span: Range<usize>) -> Option<String> {
                 format!("{prefix}.{}", k.get_ref())
             };
             let (ks, vs) = (k.span(), v.span());
-            let inside = |r: &Range<usize>| r.start <= span.start && span.start < r.end.max(r.start + 1);
+            let inside =
+                |r: &Range<usize>| r.start <= span.start && span.start < r.end.max(r.start + 1);
             if let DeValue::Table(sub) = v.get_ref() {
                 if let Some(deeper) = walk(sub, span, &name) {
                     return Some(deeper);
@@ -674,7 +719,9 @@ fn key_at(text: &str, span: Range<usize>) -> Option<String> {
     }
     walk(doc.get_ref(), &span, "").or_else(|| {
         // A table header line: name the table.
-        let line_start = text[..span.start.min(text.len())].rfind('\n').map_or(0, |i| i + 1);
+        let line_start = text[..span.start.min(text.len())]
+            .rfind('\n')
+            .map_or(0, |i| i + 1);
         let line = text[line_start..].lines().next()?.trim();
         line.strip_prefix('[')
             .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
@@ -725,7 +772,11 @@ m = 300
         let e = parse(&t).unwrap_err();
         let l = line(&t, "stpe");
         assert_eq!(e.line, l, "{e}");
-        assert!(e.to_string().starts_with(&format!("c.toml:{l}: axes.x.stpe:")), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with(&format!("c.toml:{l}: axes.x.stpe:")),
+            "{e}"
+        );
         assert!(e.message.contains("stpe"), "{e}");
     }
 
@@ -741,11 +792,19 @@ m = 300
     fn semantic_errors_point_at_the_key() {
         let t = GOOD.replace("m = 300", "m = 5000");
         let e = parse(&t).unwrap_err();
-        assert_eq!((e.key.as_str(), e.line), ("sampling.m", line(&t, "m = 5000")), "{e}");
+        assert_eq!(
+            (e.key.as_str(), e.line),
+            ("sampling.m", line(&t, "m = 5000")),
+            "{e}"
+        );
 
         let t = GOOD.replace("range_um = [0.0, 9500.0]", "range_um = [0.0, 13500.0]");
         let e = parse(&t).unwrap_err();
-        assert_eq!((e.key.as_str(), e.line), ("axes.x.range_um", line(&t, "13500")), "{e}");
+        assert_eq!(
+            (e.key.as_str(), e.line),
+            ("axes.x.range_um", line(&t, "13500")),
+            "{e}"
+        );
         assert!(e.message.contains("soft limits"), "{e}");
 
         let t = GOOD.replace("range_um = [0.0, 9500.0]", "range_um = [0.0, 9502.0]");
@@ -766,7 +825,10 @@ m = 300
 
     #[test]
     fn a_missing_model_file_is_refused_before_anything_runs() {
-        let t = GOOD.replace("kind = \"sim\"", "kind = \"sim\"\n[hardware.sim]\nmodel = \"nope.toml\"");
+        let t = GOOD.replace(
+            "kind = \"sim\"",
+            "kind = \"sim\"\n[hardware.sim]\nmodel = \"nope.toml\"",
+        );
         let e = parse(&t).unwrap_err();
         assert_eq!(e.key, "hardware.sim.model", "{e}");
         assert!(e.message.contains("nope.toml"), "{e}");

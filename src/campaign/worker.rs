@@ -58,7 +58,10 @@ pub fn reconstruct_run(
         .map(|component| {
             let gs = GridSamples {
                 idx: by_idx.keys().copied().collect(),
-                values: by_idx.values().map(|s| s.error_um(component.measured)).collect(),
+                values: by_idx
+                    .values()
+                    .map(|s| s.error_um(component.measured))
+                    .collect(),
             };
             let mut st = settings.clone();
             if run.phase == Phase::Full {
@@ -126,7 +129,9 @@ impl Worker {
                             if !done.insert(run) {
                                 continue;
                             }
-                            let Some(grid) = grids.get(&run.axis) else { continue };
+                            let Some(grid) = grids.get(&run.axis) else {
+                                continue;
+                            };
                             for r in reconstruct_run(grid, &settings, run, &samples) {
                                 match r {
                                     Ok(c) => {

@@ -44,7 +44,7 @@ pub struct ResumeArgs {
     quiet: bool,
 }
 
-fn open(db: &PathBuf) -> Result<SharedStore, CliError> {
+fn open(db: &std::path::Path) -> Result<SharedStore, CliError> {
     Store::open(db)
         .map(|s| Arc::new(Mutex::new(s)))
         .map_err(|e| CliError::failure(format!("store {}: {e}", db.display())))
