@@ -10,6 +10,7 @@ use super::session::{stat, TruthSource};
 use super::spec::Campaign;
 use super::types::{AxisId, Component, Phase, SampleRecord};
 use super::worker::Curve;
+use crate::report::{build_report, ComponentCurve, ReportOptions};
 
 pub struct Report {
     pub summary: Value,
@@ -71,6 +72,7 @@ pub fn build(
         "", "", "", "h:mm:ss", "s", "acq. %", "mean/max µm", "mean/max µm"
     ));
     let mut tot = [[0.0f64; 3]; 2]; // [phase][meas, acq_s, proc_s]
+    let mut report_curves: Vec<ComponentCurve> = Vec::new();
     for ax in &c.axes {
         let a = ax.axis;
         let mut comps = Vec::new();
@@ -102,6 +104,26 @@ pub fn build(
                 j["full_vs_truth"] = diff_stats(&f.values_um, t);
             }
             comps.push(j);
+            // The report's view: CS against the full scan and the truth where they exist.
+            let (recon, reference) = match (cs, full) {
+                (Some(k), f) => (k, f.map(|f| f.values_um.clone())),
+                (None, Some(f)) => (f, None),
+                (None, None) => unreachable!("main is one of them"),
+            };
+            report_curves.push(ComponentCurve {
+                component: comp.name().to_string(),
+                grid_um: main.positions_um.clone(),
+                reconstructed_um: recon.values_um.clone(),
+                method: if cs.is_some() {
+                    recon.method.clone()
+                } else {
+                    format!("full scan ({})", recon.method)
+                },
+                cv_error_um: recon.cv_error_um,
+                samples: recon.samples.clone(),
+                full_scan_um: reference,
+                truth_um: t.clone(),
+            });
             // Curve file with every available column.
             let mut csv = String::from("position_um");
             let mut cols: Vec<&[f64]> = Vec::new();
@@ -214,12 +236,27 @@ pub fn build(
         .then(|| 100.0 * (1.0 - (tot[0][1] + tot[0][2]) / (tot[1][1] + tot[1][2])));
     if let Some(s) = total_saved {
         table.push_str(&format!(
-            "total: CS {} measurements in {} vs full scan {} in {}: acquisition time saved {s:.2} %\n",
+            "total: CS {} measurements in {} vs full scan {} in {}: acquisition time saved {s:.2} % (measurements saved {:.2} %)\n",
             tot[0][0],
             hms(tot[0][1]),
             tot[1][0],
-            hms(tot[1][1])
+            hms(tot[1][1]),
+            100.0 * (1.0 - tot[0][0] / tot[1][0].max(1.0))
         ));
+    }
+    // Plots, compensation tables and ISO 230-2 figures; a report failure leaves the rest intact.
+    let mut iso = Value::Null;
+    let mut report_error = None;
+    match build_report(&report_curves, &ReportOptions::default()) {
+        Ok(rf) => {
+            for f in rf {
+                if f.name == "iso230.json" {
+                    iso = serde_json::from_slice(&f.bytes).unwrap_or(Value::Null);
+                }
+                files.push((f.name, f.content_type.to_string(), f.bytes));
+            }
+        }
+        Err(e) => report_error = Some(e.to_string()),
     }
     let summary = json!({
         "id": id,
@@ -229,11 +266,15 @@ pub fn build(
         "samples": samples.len(),
         "axes": axes_json,
         "total": {
-            "cs": {"measurements": tot[0][0], "acquisition_s": tot[0][1], "processing_s": tot[0][2]},
-            "full": {"measurements": tot[1][0], "acquisition_s": tot[1][1], "processing_s": tot[1][2]},
+            "cs": {"measurements": tot[0][0] as u64, "acquisition_s": tot[0][1], "processing_s": tot[0][2]},
+            "full": {"measurements": tot[1][0] as u64, "acquisition_s": tot[1][1], "processing_s": tot[1][2]},
             "acquisition_saved_pct": total_saved,
+            // What the counts alone would save: the rest of the gap is the CS moves' longer travel.
+            "measurements_saved_pct": (tot[1][0] > 0.0).then(|| 100.0 * (1.0 - tot[0][0] / tot[1][0])),
             "acquisition_and_processing_saved_pct": total_saved_all,
         },
+        "iso230": iso,
+        "report_error": report_error,
         "units": {"position": "µm", "error": "µm (measured - target)", "time": "s"},
     });
     files.push((

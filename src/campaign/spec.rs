@@ -695,7 +695,6 @@ fn span_of(text: &str, path: &str) -> Option<Range<usize>> {
 /// The dotted key whose key or value contains `span` (the deepest one).
 fn key_at(text: &str, span: Range<usize>) -> Option<String> {
     use toml::de::{DeTable, DeValue};
-    let doc = DeTable::parse(text).ok()?;
     fn walk(t: &DeTable<'_>, span: &Range<usize>, prefix: &str) -> Option<String> {
         for (k, v) in t.iter() {
             let name = if prefix.is_empty() {
@@ -717,15 +716,37 @@ fn key_at(text: &str, span: Range<usize>) -> Option<String> {
         }
         None
     }
-    walk(doc.get_ref(), &span, "").or_else(|| {
-        // A table header line: name the table.
-        let line_start = text[..span.start.min(text.len())]
-            .rfind('\n')
-            .map_or(0, |i| i + 1);
-        let line = text[line_start..].lines().next()?.trim();
-        line.strip_prefix('[')
+    if let Some(k) = DeTable::parse(text)
+        .ok()
+        .and_then(|doc| walk(doc.get_ref(), &span, ""))
+    {
+        return Some(k);
+    }
+    // The document does not parse (syntax error, duplicate key): read the key off the line,
+    // under the last table header above it.
+    let at = span.start.min(text.len());
+    let line_start = text[..at].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next().unwrap_or("").trim();
+    let header = |l: &str| {
+        l.strip_prefix('[')
             .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
-    })
+    };
+    if let Some(h) = header(line) {
+        return Some(h);
+    }
+    let table = text[..line_start]
+        .lines()
+        .rev()
+        .find_map(|l| header(l.trim()));
+    let key = line
+        .split_once('=')
+        .map(|(k, _)| k.trim().trim_matches('"').to_string())
+        .filter(|k| !k.is_empty());
+    match (table, key) {
+        (Some(t), Some(k)) => Some(format!("{t}.{k}")),
+        (None, Some(k)) => Some(k),
+        (t, None) => t,
+    }
 }
 
 #[cfg(test)]

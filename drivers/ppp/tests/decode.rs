@@ -269,3 +269,22 @@ fn png_round_trip_8_and_12_bit_decodes_the_same() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A 640 x 640 region of interest sees ~25 code bits per axis; where they are mostly zeros
+/// (y ≈ 2370 µm) the code-column x code-row class is nearly as dark as the orientation corner.
+/// Such frames must still decode right, all along the Y stroke the demo campaign measures.
+#[test]
+fn small_roi_decodes_where_the_visible_code_is_sparse() {
+    let pattern = Pattern::new(PatternConfig::default()).unwrap();
+    let optics = Optics {
+        width: 640,
+        height: 640,
+        ..Optics::default()
+    };
+    let dec = Decoder::new(pattern.clone(), DecodeConfig::for_optics(&pattern, &optics));
+    let sparse = (0..=16).map(|k| 2340.0 + 5.0 * k as f64);
+    let stroke = (0..=42).map(|k| 100.0 * k as f64);
+    for (n, y) in sparse.chain(stroke).enumerate() {
+        assert_decodes(&dec, &optics, Pose::new(4750.0, y, 0.0), n as u64, 0.05);
+    }
+}

@@ -1,0 +1,311 @@
+//! `csmetro run` / `csmetro resume` end to end on simulated hardware: the C-863 driver talks GCS
+//! to simulated controllers over pseudo-terminals, the simulated camera renders the pattern, the
+//! decoder measures, the store commits, the worker reconstructs, the report is written.
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use csmetro::campaign::types::CampaignState;
+use csmetro::store::Store;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_csmetro"))
+}
+
+fn model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim/demo_xy.toml")
+}
+
+/// A small Y campaign: `points` grid points, `m` random targets per direction, full scan.
+fn campaign(dir: &Path, range_um: f64, m: usize) -> PathBuf {
+    let text = format!(
+        r#"[campaign]
+name = "it"
+stage = "sim-xy"
+
+[hardware]
+kind = "sim"
+optics = {{ width = 640, height = 640 }}
+
+[hardware.sim]
+model = "{model}"
+time_scale = 1000
+transport = "pty"
+frame_time_s = 0.1
+seed = 5
+
+[axes.y]
+range_um = [1000.0, {hi}]
+step_um = 5.0
+other_at_um = 4750.0
+m = {m}
+
+[sampling]
+design = "random"
+seed = 11
+full_scan = true
+
+[acquisition]
+directions = ["forward", "backward"]
+settle_s = 2.0
+dwell_s = 0.5
+
+[reconstruction]
+method = "auto"
+noise_um = 0.01
+
+[outputs]
+dir = "{out}/{{name}}-{{id}}"
+"#,
+        model = model().display(),
+        hi = 1000.0 + range_um,
+        out = dir.display(),
+    );
+    let p = dir.join("campaign.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn run(campaign: &Path, db: &Path) -> Output {
+    bin()
+        .args(["run", "--json", "--quiet", "--db"])
+        .arg(db)
+        .arg(campaign)
+        .output()
+        .unwrap()
+}
+
+fn json_of(o: &Output) -> serde_json::Value {
+    assert!(
+        o.status.success(),
+        "exit {:?}: {}",
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap()
+}
+
+fn store(db: &Path) -> Store {
+    Store::open(db).unwrap()
+}
+
+/// Waits until campaign 1 has at least `n` committed samples (the child keeps running).
+fn wait_for_samples(child: &mut Child, db: &Path, n: u64) -> u64 {
+    let t0 = Instant::now();
+    loop {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "campaign ended before {n} samples"
+        );
+        if db.exists() {
+            if let Ok(k) = store(db).sample_count(1) {
+                if k >= n {
+                    return k;
+                }
+            }
+        }
+        assert!(t0.elapsed() < Duration::from_secs(120), "no progress");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_campaign_runs_end_to_end_and_reports_against_the_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    let c = campaign(dir.path(), 400.0, 20);
+    let j = json_of(&run(&c, &db));
+    assert_eq!(j["state"], "done");
+    let y = &j["axes"][0];
+    assert_eq!(y["axis"], "y");
+    assert_eq!(y["grid_points"], 81);
+    assert_eq!(y["phases"]["cs"]["measurements"], 40);
+    assert_eq!(y["phases"]["full"]["measurements"], 162);
+    let saved = y["acquisition_saved_pct"].as_f64().unwrap();
+    assert!(
+        saved > 60.0 && saved < 100.0 * (1.0 - 40.0 / 162.0),
+        "{saved}"
+    );
+    let comps: Vec<&str> = y["components"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["component"].as_str().unwrap())
+        .collect();
+    for k in ["ef_yy", "eb_yy", "ef_yx", "eb_yx"] {
+        assert!(comps.contains(&k), "{k} in {comps:?}");
+    }
+    for c in y["components"].as_array().unwrap() {
+        // The camera measures the truth to ~10 nm; 20 random points recover 400 µm of curve.
+        let full = c["full_vs_truth"]["max_abs_um"].as_f64().unwrap();
+        let cs = c["cs_vs_truth"]["mean_abs_um"].as_f64().unwrap();
+        assert!(full < 0.1, "{}: full scan vs truth {full}", c["component"]);
+        assert!(cs < 0.3, "{}: CS vs truth {cs}", c["component"]);
+    }
+    assert!(j["iso230"]["y"]["reconstructed"]["b_um"].as_f64().unwrap() > 0.5);
+
+    let out = dir.path().join("it-1");
+    for f in [
+        "summary.json",
+        "summary.txt",
+        "samples.csv",
+        "ef_yy.csv",
+        "compensation_y.csv",
+        "iso230.json",
+        "plots/ef_yy.svg",
+        "plots/eb_yx.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} written");
+    }
+    let png = std::fs::read(out.join("plots/eb_yx.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+    let comp = std::fs::read_to_string(out.join("compensation_y.csv")).unwrap();
+    assert!(comp.starts_with("position_um,"), "{comp:.80}");
+    assert_eq!(comp.lines().count(), 1 + 81);
+
+    // Everything is in the store too, each target once.
+    let s = store(&db);
+    let row = s.campaign(1).unwrap().unwrap();
+    assert_eq!(row.state, CampaignState::Done);
+    let samples = s.samples(1).unwrap();
+    assert_eq!(samples.len(), 202);
+    let mut seqs: Vec<u64> = samples.iter().map(|r| r.target.seq).collect();
+    seqs.dedup();
+    assert_eq!(seqs.len(), 202);
+    for r in &samples {
+        assert!((r.meas_x_um - 4750.0).abs() < 20.0, "x stands still");
+        assert!((r.meas_y_um - r.target.target_y_um).abs() < 20.0);
+    }
+    let names = s.result_names(1).unwrap();
+    assert!(names.iter().any(|n| n == "plots/ef_yy.svg"), "{names:?}");
+}
+
+#[test]
+fn kill_9_then_resume_loses_nothing_and_measures_nothing_twice() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    let c = campaign(dir.path(), 2000.0, 60);
+    let mut child = bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(&db)
+        .arg(&c)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    wait_for_samples(&mut child, &db, 150);
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    let before = store(&db).samples(1).unwrap();
+    assert!(before.len() >= 150);
+    let planned = store(&db).campaign(1).unwrap().unwrap().planned;
+    assert!((before.len() as u64) < planned, "killed mid-run");
+
+    let j = json_of(
+        &bin()
+            .args(["resume", "1", "--json", "--quiet", "--db"])
+            .arg(&db)
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(j["state"], "done");
+    let s = store(&db);
+    let after = s.samples(1).unwrap();
+    assert_eq!(after.len() as u64, planned, "every planned target, once");
+    let mut seqs: Vec<u64> = after.iter().map(|r| r.target.seq).collect();
+    seqs.sort();
+    seqs.dedup();
+    assert_eq!(seqs.len() as u64, planned, "no target twice");
+    // What was committed before the kill is kept as it was.
+    for b in &before {
+        let a = after.iter().find(|a| a.target.seq == b.target.seq).unwrap();
+        assert_eq!((a.meas_y_um, a.unix_s), (b.meas_y_um, b.unix_s));
+    }
+    let events = s.events_after(1, 0).unwrap();
+    assert!(events.iter().any(|e| e.kind == "resumed_from_store"));
+    assert_eq!(s.campaign(1).unwrap().unwrap().state, CampaignState::Done);
+    // A finished campaign cannot be resumed again.
+    let o = bin()
+        .args(["resume", "1", "--db"])
+        .arg(&db)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn sigint_aborts_stops_and_records_the_abort() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    let c = campaign(dir.path(), 2000.0, 60);
+    let mut child = bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(&db)
+        .arg(&c)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_samples(&mut child, &db, 30);
+    let st = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(String::from_utf8_lossy(&o.stderr).contains("motion stopped"));
+    let s = store(&db);
+    let row = s.campaign(1).unwrap().unwrap();
+    assert_eq!(row.state, CampaignState::Aborted);
+    assert!(s.sample_count(1).unwrap() < row.planned);
+    let events = s.events_after(1, 0).unwrap();
+    let last = events.last().unwrap();
+    assert_eq!(last.kind, "finished");
+}
+
+#[test]
+fn bad_campaign_files_name_file_line_and_key_and_nothing_is_stored() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    let good = std::fs::read_to_string(campaign(dir.path(), 400.0, 20)).unwrap();
+    let cases = [
+        ("step_um = 5.0", "step_um = 5.0\nstpe = 1", "axes.y.stpe"),
+        ("m = 20", "m = \"twenty\"", "axes.y.m"),
+        ("settle_s = 2.0", "settle_s = -1.0", "acquisition.settle_s"),
+        (
+            "range_um = [1000.0, 1400]",
+            "range_um = [1000.0, 99000.0]",
+            "axes.y.range_um",
+        ),
+        (
+            "time_scale = 1000",
+            "time_scale = 1000\ntime_scale = 10",
+            "hardware.sim.time_scale",
+        ),
+    ];
+    for (from, to, key) in cases {
+        assert!(good.contains(from), "{from}");
+        let text = good.replacen(from, to, 1);
+        let changed = to.lines().last().unwrap();
+        let line = text.lines().position(|l| l.trim() == changed).unwrap() + 1;
+        let f = dir.path().join("bad.toml");
+        std::fs::write(&f, &text).unwrap();
+        let o = run(&f, &db);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{to}: {err}");
+        assert!(
+            err.contains(&format!("bad.toml:{line}: {key}")),
+            "{to}: want bad.toml:{line}: {key}, got {err}"
+        );
+        assert!(!db.exists(), "{to}: nothing stored before validation");
+    }
+    let o = run(&dir.path().join("missing.toml"), &db);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("missing.toml"));
+}
