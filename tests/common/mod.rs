@@ -238,39 +238,48 @@ impl Server {
         }
     }
 
-    /// Every server-sent event of a campaign's stream until the service ends it:
-    /// (event name, id, parsed data).
+    /// Every server-sent event of a campaign's stream until the service ends it.
     pub fn events(&self, id: i64, after: i64) -> Vec<(String, Option<i64>, Value)> {
-        let url = format!("{}/campaigns/{id}/events?after={after}", self.url);
-        let mut r = Self::agent().get(&url);
-        if let Some(t) = &self.token {
-            r = r.header("Authorization", &format!("Bearer {t}"));
-        }
-        let r = r.call().unwrap();
-        assert_eq!(r.status().as_u16(), 200);
-        let mut out = Vec::new();
-        let (mut kind, mut eid, mut data) = (String::new(), None, String::new());
-        for l in BufReader::new(r.into_body().into_reader()).lines() {
-            let l = l.unwrap();
-            if l.is_empty() {
-                if !kind.is_empty() {
-                    out.push((
-                        std::mem::take(&mut kind),
-                        eid.take(),
-                        serde_json::from_str(&data).unwrap(),
-                    ));
-                }
-                data.clear();
-            } else if let Some(v) = l.strip_prefix("event: ") {
-                kind = v.to_string();
-            } else if let Some(v) = l.strip_prefix("id: ") {
-                eid = v.parse().ok();
-            } else if let Some(v) = l.strip_prefix("data: ") {
-                data.push_str(v);
-            }
-        }
-        out
+        sse(&self.url, self.token.as_deref(), id, after)
     }
+}
+
+/// Every server-sent event of a campaign's stream until the service ends it:
+/// (event name, id, parsed data).
+pub fn sse(base: &str, token: Option<&str>, id: i64, after: i64) -> Vec<(String, Option<i64>, Value)> {
+    let url = format!("{base}/campaigns/{id}/events?after={after}");
+    let agent: ureq::Agent = ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .build()
+        .into();
+    let mut r = agent.get(&url);
+    if let Some(t) = token {
+        r = r.header("Authorization", &format!("Bearer {t}"));
+    }
+    let r = r.call().unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let mut out = Vec::new();
+    let (mut kind, mut eid, mut data) = (String::new(), None, String::new());
+    for l in BufReader::new(r.into_body().into_reader()).lines() {
+        let l = l.unwrap();
+        if l.is_empty() {
+            if !kind.is_empty() {
+                out.push((
+                    std::mem::take(&mut kind),
+                    eid.take(),
+                    serde_json::from_str(&data).unwrap(),
+                ));
+            }
+            data.clear();
+        } else if let Some(v) = l.strip_prefix("event: ") {
+            kind = v.to_string();
+        } else if let Some(v) = l.strip_prefix("id: ") {
+            eid = v.parse().ok();
+        } else if let Some(v) = l.strip_prefix("data: ") {
+            data.push_str(v);
+        }
+    }
+    out
 }
 
 impl Drop for Server {
