@@ -71,10 +71,20 @@ fn submitted_campaign_runs_streams_its_events_and_serves_its_results() {
         .map(|n| n.as_str().unwrap().to_string())
         .collect();
     // Curves (CSV) and the summary (JSON) always; plots (SVG/PNG) when the session makes them.
-    assert!(names.iter().any(|n| n.starts_with("curves/") && n.ends_with(".csv")), "{names:?}");
+    assert!(
+        names
+            .iter()
+            .any(|n| n.starts_with("curves/") && n.ends_with(".csv")),
+        "{names:?}"
+    );
     assert!(names.iter().any(|n| n == "summary.json"), "{names:?}");
     for name in &names {
-        let (s, bytes, ctype) = srv.request("GET", &format!("/campaigns/{id}/results/{name}"), None, None);
+        let (s, bytes, ctype) = srv.request(
+            "GET",
+            &format!("/campaigns/{id}/results/{name}"),
+            None,
+            None,
+        );
         assert_eq!(s, 200, "{name}");
         assert!(!bytes.is_empty(), "{name}");
         let want = match name.rsplit('.').next().unwrap() {
@@ -109,13 +119,19 @@ fn invalid_campaigns_are_refused_with_file_line_and_key() {
     let (s, v) = srv.post("/campaigns", Some(("text/plain", &bad)));
     assert_eq!(s, 400, "{v}");
     let msg = v["error"].as_str().unwrap();
-    assert!(msg.starts_with(&format!("submitted.toml:{line}: axes.x.stpe:")), "{msg}");
+    assert!(
+        msg.starts_with(&format!("submitted.toml:{line}: axes.x.stpe:")),
+        "{msg}"
+    );
 
     let body = serde_json::json!({"toml": bad, "name": "/some/where/mine.toml"}).to_string();
     let (s, v) = srv.post("/campaigns", Some(("application/json", &body)));
     assert_eq!(s, 400, "{v}");
     let msg = v["error"].as_str().unwrap();
-    assert!(msg.starts_with(&format!("mine.toml:{line}: axes.x.stpe:")), "{msg}");
+    assert!(
+        msg.starts_with(&format!("mine.toml:{line}: axes.x.stpe:")),
+        "{msg}"
+    );
 
     let (s, v) = srv.post("/campaigns", Some(("application/json", "{\"nope\": 1}")));
     assert_eq!(s, 400, "{v}");
@@ -158,7 +174,10 @@ fn one_campaign_per_stage_the_next_queues_and_other_stages_run_alongside() {
     let ev_b = srv.events(b, 0);
     let a_end = ev_a.iter().find(|e| e.0 == "finished").unwrap().1.unwrap();
     let b_start = ev_b.iter().find(|e| e.0 == "started").unwrap().1.unwrap();
-    assert!(b_start > a_end, "b started (event {b_start}) before a ended ({a_end})");
+    assert!(
+        b_start > a_end,
+        "b started (event {b_start}) before a ended ({a_end})"
+    );
 }
 
 #[test]
@@ -205,7 +224,10 @@ fn abort_stops_a_running_campaign_and_ends_its_stream() {
     let st = srv.wait_for(id, 30.0, |s| state(s) == "aborted");
     let events = watcher.join().unwrap();
     let last = events.last().unwrap();
-    assert_eq!((last.0.as_str(), &last.2["data"]["state"]), ("finished", &Value::from("aborted")));
+    assert_eq!(
+        (last.0.as_str(), &last.2["data"]["state"]),
+        ("finished", &Value::from("aborted"))
+    );
     // Motion and measurement stopped: nothing is stored after the abort.
     let n = st["stored"].as_u64().unwrap();
     assert!(n < 80, "{st}");
@@ -252,14 +274,30 @@ fn a_token_is_required_on_every_route_when_configured() {
         ("GET", "/nowhere"),
     ];
     for (m, p) in routes {
-        for wrong in [Some(""), Some("s3cret-token-012345678"), Some("s3cret-token-0123456789x")] {
+        for wrong in [
+            Some(""),
+            Some("s3cret-token-012345678"),
+            Some("s3cret-token-0123456789x"),
+        ] {
             let (s, b, _) = srv.request(m, p, None, wrong);
-            assert_eq!(s, 401, "{m} {p} with {wrong:?}: {}", String::from_utf8_lossy(&b));
+            assert_eq!(
+                s,
+                401,
+                "{m} {p} with {wrong:?}: {}",
+                String::from_utf8_lossy(&b)
+            );
         }
         // No header at all.
-        let a: ureq::Agent = ureq::Agent::config_builder().http_status_as_error(false).build().into();
+        let a: ureq::Agent = ureq::Agent::config_builder()
+            .http_status_as_error(false)
+            .build()
+            .into();
         let url = format!("{}{p}", srv.url);
-        let r = if m == "GET" { a.get(&url).call() } else { a.post(&url).send_empty() };
+        let r = if m == "GET" {
+            a.get(&url).call()
+        } else {
+            a.post(&url).send_empty()
+        };
         assert_eq!(r.unwrap().status().as_u16(), 401, "{m} {p} without a token");
     }
     let (s, v) = srv.get("/health");
@@ -274,13 +312,21 @@ fn a_token_is_required_on_every_route_when_configured() {
 fn non_loopback_bind_without_a_token_refuses_to_start() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = write_config(dir.path(), "0.0.0.0:0", None);
-    let out = bin().arg("serve").arg("--config").arg(&cfg).output().unwrap();
+    let out = bin()
+        .arg("serve")
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("csmetro.toml:2: server.bind:"), "{err}");
     assert!(err.contains("token"), "{err}");
     assert!(out.stdout.is_empty());
-    assert!(!dir.path().join("var").exists(), "nothing created before refusing");
+    assert!(
+        !dir.path().join("var").exists(),
+        "nothing created before refusing"
+    );
 }
 
 #[test]
@@ -311,7 +357,10 @@ fn kill_9_mid_campaign_then_restart_resumes_it_with_nothing_lost_or_measured_twi
     }
     let kinds: Vec<String> = srv.events(id, 0).into_iter().map(|e| e.0).collect();
     assert!(kinds.contains(&"requeued".to_string()), "{kinds:?}");
-    assert!(kinds.contains(&"resumed_from_store".to_string()), "{kinds:?}");
+    assert!(
+        kinds.contains(&"resumed_from_store".to_string()),
+        "{kinds:?}"
+    );
     // The campaign queued behind it survives the crash too.
     srv.wait_for(queued, 60.0, |s| state(s) == "done");
 }

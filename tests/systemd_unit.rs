@@ -59,18 +59,31 @@ fn unit_has_notify_watchdog_restart_and_hardening() {
     assert_eq!(one(&u, "DevicePolicy"), "closed");
     let allowed = &u["Service"]["DeviceAllow"];
     for want in ["char-ttyS rw", "char-ttyUSB rw", "char-ttyACM rw"] {
-        assert!(allowed.iter().any(|a| a == want), "DeviceAllow={want} missing: {allowed:?}");
+        assert!(
+            allowed.iter().any(|a| a == want),
+            "DeviceAllow={want} missing: {allowed:?}"
+        );
     }
     for a in allowed {
         let dev = a.split_whitespace().next().unwrap();
         assert!(
-            ["char-ttyS", "char-ttyUSB", "char-ttyACM", "char-pts", "/dev/ptmx"].contains(&dev),
+            [
+                "char-ttyS",
+                "char-ttyUSB",
+                "char-ttyACM",
+                "char-pts",
+                "/dev/ptmx"
+            ]
+            .contains(&dev),
             "unexpected device access {a:?}"
         );
     }
     // Stopping must leave time for the service's own 10 s grace.
     let stop: u64 = one(&u, "TimeoutStopSec").parse().unwrap();
-    assert!(stop > csmetro::api::SHUTDOWN_GRACE.as_secs(), "TimeoutStopSec={stop}");
+    assert!(
+        stop > csmetro::api::SHUTDOWN_GRACE.as_secs(),
+        "TimeoutStopSec={stop}"
+    );
     assert_eq!(u["Install"]["WantedBy"], ["multi-user.target"]);
 }
 
@@ -81,7 +94,10 @@ fn unit_config_parses_and_keeps_state_in_the_state_directory() {
     let exec = one(&u, "ExecStart");
     let args: Vec<&str> = exec.split_whitespace().collect();
     assert_eq!(args[..2], ["/usr/local/bin/csmetro", "serve"]);
-    let i = args.iter().position(|a| *a == "--config").expect("--config");
+    let i = args
+        .iter()
+        .position(|a| *a == "--config")
+        .expect("--config");
     assert_eq!(args[i + 1], "/etc/csmetro/csmetro.toml");
 
     // The file installed there is systemd/csmetro.toml.
@@ -89,7 +105,11 @@ fn unit_config_parses_and_keeps_state_in_the_state_directory() {
     let cfg = ServiceConfig::parse(&cfg_text, args[i + 1], Path::new("/etc/csmetro"))
         .unwrap_or_else(|e| panic!("{e}"));
     assert!(cfg.bind.ip().is_loopback(), "{}", cfg.bind);
-    assert!(cfg.db.starts_with("/var/lib/csmetro"), "{}", cfg.db.display());
+    assert!(
+        cfg.db.starts_with("/var/lib/csmetro"),
+        "{}",
+        cfg.db.display()
+    );
     assert!(cfg.results_dir.starts_with("/var/lib/csmetro"));
     assert!(cfg.token.is_none());
 }

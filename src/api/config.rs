@@ -168,7 +168,10 @@ impl ServiceConfig {
             (None, Some(f)) => {
                 let p = resolve(&f);
                 let t = std::fs::read_to_string(&p).map_err(|e| {
-                    fail("server.token_file", format!("cannot read {}: {e}", p.display()))
+                    fail(
+                        "server.token_file",
+                        format!("cannot read {}: {e}", p.display()),
+                    )
                 })?;
                 Some((
                     t.lines().next().unwrap_or("").to_string(),
@@ -326,7 +329,10 @@ mod tests {
         assert!(e.message.contains("token"), "{e}");
 
         let t = t.replace("[server]\n", "[server]\ntoken = \"0123456789abcdef0123\"\n");
-        assert_eq!(parse(&t).unwrap().token.as_deref(), Some("0123456789abcdef0123"));
+        assert_eq!(
+            parse(&t).unwrap().token.as_deref(),
+            Some("0123456789abcdef0123")
+        );
     }
 
     #[test]

@@ -350,7 +350,11 @@ impl Manager {
             .ok_or_else(|| ApiError::not_found(format!("no campaign {id}")))
     }
 
-    fn status_of(&self, row: CampaignRow, queue: Option<usize>) -> Result<CampaignStatus, ApiError> {
+    fn status_of(
+        &self,
+        row: CampaignRow,
+        queue: Option<usize>,
+    ) -> Result<CampaignStatus, ApiError> {
         let stored = self.db().sample_count(row.id).map_err(store_err)?;
         let percent = if row.planned == 0 {
             0.0

@@ -279,9 +279,11 @@ async fn events(
     .await?;
     let (tx, rx) = mpsc::channel::<SseEvent>(256);
     tokio::spawn(follow(m, id, state, log, sub, tx));
-    let stream = futures_util::stream::unfold(rx, |mut rx| async move {
-        rx.recv().await.map(|e| (Ok(e), rx))
-    });
+    let stream =
+        futures_util::stream::unfold(
+            rx,
+            |mut rx| async move { rx.recv().await.map(|e| (Ok(e), rx)) },
+        );
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
 }
 
@@ -306,9 +308,8 @@ async fn follow(
     let mut down = m.shutdown_signal();
     // Ends the stream at a `finished` event, except the one a shutdown produces: that
     // campaign resumes at the next start.
-    let ends = |e: &Event| {
-        e.kind == "finished" && !(m.shutting_down() && e.data["state"] == "aborted")
-    };
+    let ends =
+        |e: &Event| e.kind == "finished" && !(m.shutting_down() && e.data["state"] == "aborted");
     loop {
         let e = tokio::select! {
             _ = tx.closed() => return,
@@ -321,7 +322,11 @@ async fn follow(
             Ok(e) => vec![e],
             Err(broadcast::error::RecvError::Lagged(n)) => {
                 // Too slow: the missed samples are gone, the logged events are in the store.
-                tracing::debug!(campaign = id, missed = n, "SSE client lagged; catching up from the store");
+                tracing::debug!(
+                    campaign = id,
+                    missed = n,
+                    "SSE client lagged; catching up from the store"
+                );
                 let m2 = m.clone();
                 match blocking(move || m2.events_after(id, last)).await {
                     Ok(rows) => rows.into_iter().map(event_of).collect(),

@@ -132,7 +132,10 @@ impl Client {
         }
     }
 
-    fn reply(&self, r: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> Result<Reply, CliError> {
+    fn reply(
+        &self,
+        r: Result<ureq::http::Response<ureq::Body>, ureq::Error>,
+    ) -> Result<Reply, CliError> {
         let mut r = r.map_err(|e| self.unreachable(e))?;
         let status = r.status().as_u16();
         let content_type = r
@@ -227,10 +230,8 @@ pub fn submit(a: SubmitArgs) -> CliResult {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let c = Client::new(&a.conn);
-    let st: CampaignStatus = json_of(&c.post_json(
-        "/campaigns",
-        &json!({"toml": text, "name": name}),
-    )?)?;
+    let st: CampaignStatus =
+        json_of(&c.post_json("/campaigns", &json!({"toml": text, "name": name}))?)?;
     if a.conn.json && !a.watch {
         print_json(&st);
     } else {
@@ -296,7 +297,10 @@ struct Sse {
 }
 
 /// Reads server-sent events from `r`, calling `each` per event; returns the last event id.
-fn read_sse(r: impl std::io::Read, mut each: impl FnMut(&Sse)) -> (Option<i64>, Result<(), String>) {
+fn read_sse(
+    r: impl std::io::Read,
+    mut each: impl FnMut(&Sse),
+) -> (Option<i64>, Result<(), String>) {
     let mut last = None;
     let mut cur = Sse::default();
     for l in BufReader::new(r).lines() {
@@ -363,7 +367,10 @@ fn follow(c: &Client, id: i64, samples: bool, json: bool) -> CliResult {
     let out = std::io::stdout();
     loop {
         let url = c.url(&format!("/campaigns/{id}/events?after={after}"));
-        let r = c.auth(c.agent.get(&url)).header("Accept", "text/event-stream").call();
+        let r = c
+            .auth(c.agent.get(&url))
+            .header("Accept", "text/event-stream")
+            .call();
         match r {
             Ok(resp) if resp.status().is_success() => {
                 down_since = None;
@@ -449,8 +456,7 @@ pub fn unpause(a: IdArgs) -> CliResult {
 /// Aborts a campaign and waits (up to `--wait-s`) until it has stopped motion and ended.
 pub fn abort(a: AbortArgs) -> CliResult {
     let c = Client::new(&a.conn);
-    let mut st: CampaignStatus =
-        json_of(&c.post_empty(&format!("/campaigns/{}/abort", a.id))?)?;
+    let mut st: CampaignStatus = json_of(&c.post_empty(&format!("/campaigns/{}/abort", a.id))?)?;
     let t0 = Instant::now();
     while !st.state.is_final() && t0.elapsed().as_secs_f64() < a.wait_s {
         std::thread::sleep(Duration::from_millis(200));
@@ -484,7 +490,11 @@ pub fn report(a: ReportArgs) -> CliResult {
     let list: Value = json_of(&c.get(&format!("/campaigns/{}/results", a.id))?)?;
     let names: Vec<String> = list["results"]
         .as_array()
-        .map(|v| v.iter().filter_map(|n| n.as_str().map(str::to_string)).collect())
+        .map(|v| {
+            v.iter()
+                .filter_map(|n| n.as_str().map(str::to_string))
+                .collect()
+        })
         .unwrap_or_default();
     let dir = a
         .out
@@ -537,7 +547,9 @@ mod tests {
     fn sse_frames_are_split_on_blank_lines_and_keep_their_id() {
         let text = ": keep-alive\n\nevent: started\nid: 7\ndata: {\"a\":1}\n\nevent: sample\ndata: {\"b\":2}\n\n";
         let mut got = Vec::new();
-        let (last, r) = read_sse(text.as_bytes(), |e| got.push((e.kind.clone(), e.id, e.data.clone())));
+        let (last, r) = read_sse(text.as_bytes(), |e| {
+            got.push((e.kind.clone(), e.id, e.data.clone()))
+        });
         assert!(r.is_ok());
         assert_eq!(last, Some(7));
         assert_eq!(
@@ -551,7 +563,10 @@ mod tests {
 
     #[test]
     fn result_names_cannot_escape_the_report_directory() {
-        assert_eq!(safe_relative("curves/a.csv"), Some(PathBuf::from("curves/a.csv")));
+        assert_eq!(
+            safe_relative("curves/a.csv"),
+            Some(PathBuf::from("curves/a.csv"))
+        );
         assert_eq!(safe_relative("../etc/passwd"), None);
         assert_eq!(safe_relative("/etc/passwd"), None);
         assert_eq!(safe_relative("a/./b"), Some(PathBuf::from("a/b")));

@@ -194,7 +194,12 @@ impl Server {
             .and_then(|v| v.to_str().ok())
             .unwrap_or("")
             .to_string();
-        let bytes = r.body_mut().with_config().limit(1 << 30).read_to_vec().unwrap();
+        let bytes = r
+            .body_mut()
+            .with_config()
+            .limit(1 << 30)
+            .read_to_vec()
+            .unwrap();
         (status, bytes, ctype)
     }
 
@@ -246,7 +251,12 @@ impl Server {
 
 /// Every server-sent event of a campaign's stream until the service ends it:
 /// (event name, id, parsed data).
-pub fn sse(base: &str, token: Option<&str>, id: i64, after: i64) -> Vec<(String, Option<i64>, Value)> {
+pub fn sse(
+    base: &str,
+    token: Option<&str>,
+    id: i64,
+    after: i64,
+) -> Vec<(String, Option<i64>, Value)> {
     let url = format!("{base}/campaigns/{id}/events?after={after}");
     let agent: ureq::Agent = ureq::Agent::config_builder()
         .http_status_as_error(false)
@@ -292,5 +302,9 @@ impl Drop for Server {
 /// The stored samples' seqs of a campaign, read from the store file directly.
 pub fn stored_seqs(db: &Path, id: i64) -> Vec<u64> {
     let s = csmetro::store::Store::open(db).unwrap();
-    s.samples(id).unwrap().iter().map(|r| r.target.seq).collect()
+    s.samples(id)
+        .unwrap()
+        .iter()
+        .map(|r| r.target.seq)
+        .collect()
 }
