@@ -387,3 +387,57 @@ fn sigterm_stops_motion_and_leaves_the_campaign_resumable() {
     let seqs = stored_seqs(&srv.db(), id);
     assert_eq!(seqs.iter().copied().collect::<BTreeSet<u64>>().len(), 80);
 }
+
+/// systemd's side of Type=notify: READY=1 once listening, WATCHDOG=1 at half of WATCHDOG_USEC,
+/// STOPPING=1 on SIGTERM, on the datagram socket NOTIFY_SOCKET names.
+#[test]
+fn notifies_systemd_ready_watchdog_and_stopping() {
+    use std::os::unix::net::UnixDatagram;
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write_config(dir.path(), "127.0.0.1:0", None);
+    let sock_path = dir.path().join("notify.sock");
+    let sock = UnixDatagram::bind(&sock_path).unwrap();
+    sock.set_read_timeout(Some(Duration::from_secs(20)))
+        .unwrap();
+    // WATCHDOG_PID must be the service's own pid, as systemd sets it: exec keeps the shell's.
+    let mut child = std::process::Command::new("sh")
+        .arg("-c")
+        .arg("WATCHDOG_PID=$$ exec \"$0\" serve --config \"$1\"")
+        .arg(env!("CARGO_BIN_EXE_csmetro"))
+        .arg(&cfg)
+        .env("NOTIFY_SOCKET", &sock_path)
+        .env("WATCHDOG_USEC", "300000")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut buf = [0u8; 512];
+    let mut recv = || {
+        let n = sock.recv(&mut buf).expect("a notification");
+        String::from_utf8_lossy(&buf[..n]).into_owned()
+    };
+    let first = recv();
+    assert!(first.lines().any(|l| l == "READY=1"), "{first:?}");
+    assert!(
+        first.contains("STATUS=listening on 127.0.0.1:"),
+        "{first:?}"
+    );
+    let t0 = std::time::Instant::now();
+    for _ in 0..3 {
+        assert_eq!(recv().trim(), "WATCHDOG=1");
+    }
+    // Three pings at 150 ms intervals (the first one at once).
+    assert!(t0.elapsed() < Duration::from_secs(2), "{:?}", t0.elapsed());
+    std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    let stopping = loop {
+        let m = recv();
+        if m.trim() != "WATCHDOG=1" {
+            break m;
+        }
+    };
+    assert_eq!(stopping.trim(), "STOPPING=1");
+    assert!(child.wait().unwrap().success());
+}

@@ -176,11 +176,43 @@ impl Manager {
                 .push_back(row.id);
             ids.push(row.id);
         }
+        self.follow_pauses();
         let stages: Vec<String> = self.inner().queues.keys().cloned().collect();
         for s in stages {
             self.schedule(&s);
         }
         Ok(ids)
+    }
+
+    /// A pause asked for while a campaign was starting is overwritten by the session's
+    /// `running`: put `paused` back once it has started (the engine holds at its first point).
+    fn follow_pauses(self: &Arc<Self>) {
+        let mut rx = self.events.subscribe();
+        let me = Arc::downgrade(self);
+        tokio::spawn(async move {
+            loop {
+                let e = match rx.recv().await {
+                    Ok(e) => e,
+                    Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(broadcast::error::RecvError::Closed) => return,
+                };
+                if e.kind != "started" && e.kind != "resumed_from_store" {
+                    continue;
+                }
+                let Some(m) = me.upgrade() else { return };
+                let mut inner = m.inner();
+                let paused = inner
+                    .active(e.campaign)
+                    .is_some_and(|a| *a.control.borrow() == Control::Pause);
+                if paused {
+                    let _ = m.db().set_state(
+                        e.campaign,
+                        CampaignState::Paused,
+                        Some("paused by the operator"),
+                    );
+                }
+            }
+        });
     }
 
     /// Validates and stores a campaign file sent by a client, and queues it. `name` is the

@@ -1,6 +1,7 @@
 //! The HTTP/JSON service (`csmetro serve`): submit, list, follow, pause, resume and abort
 //! campaigns, fetch their results. See [`routes`] for the endpoints, [`manager`] for queueing
 //! and crash recovery, [`config`] for the configuration file.
+use std::future::IntoFuture;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -134,21 +135,24 @@ pub async fn run(cfg: ServiceConfig) -> Result<(), String> {
     let server = axum::serve(listener, app).with_graceful_shutdown(async move {
         let _ = down.wait_for(|d| *d).await;
     });
-    let m2 = manager.clone();
-    let stopper = tokio::spawn(async move {
-        stop_signal().await;
-        tracing::info!("stopping: campaigns stop motion and stay resumable");
-        notify(&[sd_notify::NotifyState::Stopping]);
-        let left = m2.shutdown(SHUTDOWN_GRACE).await;
-        if left > 0 {
-            tracing::warn!(
-                campaigns = left,
-                "still running after the grace period; they resume at the next start"
-            );
-        }
-    });
-    server.await.map_err(|e| format!("server: {e}"))?;
-    let _ = stopper.await;
+    let mut server = std::pin::pin!(server.into_future());
+    let early = tokio::select! {
+        r = &mut server => Some(r),
+        _ = stop_signal() => None,
+    };
+    tracing::info!("stopping: campaigns stop motion and stay resumable");
+    notify(&[sd_notify::NotifyState::Stopping]);
+    let left = manager.shutdown(SHUTDOWN_GRACE).await;
+    if left > 0 {
+        tracing::warn!(
+            campaigns = left,
+            "still running after the grace period; they resume at the next start"
+        );
+    }
+    match early {
+        Some(r) => r.map_err(|e| format!("server: {e}"))?,
+        None => server.await.map_err(|e| format!("server: {e}"))?,
+    }
     tracing::info!("stopped");
     Ok(())
 }
