@@ -426,8 +426,8 @@ fn notifies_systemd_ready_watchdog_and_stopping() {
     for _ in 0..3 {
         assert_eq!(recv().trim(), "WATCHDOG=1");
     }
-    // Three pings at 150 ms intervals (the first one at once).
-    assert!(t0.elapsed() < Duration::from_secs(2), "{:?}", t0.elapsed());
+    // Three pings 150 ms apart (the first at once); generous for a loaded machine.
+    assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", t0.elapsed());
     std::process::Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
         .status()

@@ -1,4 +1,5 @@
 //! `csmetro serve --config config/csmetro.toml`: the HTTP/JSON service (see `csmetro::api`).
+use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -21,7 +22,7 @@ fn init_tracing(filter: &str) {
     let b = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
-        .with_ansi(!journal);
+        .with_ansi(!journal && std::io::stderr().is_terminal());
     let r = if journal {
         b.without_time().try_init()
     } else {
