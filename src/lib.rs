@@ -1,4 +1,5 @@
 //! csmetro: compressive-sensing characterization of micropositioning stages.
+pub mod api;
 pub mod campaign;
 pub mod cli;
 pub mod gap;

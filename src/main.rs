@@ -35,6 +35,22 @@ enum Command {
     Run(cli::run::Args),
     /// Continue an interrupted campaign from its last stored sample.
     Resume(cli::run::ResumeArgs),
+    /// The HTTP/JSON service: queues and runs campaigns, streams their events, serves results.
+    Serve(cli::serve::Args),
+    /// Send a campaign file to the service; prints its id.
+    Submit(cli::client::SubmitArgs),
+    /// State and progress of one campaign, or of all, on the service.
+    Status(cli::client::StatusArgs),
+    /// Follow a campaign's events until it ends (exit 0 done, 130 aborted, 1 otherwise).
+    Watch(cli::client::WatchArgs),
+    /// Pause a running campaign on the service (between two points).
+    Pause(cli::client::IdArgs),
+    /// Continue a paused campaign, or queue an interrupted one again, on the service.
+    Unpause(cli::client::IdArgs),
+    /// Abort a campaign on the service: motion stops, the campaign ends aborted.
+    Abort(cli::client::AbortArgs),
+    /// Download every result (curves, plots, tables, summary) of a campaign.
+    Report(cli::client::ReportArgs),
 }
 
 fn main() -> ExitCode {
@@ -49,6 +65,14 @@ fn main() -> ExitCode {
         Command::Gap(a) => cli::gap::run(a),
         Command::Run(a) => cli::run::run(a),
         Command::Resume(a) => cli::run::resume(a),
+        Command::Serve(a) => cli::serve::run(a),
+        Command::Submit(a) => cli::client::submit(a),
+        Command::Status(a) => cli::client::status(a),
+        Command::Watch(a) => cli::client::watch(a),
+        Command::Pause(a) => cli::client::pause(a),
+        Command::Unpause(a) => cli::client::unpause(a),
+        Command::Abort(a) => cli::client::abort(a),
+        Command::Report(a) => cli::client::report(a),
     };
     cli::finish(result)
 }

@@ -309,3 +309,39 @@ fn bad_campaign_files_name_file_line_and_key_and_nothing_is_stored() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing.toml"));
 }
+
+#[test]
+fn sigterm_stops_motion_and_leaves_the_campaign_resumable() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    let c = campaign(dir.path(), 1000.0, 30);
+    let mut child = bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(&db)
+        .arg(&c)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_samples(&mut child, &db, 30);
+    let st = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(143), "{err}");
+    assert!(err.contains("motion stopped"), "{err}");
+    let row = store(&db).campaign(1).unwrap().unwrap();
+    assert_eq!(row.state, CampaignState::Interrupted);
+    let j = json_of(
+        &bin()
+            .args(["resume", "1", "--json", "--quiet", "--db"])
+            .arg(&db)
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(j["state"], "done");
+    assert_eq!(store(&db).sample_count(1).unwrap(), row.planned);
+}

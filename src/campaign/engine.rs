@@ -24,7 +24,17 @@ use super::types::{AxisId, Phase, RunKey, SampleRecord, Target};
 pub enum Control {
     Run,
     Pause,
+    /// Stop motion and end the campaign for good (state aborted).
     Abort,
+    /// Stop motion and end this attempt, leaving the campaign resumable (service shutdown).
+    Stop,
+}
+
+impl Control {
+    /// Abort or Stop: the engine halts at the next point.
+    pub fn halts(self) -> bool {
+        matches!(self, Control::Abort | Control::Stop)
+    }
 }
 
 /// Where samples and events go: the store, the worker, the API. Called on the engine's task.
@@ -58,6 +68,16 @@ pub struct PhaseStats {
 pub enum EndState {
     Done,
     Aborted,
+    /// Halted by [`Control::Stop`]: resumable from the last stored sample.
+    Stopped,
+}
+
+fn end_of(c: Control) -> EndState {
+    if c == Control::Stop {
+        EndState::Stopped
+    } else {
+        EndState::Aborted
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -248,8 +268,9 @@ impl<'a> Engine<'a> {
         }
         let runs = plan.runs();
         for run in runs {
-            if self.control_point().await == Control::Abort {
-                return Ok(EndState::Aborted);
+            let c = self.control_point().await;
+            if c.halts() {
+                return Ok(end_of(c));
             }
             let batches: Vec<Batch> = plan.run_batches(run).cloned().collect();
             let todo = batches
@@ -268,8 +289,9 @@ impl<'a> Engine<'a> {
                     self.stat(run).saved_by_adaptive += n;
                     continue;
                 }
-                if self.batch(b).await? == Control::Abort {
-                    return Ok(EndState::Aborted);
+                let c = self.batch(b).await?;
+                if c.halts() {
+                    return Ok(end_of(c));
                 }
                 if let (Some(goal), true) = (b.target_error_um, bi + 1 < batches.len()) {
                     let cv = self.recorder.cv_error_um(run);
@@ -288,16 +310,17 @@ impl<'a> Engine<'a> {
         Ok(EndState::Done)
     }
 
-    /// Waits while paused; returns Run or Abort.
+    /// Waits while paused; returns Run, Abort or Stop.
     async fn control_point(&mut self) -> Control {
         loop {
             let c = *self.control.borrow_and_update();
             match c {
-                Control::Run | Control::Abort => return c,
+                Control::Run | Control::Abort | Control::Stop => return c,
                 Control::Pause => {
                     self.recorder.event("paused", json!({}));
                     if self.control.changed().await.is_err() {
-                        return Control::Abort;
+                        // Nobody left to resume us: end resumable, not aborted.
+                        return Control::Stop;
                     }
                     if *self.control.borrow() == Control::Run {
                         self.recorder.event("resumed", json!({}));
@@ -459,7 +482,7 @@ impl<'a> Engine<'a> {
         self.approach(b.run, &todo[0]).await?;
         let mut flight: VecDeque<InFlight> = VecDeque::new();
         let mut retry: Vec<Target> = Vec::new();
-        let mut aborted = false;
+        let mut halted = None;
         for t in &todo {
             let c = *self.control.borrow();
             if c != Control::Run {
@@ -467,8 +490,9 @@ impl<'a> Engine<'a> {
                 while let Some(f) = flight.pop_front() {
                     retry.extend(self.land(f, 0).await?);
                 }
-                if self.control_point().await == Control::Abort {
-                    aborted = true;
+                let c = self.control_point().await;
+                if c.halts() {
+                    halted = Some(c);
                     break;
                 }
                 // Resumed: approach again from the run's side.
@@ -484,12 +508,16 @@ impl<'a> Engine<'a> {
         while let Some(f) = flight.pop_front() {
             retry.extend(self.land(f, 0).await?);
         }
-        if aborted {
-            return Ok(Control::Abort);
+        if let Some(c) = halted {
+            return Ok(c);
         }
         // Rejected frames: re-approach each target from the run's side, measure again.
         let max = self.campaign.spec.acquisition.max_retries;
         for t in retry {
+            let c = *self.control.borrow();
+            if c.halts() {
+                return Ok(c);
+            }
             let mut attempt = 1;
             loop {
                 if attempt > max {

@@ -248,6 +248,25 @@ pub async fn execute(
         .unwrap_or_default();
     let truth = TruthSource::new(&rig, &c);
     rig.close().await;
+    if outcome.end == EndState::Stopped {
+        let msg = "stopped (service shutdown); resumes from the last stored sample";
+        let _ = lock(&store).set_state(id, CampaignState::Interrupted, Some(msg));
+        emit(
+            &store,
+            &events,
+            id,
+            "finished",
+            json!({"state": "interrupted", "reason": msg}),
+        );
+        return Ok(Finished {
+            id,
+            state: CampaignState::Interrupted,
+            outcome,
+            summary: None,
+            table: None,
+            out_dir: None,
+        });
+    }
     if outcome.end == EndState::Aborted {
         let s = lock(&store);
         let _ = s.set_state(id, CampaignState::Aborted, Some("aborted by the operator"));

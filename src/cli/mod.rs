@@ -2,12 +2,14 @@
 use std::process::ExitCode;
 
 pub mod bench;
+pub mod client;
 pub mod demo;
 pub mod gap;
 pub mod generate;
 pub mod ppp;
 pub mod reconstruct;
 pub mod run;
+pub mod serve;
 pub mod sim;
 
 /// An error that ends a command: a one-line message and the process exit code.

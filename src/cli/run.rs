@@ -107,14 +107,16 @@ fn foreground(store: SharedStore, id: i64, c: Campaign, json: bool, quiet: bool)
         bar.set_position(stored);
         let (ctl_tx, ctl_rx) = watch::channel(Control::Run);
         let (ev_tx, mut ev_rx) = broadcast::channel::<session::Event>(1024);
-        // Ctrl-C / SIGTERM: abort, which stops motion before anything else.
+        // Ctrl-C: the operator aborts. SIGTERM (shutdown, a supervisor): stop, resumable.
+        // Either way motion stops before anything else.
         tokio::spawn(async move {
-            let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
-            tokio::select! {
-                _ = tokio::signal::ctrl_c() => {}
-                _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending::<()>().await } } => {}
-            }
-            let _ = ctl_tx.send(Control::Abort);
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+            let c = tokio::select! {
+                _ = tokio::signal::ctrl_c() => Control::Abort,
+                _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending::<()>().await } } => Control::Stop,
+            };
+            let _ = ctl_tx.send(c);
         });
         let b2 = bar.clone();
         tokio::spawn(async move {
@@ -160,6 +162,12 @@ fn foreground(store: SharedStore, id: i64, c: Campaign, json: bool, quiet: bool)
             CampaignState::Aborted => {
                 eprintln!("campaign {id} aborted; motion stopped");
                 ExitCode::from(130)
+            }
+            CampaignState::Interrupted => {
+                eprintln!(
+                    "campaign {id} stopped; motion stopped; `csmetro resume {id}` continues from the last stored sample"
+                );
+                ExitCode::from(143)
             }
             _ => ExitCode::FAILURE,
         })

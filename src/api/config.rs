@@ -1,0 +1,367 @@
+//! The service's configuration file (`csmetro serve --config config/csmetro.toml`).
+//!
+//! ```toml
+//! [server]
+//! bind = "127.0.0.1:8463"       # a non-loopback address needs token or token_file
+//! # token = "..."               # clients send `Authorization: Bearer <token>`
+//! # token_file = "token"        # first line of the file (keeps the secret out of the config)
+//!
+//! [storage]
+//! db = "../var/csmetro.db"       # SQLite store: campaigns, samples, events, results
+//! results_dir = "../var/results" # relative `[outputs] dir` of campaigns resolve from here
+//!
+//! [campaigns]
+//! base_dir = "campaigns"         # relative paths in submitted campaigns (stage models) resolve here
+//!
+//! [log]
+//! filter = "info"                # tracing filter; RUST_LOG overrides it
+//! ```
+//!
+//! Relative paths resolve from the directory of the configuration file. Every error names the
+//! file, the line and the key.
+use std::net::SocketAddr;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+/// Port of the service when the configuration does not say.
+pub const DEFAULT_PORT: u16 = 8463;
+
+/// A configuration error pointing into the file: `file:line: key: message`.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("{origin}:{line}: {key}: {message}")]
+pub struct ConfigError {
+    pub origin: String,
+    pub line: usize,
+    pub key: String,
+    pub message: String,
+}
+
+/// The validated service configuration, paths resolved.
+#[derive(Debug, Clone)]
+pub struct ServiceConfig {
+    /// The file it was read from.
+    pub path: PathBuf,
+    pub bind: SocketAddr,
+    /// Bearer token every request must carry; None = no authentication (loopback only).
+    pub token: Option<String>,
+    pub db: PathBuf,
+    pub results_dir: PathBuf,
+    /// Where relative paths in submitted campaign files resolve.
+    pub campaigns_dir: PathBuf,
+    /// tracing-subscriber `EnvFilter` directives.
+    pub log_filter: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Raw {
+    #[serde(default)]
+    server: RawServer,
+    storage: RawStorage,
+    #[serde(default)]
+    campaigns: RawCampaigns,
+    #[serde(default)]
+    log: RawLog,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawServer {
+    bind: Option<String>,
+    token: Option<String>,
+    token_file: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawStorage {
+    db: String,
+    results_dir: String,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCampaigns {
+    base_dir: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawLog {
+    #[serde(default = "default_filter")]
+    filter: String,
+}
+
+impl Default for RawLog {
+    fn default() -> Self {
+        Self {
+            filter: default_filter(),
+        }
+    }
+}
+
+fn default_filter() -> String {
+    "info".into()
+}
+
+impl ServiceConfig {
+    /// Reads and validates a configuration file (reads `token_file` too).
+    pub fn load(path: &Path) -> Result<ServiceConfig, ConfigError> {
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            origin: origin.clone(),
+            line: 0,
+            key: "-".into(),
+            message: format!("cannot read: {e}"),
+        })?;
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Self::parse(&text, &origin, &base)
+    }
+
+    /// Parses and validates configuration text; `origin` names it in errors, relative paths
+    /// resolve from `base_dir`.
+    pub fn parse(text: &str, origin: &str, base_dir: &Path) -> Result<ServiceConfig, ConfigError> {
+        let err = |span: Option<Range<usize>>, key: &str, message: String| ConfigError {
+            origin: origin.into(),
+            line: span.map(|s| line_of(text, s.start)).unwrap_or(0),
+            key: key.into(),
+            message,
+        };
+        let raw: Raw = toml::from_str(text).map_err(|e| {
+            let span = e.span();
+            let key = span
+                .clone()
+                .and_then(|s| key_at(text, s))
+                .unwrap_or_else(|| "-".into());
+            err(span, &key, e.message().trim().to_string())
+        })?;
+        let fail = |key: &str, message: String| err(span_of(text, key), key, message);
+        let resolve = |p: &str| {
+            let p = Path::new(p);
+            if p.is_absolute() {
+                p.to_path_buf()
+            } else {
+                base_dir.join(p)
+            }
+        };
+
+        let bind_text = raw
+            .server
+            .bind
+            .unwrap_or_else(|| format!("127.0.0.1:{DEFAULT_PORT}"));
+        let bind: SocketAddr = bind_text.parse().map_err(|e| {
+            fail(
+                "server.bind",
+                format!("{bind_text:?} is not an IP:port address ({e})"),
+            )
+        })?;
+        let token = match (raw.server.token, raw.server.token_file) {
+            (Some(_), Some(_)) => {
+                return Err(fail(
+                    "server.token_file",
+                    "give token or token_file, not both".into(),
+                ))
+            }
+            (Some(t), None) => Some((t, "server.token")),
+            (None, Some(f)) => {
+                let p = resolve(&f);
+                let t = std::fs::read_to_string(&p).map_err(|e| {
+                    fail(
+                        "server.token_file",
+                        format!("cannot read {}: {e}", p.display()),
+                    )
+                })?;
+                Some((
+                    t.lines().next().unwrap_or("").to_string(),
+                    "server.token_file",
+                ))
+            }
+            (None, None) => None,
+        };
+        let token = match token {
+            Some((t, key)) => {
+                let t = t.trim().to_string();
+                if t.len() < 16 || t.chars().any(|c| !c.is_ascii_graphic()) {
+                    return Err(fail(
+                        key,
+                        "the token must be at least 16 printable ASCII characters without spaces"
+                            .into(),
+                    ));
+                }
+                Some(t)
+            }
+            None => None,
+        };
+        if !bind.ip().is_loopback() && token.is_none() {
+            return Err(fail(
+                "server.bind",
+                format!(
+                    "{bind} is not a loopback address: set server.token or server.token_file \
+                     (clients then send `Authorization: Bearer <token>`), or bind 127.0.0.1"
+                ),
+            ));
+        }
+        for (key, v) in [
+            ("storage.db", &raw.storage.db),
+            ("storage.results_dir", &raw.storage.results_dir),
+        ] {
+            if v.trim().is_empty() {
+                return Err(fail(key, "must not be empty".into()));
+            }
+        }
+        if let Err(e) = tracing_subscriber::EnvFilter::try_new(&raw.log.filter) {
+            return Err(fail("log.filter", format!("not a tracing filter: {e}")));
+        }
+        let campaigns_dir = raw
+            .campaigns
+            .base_dir
+            .as_deref()
+            .map(resolve)
+            .unwrap_or_else(|| base_dir.to_path_buf());
+        Ok(ServiceConfig {
+            path: PathBuf::from(origin),
+            bind,
+            token,
+            db: resolve(&raw.storage.db),
+            results_dir: resolve(&raw.storage.results_dir),
+            campaigns_dir,
+            log_filter: raw.log.filter,
+        })
+    }
+}
+
+/// 1-based line of a byte offset.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+/// Span of the key at a dotted path (the deepest part present), e.g. `server.bind`.
+fn span_of(text: &str, path: &str) -> Option<Range<usize>> {
+    use toml::de::{DeTable, DeValue};
+    let doc = DeTable::parse(text).ok()?;
+    let mut table = doc.get_ref();
+    let mut best = None;
+    let parts: Vec<&str> = path.split('.').collect();
+    for (i, part) in parts.iter().enumerate() {
+        let Some((k, v)) = table.iter().find(|(k, _)| k.get_ref().as_ref() == *part) else {
+            return best;
+        };
+        best = Some(k.span());
+        match v.get_ref() {
+            DeValue::Table(t) if i + 1 < parts.len() => table = t,
+            _ => return best,
+        }
+    }
+    best
+}
+
+/// The dotted key whose key or value contains `span`, or the table whose header it is on.
+fn key_at(text: &str, span: Range<usize>) -> Option<String> {
+    use toml::de::{DeTable, DeValue};
+    fn walk(t: &DeTable<'_>, span: &Range<usize>, prefix: &str) -> Option<String> {
+        for (k, v) in t.iter() {
+            let name = if prefix.is_empty() {
+                k.get_ref().to_string()
+            } else {
+                format!("{prefix}.{}", k.get_ref())
+            };
+            let inside =
+                |r: &Range<usize>| r.start <= span.start && span.start < r.end.max(r.start + 1);
+            if let DeValue::Table(sub) = v.get_ref() {
+                if let Some(deeper) = walk(sub, span, &name) {
+                    return Some(deeper);
+                }
+            }
+            if inside(&k.span()) || inside(&v.span()) {
+                return Some(name);
+            }
+        }
+        None
+    }
+    let found = DeTable::parse(text)
+        .ok()
+        .and_then(|doc| walk(doc.get_ref(), &span, ""));
+    found.or_else(|| {
+        let line_start = text[..span.start.min(text.len())]
+            .rfind('\n')
+            .map_or(0, |i| i + 1);
+        let line = text[line_start..].lines().next()?.trim();
+        line.strip_prefix('[')
+            .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = "[server]\nbind = \"127.0.0.1:0\"\n\n[storage]\ndb = \"var/c.db\"\nresults_dir = \"var/results\"\n";
+
+    fn parse(t: &str) -> Result<ServiceConfig, ConfigError> {
+        ServiceConfig::parse(t, "svc.toml", Path::new("/etc/csmetro"))
+    }
+
+    #[test]
+    fn paths_resolve_from_the_config_directory() {
+        let c = parse(GOOD).unwrap();
+        assert_eq!(c.db, Path::new("/etc/csmetro/var/c.db"));
+        assert_eq!(c.results_dir, Path::new("/etc/csmetro/var/results"));
+        assert_eq!(c.campaigns_dir, Path::new("/etc/csmetro"));
+        assert!(c.bind.ip().is_loopback());
+        assert_eq!(c.token, None);
+        assert_eq!(c.log_filter, "info");
+    }
+
+    #[test]
+    fn default_bind_is_loopback_on_the_service_port() {
+        let c = parse("[storage]\ndb = \"a.db\"\nresults_dir = \"r\"\n").unwrap();
+        assert_eq!(c.bind.to_string(), format!("127.0.0.1:{DEFAULT_PORT}"));
+    }
+
+    #[test]
+    fn non_loopback_without_token_is_refused_naming_the_line() {
+        let t = GOOD.replace("127.0.0.1:0", "0.0.0.0:8463");
+        let e = parse(&t).unwrap_err();
+        assert_eq!((e.key.as_str(), e.line), ("server.bind", 2), "{e}");
+        assert!(e.to_string().starts_with("svc.toml:2: server.bind:"), "{e}");
+        assert!(e.message.contains("token"), "{e}");
+
+        let t = t.replace("[server]\n", "[server]\ntoken = \"0123456789abcdef0123\"\n");
+        assert_eq!(
+            parse(&t).unwrap().token.as_deref(),
+            Some("0123456789abcdef0123")
+        );
+    }
+
+    #[test]
+    fn short_tokens_unknown_keys_and_bad_addresses_name_the_key() {
+        let t = GOOD.replace("[server]\n", "[server]\ntoken = \"short\"\n");
+        assert_eq!(parse(&t).unwrap_err().key, "server.token");
+
+        let t = GOOD.replace("results_dir", "result_dir");
+        let e = parse(&t).unwrap_err();
+        assert_eq!((e.key.as_str(), e.line), ("storage.result_dir", 6), "{e}");
+
+        let t = GOOD.replace("127.0.0.1:0", "localhost");
+        let e = parse(&t).unwrap_err();
+        assert_eq!((e.key.as_str(), e.line), ("server.bind", 2), "{e}");
+
+        let t = format!("{GOOD}\n[log]\nfilter = \"[[[\"\n");
+        assert_eq!(parse(&t).unwrap_err().key, "log.filter");
+    }
+
+    #[test]
+    fn token_file_is_read_and_trimmed() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("tok"), "abcdefghijklmnopqrstuvwxyz\n").unwrap();
+        let t = GOOD.replace("[server]\n", "[server]\ntoken_file = \"tok\"\n");
+        let c = ServiceConfig::parse(&t, "svc.toml", dir.path()).unwrap();
+        assert_eq!(c.token.as_deref(), Some("abcdefghijklmnopqrstuvwxyz"));
+
+        let t = GOOD.replace("[server]\n", "[server]\ntoken_file = \"missing\"\n");
+        let e = ServiceConfig::parse(&t, "svc.toml", dir.path()).unwrap_err();
+        assert_eq!((e.key.as_str(), e.line), ("server.token_file", 2), "{e}");
+    }
+}

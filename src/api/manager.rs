@@ -1,0 +1,578 @@
+//! The campaign manager behind the API: a FIFO queue per stage (one campaign drives a stage at a
+//! time, the others wait in state `queued`), the control channel of each running campaign, and
+//! one broadcast of live events for every client.
+//!
+//! Crash safety comes from the store: every sample is committed as it is taken, so a campaign
+//! left `running`/`paused`/`interrupted`/`queued` by a killed service is queued again by
+//! [`Manager::start`] and resumed by `session::execute`, which skips the stored targets.
+//!
+//! Shutdown: [`Manager::shutdown`] sends `Control::Stop`: the engine stops motion and the session
+//! ends the campaign `interrupted`, which the next start resumes. Only an operator's abort
+//! leaves a campaign `aborted`.
+use std::collections::{BTreeMap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use tokio::sync::{broadcast, watch};
+
+use super::ApiError;
+use crate::campaign::engine::Control;
+use crate::campaign::session::{self, Event, SharedStore};
+use crate::campaign::spec::Campaign;
+use crate::campaign::types::CampaignState;
+use crate::store::{CampaignRow, EventRow, StoreError};
+
+/// Live events buffered per subscriber before a slow one lags (it then catches up from the store).
+const EVENT_BUFFER: usize = 4096;
+
+/// A campaign as the API reports it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CampaignStatus {
+    pub id: i64,
+    pub name: String,
+    pub stage: String,
+    pub state: CampaignState,
+    /// Targets in the plan.
+    pub planned: u64,
+    /// Samples committed to the store.
+    pub stored: u64,
+    /// stored / planned, %.
+    pub percent: f64,
+    /// Why it is in its state (error, who paused it...).
+    pub message: Option<String>,
+    /// Place in its stage's queue (0 = next), when queued.
+    pub queue_position: Option<usize>,
+    pub created_unix_s: f64,
+    pub updated_unix_s: f64,
+}
+
+struct Active {
+    id: i64,
+    control: watch::Sender<Control>,
+    /// An operator asked for the abort (as opposed to the service shutting down).
+    operator_abort: bool,
+}
+
+#[derive(Default)]
+struct Inner {
+    /// Waiting campaigns per stage, oldest first.
+    queues: BTreeMap<String, VecDeque<i64>>,
+    /// The campaign driving each stage.
+    running: BTreeMap<String, Active>,
+}
+
+impl Inner {
+    fn queue_position(&self, id: i64) -> Option<(String, usize)> {
+        self.queues
+            .iter()
+            .find_map(|(s, q)| q.iter().position(|&x| x == id).map(|p| (s.clone(), p)))
+    }
+    fn active(&mut self, id: i64) -> Option<&mut Active> {
+        self.running.values_mut().find(|a| a.id == id)
+    }
+}
+
+/// Owns the store, the queues and the running campaigns. Create with [`Manager::new`], then
+/// [`Manager::start`] inside a tokio runtime.
+pub struct Manager {
+    store: SharedStore,
+    events: broadcast::Sender<Event>,
+    results_dir: PathBuf,
+    campaigns_dir: PathBuf,
+    inner: Mutex<Inner>,
+    shutdown: watch::Sender<bool>,
+    /// Number of campaign tasks not yet finished (shutdown waits for 0).
+    active: watch::Sender<usize>,
+}
+
+fn store_err(e: StoreError) -> ApiError {
+    ApiError::internal(e.to_string())
+}
+
+impl Manager {
+    /// `results_dir`: where relative `[outputs] dir` of campaigns go; `campaigns_dir`: where
+    /// relative paths in submitted campaign files resolve.
+    pub fn new(store: SharedStore, results_dir: &Path, campaigns_dir: &Path) -> Arc<Manager> {
+        Arc::new(Manager {
+            store,
+            events: broadcast::channel(EVENT_BUFFER).0,
+            results_dir: results_dir.to_path_buf(),
+            campaigns_dir: campaigns_dir.to_path_buf(),
+            inner: Mutex::new(Inner::default()),
+            shutdown: watch::channel(false).0,
+            active: watch::channel(0).0,
+        })
+    }
+
+    fn inner(&self) -> MutexGuard<'_, Inner> {
+        self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn db(&self) -> MutexGuard<'_, crate::store::Store> {
+        self.store.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub fn store(&self) -> &SharedStore {
+        &self.store
+    }
+
+    /// Live events of every campaign (samples included, with id 0: they are not in the log).
+    pub fn subscribe(&self) -> broadcast::Receiver<Event> {
+        self.events.subscribe()
+    }
+
+    /// Becomes true when the service starts shutting down.
+    pub fn shutdown_signal(&self) -> watch::Receiver<bool> {
+        self.shutdown.subscribe()
+    }
+
+    pub fn shutting_down(&self) -> bool {
+        *self.shutdown.borrow()
+    }
+
+    /// Stores an event in the campaign's log and broadcasts it.
+    fn emit(&self, id: i64, kind: &str, data: Value) {
+        let r = self.db().add_event(id, kind, &data);
+        match r {
+            Ok(eid) => {
+                let _ = self.events.send(Event {
+                    id: eid,
+                    campaign: id,
+                    unix_s: crate::store::now_unix_s(),
+                    kind: kind.into(),
+                    data,
+                });
+            }
+            Err(e) => tracing::warn!(campaign = id, kind, error = %e, "event not stored"),
+        }
+    }
+
+    /// Queues every campaign a previous service left unfinished (oldest first) and starts what
+    /// can start. Returns their ids.
+    pub fn start(self: &Arc<Self>) -> Result<Vec<i64>, String> {
+        let rows = self.db().unfinished().map_err(|e| e.to_string())?;
+        let mut ids = Vec::new();
+        for row in rows {
+            if row.state != CampaignState::Queued {
+                let msg = format!("resumed at service start (was {})", row.state.as_str());
+                self.db()
+                    .set_state(row.id, CampaignState::Queued, Some(&msg))
+                    .map_err(|e| e.to_string())?;
+                self.emit(
+                    row.id,
+                    "requeued",
+                    json!({"reason": "service start", "previous_state": row.state.as_str()}),
+                );
+            }
+            tracing::info!(campaign = row.id, name = %row.name, stage = %row.stage, previous_state = row.state.as_str(), "queued again at start");
+            self.inner()
+                .queues
+                .entry(row.stage.clone())
+                .or_default()
+                .push_back(row.id);
+            ids.push(row.id);
+        }
+        self.follow_pauses();
+        let stages: Vec<String> = self.inner().queues.keys().cloned().collect();
+        for s in stages {
+            self.schedule(&s);
+        }
+        Ok(ids)
+    }
+
+    /// A pause asked for while a campaign was starting is overwritten by the session's
+    /// `running`: put `paused` back once it has started (the engine holds at its first point).
+    fn follow_pauses(self: &Arc<Self>) {
+        let mut rx = self.events.subscribe();
+        let me = Arc::downgrade(self);
+        tokio::spawn(async move {
+            loop {
+                let e = match rx.recv().await {
+                    Ok(e) => e,
+                    Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(broadcast::error::RecvError::Closed) => return,
+                };
+                if e.kind != "started" && e.kind != "resumed_from_store" {
+                    continue;
+                }
+                let Some(m) = me.upgrade() else { return };
+                let mut inner = m.inner();
+                let paused = inner
+                    .active(e.campaign)
+                    .is_some_and(|a| *a.control.borrow() == Control::Pause);
+                if paused {
+                    let _ = m.db().set_state(
+                        e.campaign,
+                        CampaignState::Paused,
+                        Some("paused by the operator"),
+                    );
+                }
+            }
+        });
+    }
+
+    /// Validates and stores a campaign file sent by a client, and queues it. `name` is the
+    /// file name the client gave (errors name it; relative paths resolve in `campaigns_dir`).
+    pub fn submit(self: &Arc<Self>, text: &str, name: &str) -> Result<CampaignStatus, ApiError> {
+        if self.shutting_down() {
+            return Err(ApiError::conflict("the service is shutting down"));
+        }
+        let file = Path::new(name)
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .filter(|f| !f.is_empty())
+            .unwrap_or_else(|| "submitted.toml".into());
+        let mut c = Campaign::parse(text, &file, &self.campaigns_dir)
+            .map_err(|e| ApiError::bad_request(e.to_string()))?;
+        // load_stored resolves relative paths from the stored path's directory.
+        c.origin = self.campaigns_dir.join(&file).display().to_string();
+        let id = session::create(&self.store, &c).map_err(ApiError::internal)?;
+        let stage = c.spec.campaign.stage.clone();
+        let position = {
+            let mut inner = self.inner();
+            let q = inner.queues.entry(stage.clone()).or_default();
+            q.push_back(id);
+            q.len() - 1
+        };
+        tracing::info!(campaign = id, name = %c.spec.campaign.name, stage = %stage, "submitted");
+        self.emit(
+            id,
+            "queued",
+            json!({"stage": stage, "position": position, "name": c.spec.campaign.name}),
+        );
+        self.schedule(&stage);
+        self.status(id)
+    }
+
+    /// Starts the next queued campaign of `stage` unless one drives it already.
+    fn schedule(self: &Arc<Self>, stage: &str) {
+        loop {
+            if self.shutting_down() {
+                return;
+            }
+            let (id, rx) = {
+                let mut inner = self.inner();
+                if inner.running.contains_key(stage) {
+                    return;
+                }
+                let Some(id) = inner.queues.get_mut(stage).and_then(|q| q.pop_front()) else {
+                    return;
+                };
+                let (tx, rx) = watch::channel(Control::Run);
+                inner.running.insert(
+                    stage.to_string(),
+                    Active {
+                        id,
+                        control: tx,
+                        operator_abort: false,
+                    },
+                );
+                (id, rx)
+            };
+            match session::load_stored(&self.store, id) {
+                Ok(c) => {
+                    self.launch(id, stage.to_string(), c, rx);
+                    return;
+                }
+                Err(e) => {
+                    // E.g. its stage model file is gone: keep it resumable once fixed.
+                    tracing::error!(campaign = id, error = %e, "cannot load the stored campaign");
+                    self.inner().running.remove(stage);
+                    let msg = format!("cannot load: {e}");
+                    let _ = self
+                        .db()
+                        .set_state(id, CampaignState::Interrupted, Some(&msg));
+                    self.emit(
+                        id,
+                        "finished",
+                        json!({"state": "interrupted", "error": msg}),
+                    );
+                }
+            }
+        }
+    }
+
+    fn launch(
+        self: &Arc<Self>,
+        id: i64,
+        stage: String,
+        mut c: Campaign,
+        control: watch::Receiver<Control>,
+    ) {
+        let dir = Path::new(&c.spec.outputs.dir);
+        if dir.is_relative() {
+            c.spec.outputs.dir = self.results_dir.join(dir).display().to_string();
+        }
+        tracing::info!(campaign = id, name = %c.spec.campaign.name, stage = %stage, "starting");
+        self.active.send_modify(|n| *n += 1);
+        let me = Arc::clone(self);
+        let run = session::execute(
+            self.store.clone(),
+            id,
+            c,
+            control,
+            self.events.clone(),
+            Box::new(|_| {}),
+        );
+        tokio::spawn(async move {
+            // A panic in the session must still free the stage and count down.
+            let r = tokio::spawn(run).await;
+            me.finished(id, &stage, r);
+        });
+    }
+
+    fn finished(
+        self: &Arc<Self>,
+        id: i64,
+        stage: &str,
+        r: Result<Result<session::Finished, String>, tokio::task::JoinError>,
+    ) {
+        let operator_abort = {
+            let mut inner = self.inner();
+            match inner.running.get(stage) {
+                Some(a) if a.id == id => {
+                    let o = a.operator_abort;
+                    inner.running.remove(stage);
+                    o
+                }
+                _ => false,
+            }
+        };
+        match r {
+            Ok(Ok(fin)) => {
+                tracing::info!(campaign = id, state = fin.state.as_str(), "campaign ended");
+                if fin.state == CampaignState::Interrupted && !operator_abort {
+                    self.emit(
+                        id,
+                        "interrupted",
+                        json!({"reason": "service shutdown", "resumable": true}),
+                    );
+                }
+            }
+            Ok(Err(e)) => tracing::warn!(campaign = id, error = %e, "campaign stopped"),
+            Err(e) => {
+                let msg = format!("campaign task failed: {e}");
+                tracing::error!(campaign = id, error = %msg);
+                let _ = self
+                    .db()
+                    .set_state(id, CampaignState::Interrupted, Some(&msg));
+                self.emit(
+                    id,
+                    "finished",
+                    json!({"state": "interrupted", "error": msg}),
+                );
+            }
+        }
+        self.active.send_modify(|n| *n = n.saturating_sub(1));
+        self.schedule(stage);
+    }
+
+    fn row(&self, id: i64) -> Result<CampaignRow, ApiError> {
+        self.db()
+            .campaign(id)
+            .map_err(store_err)?
+            .ok_or_else(|| ApiError::not_found(format!("no campaign {id}")))
+    }
+
+    fn status_of(
+        &self,
+        row: CampaignRow,
+        queue: Option<usize>,
+    ) -> Result<CampaignStatus, ApiError> {
+        let stored = self.db().sample_count(row.id).map_err(store_err)?;
+        let percent = if row.planned == 0 {
+            0.0
+        } else {
+            (100.0 * stored as f64 / row.planned as f64).min(100.0)
+        };
+        Ok(CampaignStatus {
+            id: row.id,
+            name: row.name,
+            stage: row.stage,
+            state: row.state,
+            planned: row.planned,
+            stored,
+            percent,
+            message: row.message,
+            queue_position: queue,
+            created_unix_s: row.created_unix_s,
+            updated_unix_s: row.updated_unix_s,
+        })
+    }
+
+    /// State and progress of one campaign.
+    pub fn status(&self, id: i64) -> Result<CampaignStatus, ApiError> {
+        let pos = self.inner().queue_position(id).map(|(_, p)| p);
+        let row = self.row(id)?;
+        self.status_of(row, pos)
+    }
+
+    /// Every campaign, newest first.
+    pub fn list(&self) -> Result<Vec<CampaignStatus>, ApiError> {
+        let rows = self.db().campaigns().map_err(store_err)?;
+        rows.into_iter()
+            .map(|r| {
+                let pos = self.inner().queue_position(r.id).map(|(_, p)| p);
+                self.status_of(r, pos)
+            })
+            .collect()
+    }
+
+    /// Ids of the running campaigns and of the queued ones.
+    pub fn overview(&self) -> (Vec<i64>, Vec<i64>) {
+        let inner = self.inner();
+        (
+            inner.running.values().map(|a| a.id).collect(),
+            inner.queues.values().flatten().copied().collect(),
+        )
+    }
+
+    fn refuse(&self, id: i64, what: &str) -> ApiError {
+        match self.row(id) {
+            Ok(row) => ApiError::conflict(format!(
+                "campaign {id} is {}: cannot {what} it",
+                row.state.as_str()
+            )),
+            Err(e) => e,
+        }
+    }
+
+    /// Holds a running campaign between two points (motion ends on target, nothing is lost).
+    pub fn pause(&self, id: i64) -> Result<CampaignStatus, ApiError> {
+        {
+            let mut inner = self.inner();
+            let Some(a) = inner.active(id) else {
+                drop(inner);
+                return Err(self.refuse(id, "pause"));
+            };
+            if a.control.borrow().halts() {
+                drop(inner);
+                return Err(self.refuse(id, "pause"));
+            }
+            a.control.send_replace(Control::Pause);
+            self.db()
+                .set_state(id, CampaignState::Paused, Some("paused by the operator"))
+                .map_err(store_err)?;
+        }
+        tracing::info!(campaign = id, "paused");
+        self.status(id)
+    }
+
+    /// Continues a paused campaign, or queues an interrupted one again (it resumes from its
+    /// last stored sample).
+    pub fn resume(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+        if self.shutting_down() {
+            return Err(ApiError::conflict("the service is shutting down"));
+        }
+        let requeue_stage = {
+            let mut inner = self.inner();
+            if let Some(a) = inner.active(id) {
+                if *a.control.borrow() != Control::Pause {
+                    drop(inner);
+                    return Err(self.refuse(id, "resume"));
+                }
+                a.control.send_replace(Control::Run);
+                self.db()
+                    .set_state(id, CampaignState::Running, None)
+                    .map_err(store_err)?;
+                None
+            } else if inner.queue_position(id).is_some() {
+                drop(inner);
+                return Err(self.refuse(id, "resume"));
+            } else {
+                let row = self.row(id)?;
+                if row.state != CampaignState::Interrupted {
+                    drop(inner);
+                    return Err(self.refuse(id, "resume"));
+                }
+                self.db()
+                    .set_state(id, CampaignState::Queued, Some("resumed by the operator"))
+                    .map_err(store_err)?;
+                inner
+                    .queues
+                    .entry(row.stage.clone())
+                    .or_default()
+                    .push_back(id);
+                Some(row.stage)
+            }
+        };
+        tracing::info!(campaign = id, "resumed");
+        if let Some(stage) = requeue_stage {
+            self.emit(id, "requeued", json!({"reason": "operator"}));
+            self.schedule(&stage);
+        }
+        self.status(id)
+    }
+
+    /// Aborts a campaign: a running one stops motion and ends `aborted`; a queued or
+    /// interrupted one is marked aborted at once.
+    pub fn abort(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+        let mut inner = self.inner();
+        if let Some(a) = inner.active(id) {
+            a.operator_abort = true;
+            a.control.send_replace(Control::Abort);
+            drop(inner);
+            tracing::info!(campaign = id, "abort requested");
+            return self.status(id);
+        }
+        let queued = inner.queue_position(id);
+        if let Some((stage, _)) = &queued {
+            if let Some(q) = inner.queues.get_mut(stage) {
+                q.retain(|&x| x != id);
+            }
+        }
+        drop(inner);
+        let row = self.row(id)?;
+        if queued.is_none() && row.state != CampaignState::Interrupted {
+            return Err(self.refuse(id, "abort"));
+        }
+        self.db()
+            .set_state(
+                id,
+                CampaignState::Aborted,
+                Some("aborted by the operator before it ran again"),
+            )
+            .map_err(store_err)?;
+        self.emit(id, "finished", json!({"state": "aborted"}));
+        tracing::info!(campaign = id, "aborted while not running");
+        self.status(id)
+    }
+
+    /// A campaign's log after event `after` (0: all).
+    pub fn events_after(&self, id: i64, after: i64) -> Result<Vec<EventRow>, ApiError> {
+        self.row(id)?;
+        self.db().events_after(id, after).map_err(store_err)
+    }
+
+    pub fn result_names(&self, id: i64) -> Result<Vec<String>, ApiError> {
+        self.row(id)?;
+        self.db().result_names(id).map_err(store_err)
+    }
+
+    /// (content type, bytes) of a stored result.
+    pub fn result(&self, id: i64, name: &str) -> Result<(String, Vec<u8>), ApiError> {
+        self.row(id)?;
+        self.db()
+            .result(id, name)
+            .map_err(store_err)?
+            .ok_or_else(|| ApiError::not_found(format!("campaign {id} has no result {name:?}")))
+    }
+
+    /// Stops every running campaign (motion first) and leaves them, and the queued ones,
+    /// to be resumed at the next start; waits up to `grace` for them. Returns how many were
+    /// still running when the wait ended.
+    pub async fn shutdown(&self, grace: Duration) -> usize {
+        self.shutdown.send_replace(true);
+        for a in self.inner().running.values() {
+            tracing::info!(campaign = a.id, "stopping for shutdown");
+            a.control.send_replace(Control::Stop);
+        }
+        let mut rx = self.active.subscribe();
+        let _ = tokio::time::timeout(grace, rx.wait_for(|n| *n == 0)).await;
+        let left = *rx.borrow();
+        left
+    }
+}

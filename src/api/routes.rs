@@ -1,0 +1,349 @@
+//! The endpoints. JSON in and out; errors are `{"error": "..."}` with 400 (bad input), 401 (no
+//! or wrong token), 404 (no such campaign or result), 409 (not possible in the campaign's state).
+//!
+//! | route | |
+//! |---|---|
+//! | `GET /health` | service up; running and queued campaign ids |
+//! | `GET /campaigns` | every campaign with its state and progress, newest first |
+//! | `POST /campaigns` | body: campaign TOML (`text/plain`, `application/toml`) or JSON `{"toml": "...", "name": "file.toml"}`; 201 with its status |
+//! | `GET /campaigns/{id}` | state, planned, stored, percent, message, queue position |
+//! | `GET /campaigns/{id}/events[?after=ID]` | server-sent events: the stored log, then live events (`sample` ones too); ends after `finished` |
+//! | `POST /campaigns/{id}/pause`, `/resume`, `/abort` | control; answers the status |
+//! | `GET /campaigns/{id}/results` | `{"id": .., "results": [names]}` |
+//! | `GET /campaigns/{id}/results/{*name}` | the bytes, with their stored content type |
+//!
+//! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`.
+use std::convert::Infallible;
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::extract::{Path, Query, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use futures_util::Stream;
+use serde::Deserialize;
+use serde_json::json;
+use subtle::ConstantTimeEq;
+use tokio::sync::{broadcast, mpsc};
+
+use super::{ApiError, CampaignStatus, Manager};
+use crate::campaign::session::Event;
+use crate::campaign::types::CampaignState;
+
+#[derive(Clone)]
+struct App {
+    manager: Arc<Manager>,
+    token: Option<Arc<str>>,
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (self.status, Json(json!({"error": self.message}))).into_response()
+    }
+}
+
+type ApiResult<T> = Result<T, ApiError>;
+
+/// The service's routes; `token`: the bearer token every request must carry, if any.
+pub fn router(manager: Arc<Manager>, token: Option<String>) -> Router {
+    let app = App {
+        manager,
+        token: token.map(Arc::from),
+    };
+    Router::new()
+        .route("/health", get(health))
+        .route("/campaigns", get(list).post(submit))
+        .route("/campaigns/{id}", get(status))
+        .route("/campaigns/{id}/events", get(events))
+        .route("/campaigns/{id}/pause", post(pause))
+        .route("/campaigns/{id}/resume", post(resume))
+        .route("/campaigns/{id}/abort", post(abort))
+        .route("/campaigns/{id}/results", get(results))
+        .route("/campaigns/{id}/results/{*name}", get(result))
+        .fallback(|| async { ApiError::not_found("no such route") })
+        .layer(middleware::from_fn_with_state(app.clone(), auth))
+        .with_state(app)
+}
+
+async fn auth(State(app): State<App>, req: Request, next: Next) -> Response {
+    if let Some(token) = &app.token {
+        let given = req
+            .headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .unwrap_or("");
+        // Constant time: the comparison does not tell how much of a guess was right.
+        if !bool::from(given.as_bytes().ct_eq(token.as_bytes())) {
+            let mut r = ApiError::new(
+                StatusCode::UNAUTHORIZED,
+                "missing or wrong token (send `Authorization: Bearer <token>`)",
+            )
+            .into_response();
+            r.headers_mut()
+                .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+            return r;
+        }
+    }
+    next.run(req).await
+}
+
+async fn health(State(app): State<App>) -> Json<serde_json::Value> {
+    let (running, queued) = app.manager.overview();
+    Json(json!({
+        "status": if app.manager.shutting_down() { "stopping" } else { "ok" },
+        "version": env!("CARGO_PKG_VERSION"),
+        "running": running,
+        "queued": queued,
+    }))
+}
+
+async fn list(State(app): State<App>) -> ApiResult<Json<Vec<CampaignStatus>>> {
+    let m = app.manager.clone();
+    blocking(move || m.list()).await.map(Json)
+}
+
+/// Store calls take the store's mutex and touch the disk: keep them off the async workers.
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> ApiResult<T> + Send + 'static,
+) -> ApiResult<T> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))?
+}
+
+#[derive(Deserialize)]
+struct SubmitJson {
+    toml: String,
+    #[serde(default)]
+    name: Option<String>,
+}
+
+async fn submit(
+    State(app): State<App>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> ApiResult<(StatusCode, Json<CampaignStatus>)> {
+    let ctype = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let (text, name) = if ctype.starts_with("application/json") {
+        let j: SubmitJson = serde_json::from_slice(&body).map_err(|e| {
+            ApiError::bad_request(format!(
+                "body: expected {{\"toml\": \"...\", \"name\": \"file.toml\"}}: {e}"
+            ))
+        })?;
+        (j.toml, j.name.unwrap_or_default())
+    } else {
+        let text = String::from_utf8(body.to_vec())
+            .map_err(|_| ApiError::bad_request("body: the campaign file is not UTF-8"))?;
+        (text, String::new())
+    };
+    let m = app.manager.clone();
+    // `submit` schedules on the runtime: enter it from the blocking thread.
+    let rt = tokio::runtime::Handle::current();
+    let st = blocking(move || {
+        let _g = rt.enter();
+        m.submit(&text, &name)
+    })
+    .await?;
+    Ok((StatusCode::CREATED, Json(st)))
+}
+
+async fn status(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+    let m = app.manager.clone();
+    blocking(move || m.status(id)).await.map(Json)
+}
+
+async fn pause(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+    let m = app.manager.clone();
+    blocking(move || m.pause(id)).await.map(Json)
+}
+
+async fn resume(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+    let m = app.manager.clone();
+    let rt = tokio::runtime::Handle::current();
+    blocking(move || {
+        let _g = rt.enter();
+        m.resume(id)
+    })
+    .await
+    .map(Json)
+}
+
+async fn abort(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+    let m = app.manager.clone();
+    let rt = tokio::runtime::Handle::current();
+    blocking(move || {
+        let _g = rt.enter();
+        m.abort(id)
+    })
+    .await
+    .map(Json)
+}
+
+async fn results(
+    State(app): State<App>,
+    Path(id): Path<i64>,
+) -> ApiResult<Json<serde_json::Value>> {
+    let m = app.manager.clone();
+    let names = blocking(move || m.result_names(id)).await?;
+    Ok(Json(json!({"id": id, "results": names})))
+}
+
+async fn result(
+    State(app): State<App>,
+    Path((id, name)): Path<(i64, String)>,
+) -> ApiResult<Response> {
+    let m = app.manager.clone();
+    let (ctype, bytes) = blocking(move || m.result(id, &name)).await?;
+    let ctype = HeaderValue::from_str(&ctype)
+        .unwrap_or_else(|_| HeaderValue::from_static("application/octet-stream"));
+    Ok(([(header::CONTENT_TYPE, ctype)], bytes).into_response())
+}
+
+#[derive(Deserialize)]
+struct EventsQuery {
+    after: Option<i64>,
+}
+
+fn sse_of(e: &Event) -> SseEvent {
+    let ev = SseEvent::default()
+        .event(&e.kind)
+        .data(serde_json::to_string(e).unwrap_or_default());
+    // Samples are not in the stored log (id 0): no id, so Last-Event-ID stays a log position.
+    if e.id > 0 {
+        ev.id(e.id.to_string())
+    } else {
+        ev
+    }
+}
+
+fn event_of(r: crate::store::EventRow) -> Event {
+    Event {
+        id: r.id,
+        campaign: r.campaign,
+        unix_s: r.unix_s,
+        kind: r.kind,
+        data: r.data,
+    }
+}
+
+/// A campaign that will still produce events on its own.
+fn live(state: CampaignState) -> bool {
+    matches!(
+        state,
+        CampaignState::Queued | CampaignState::Running | CampaignState::Paused
+    )
+}
+
+/// Server-sent events: the stored log after `after` (query or `Last-Event-ID`), then live
+/// events until the campaign's `finished` event; a campaign that is over (or interrupted,
+/// waiting for an operator) ends the stream after the log.
+async fn events(
+    State(app): State<App>,
+    Path(id): Path<i64>,
+    Query(q): Query<EventsQuery>,
+    headers: HeaderMap,
+) -> ApiResult<Sse<impl Stream<Item = Result<SseEvent, Infallible>>>> {
+    let after = q
+        .after
+        .or_else(|| {
+            headers
+                .get("last-event-id")
+                .and_then(|v| v.to_str().ok())
+                .and_then(|v| v.trim().parse().ok())
+        })
+        .unwrap_or(0);
+    let m = app.manager.clone();
+    // Subscribe before reading the log so nothing falls between the two.
+    let sub = m.subscribe();
+    let m2 = m.clone();
+    // Log first, then state: a campaign that ended meanwhile shows a final state, and its
+    // `finished` event is read again below.
+    let (state, log) = blocking(move || {
+        let mut log = m2.events_after(id, after)?;
+        let st = m2.status(id)?.state;
+        if !live(st) {
+            let last = log.last().map_or(after, |e| e.id);
+            log.extend(m2.events_after(id, last)?);
+        }
+        Ok((st, log))
+    })
+    .await?;
+    let (tx, rx) = mpsc::channel::<SseEvent>(256);
+    tokio::spawn(follow(m, id, state, log, sub, tx));
+    let stream =
+        futures_util::stream::unfold(
+            rx,
+            |mut rx| async move { rx.recv().await.map(|e| (Ok(e), rx)) },
+        );
+    Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
+}
+
+/// Feeds one SSE client until its campaign finishes, the client leaves or the service stops.
+async fn follow(
+    m: Arc<Manager>,
+    id: i64,
+    state: CampaignState,
+    log: Vec<crate::store::EventRow>,
+    mut sub: broadcast::Receiver<Event>,
+    tx: mpsc::Sender<SseEvent>,
+) {
+    let mut last = log.last().map_or(0, |e| e.id);
+    for r in log {
+        if tx.send(sse_of(&event_of(r))).await.is_err() {
+            return;
+        }
+    }
+    if !live(state) {
+        return;
+    }
+    let mut down = m.shutdown_signal();
+    // Ends the stream at a `finished` event, except the one a shutdown produces: that
+    // campaign resumes at the next start.
+    let ends =
+        |e: &Event| e.kind == "finished" && !(m.shutting_down() && e.data["state"] == "aborted");
+    loop {
+        let e = tokio::select! {
+            _ = tx.closed() => return,
+            _ = down.wait_for(|d| *d) => return,
+            r = sub.recv() => r,
+        };
+        let batch = match e {
+            Ok(e) if e.campaign != id => continue,
+            Ok(e) if e.id != 0 && e.id <= last => continue,
+            Ok(e) => vec![e],
+            Err(broadcast::error::RecvError::Lagged(n)) => {
+                // Too slow: the missed samples are gone, the logged events are in the store.
+                tracing::debug!(
+                    campaign = id,
+                    missed = n,
+                    "SSE client lagged; catching up from the store"
+                );
+                let m2 = m.clone();
+                match blocking(move || m2.events_after(id, last)).await {
+                    Ok(rows) => rows.into_iter().map(event_of).collect(),
+                    Err(_) => return,
+                }
+            }
+            Err(broadcast::error::RecvError::Closed) => return,
+        };
+        for e in batch {
+            last = last.max(e.id);
+            let end = ends(&e);
+            if e.kind == "finished" && !end {
+                continue;
+            }
+            if tx.send(sse_of(&e)).await.is_err() || end {
+                return;
+            }
+        }
+    }
+}

@@ -1,0 +1,310 @@
+//! A `csmetro serve` process on 127.0.0.1:0 with its own configuration and store, tiny
+//! simulated campaigns, and a small HTTP client for the tests.
+#![allow(dead_code)]
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+pub fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_csmetro"))
+}
+
+pub fn repo(p: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
+}
+
+/// A campaign of `2 * m` targets on x (forward and backward) of a simulated stage.
+/// `time_scale`: simulated physical time runs that many times faster than the wall clock.
+pub fn campaign(name: &str, stage: &str, m: usize, time_scale: f64) -> String {
+    format!(
+        r#"[campaign]
+name = "{name}"
+stage = "{stage}"
+
+[hardware]
+kind = "sim"
+optics = {{ width = 640, height = 640 }}
+
+[hardware.sim]
+model = "{model}"
+time_scale = {time_scale}
+transport = "pty"
+frame_time_s = 0.1
+seed = 7
+
+[axes.x]
+range_um = [0.0, 1000.0]
+step_um = 25.0
+other_at_um = 2100.0
+m = {m}
+
+[sampling]
+design = "random"
+seed = 3
+
+[acquisition]
+directions = ["forward", "backward"]
+settle_s = 0.2
+
+[outputs]
+dir = "{name}-{{id}}"
+"#,
+        model = repo("config/sim/ideal.toml").display()
+    )
+}
+
+pub struct Server {
+    pub child: Child,
+    pub url: String,
+    pub dir: PathBuf,
+    pub config: PathBuf,
+    pub token: Option<String>,
+}
+
+/// Writes `dir/csmetro.toml` (store and results under `dir/var`).
+pub fn write_config(dir: &Path, bind: &str, token: Option<&str>) -> PathBuf {
+    let mut t = format!("[server]\nbind = \"{bind}\"\n");
+    if let Some(tok) = token {
+        t.push_str(&format!("token = \"{tok}\"\n"));
+    }
+    t.push_str("\n[storage]\ndb = \"var/csmetro.db\"\nresults_dir = \"var/results\"\n\n[log]\nfilter = \"info,csmetro=debug\"\n");
+    let p = dir.join("csmetro.toml");
+    std::fs::write(&p, t).unwrap();
+    p
+}
+
+impl Server {
+    /// Starts `csmetro serve` with the configuration in `dir` (written if absent).
+    pub fn start(dir: &Path, token: Option<&str>) -> Server {
+        let config = dir.join("csmetro.toml");
+        if !config.exists() {
+            write_config(dir, "127.0.0.1:0", token);
+        }
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(dir.join("serve.log"))
+            .unwrap();
+        let mut child = bin()
+            .arg("serve")
+            .arg("--config")
+            .arg(&config)
+            .env_remove("RUST_LOG")
+            .env_remove("NOTIFY_SOCKET")
+            .stdout(Stdio::piped())
+            .stderr(log)
+            .spawn()
+            .unwrap();
+        let mut out = BufReader::new(child.stdout.take().unwrap());
+        let mut url = String::new();
+        out.read_line(&mut url).unwrap();
+        let url = url.trim().to_string();
+        assert!(
+            url.starts_with("http://127.0.0.1:"),
+            "first stdout line {url:?}; log:\n{}",
+            std::fs::read_to_string(dir.join("serve.log")).unwrap_or_default()
+        );
+        // Keep draining stdout so the service never blocks on a full pipe.
+        std::thread::spawn(move || {
+            let mut sink = Vec::new();
+            let _ = out.read_to_end(&mut sink);
+        });
+        Server {
+            child,
+            url,
+            dir: dir.to_path_buf(),
+            config,
+            token: token.map(str::to_string),
+        }
+    }
+
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(self.dir.join("serve.log")).unwrap_or_default()
+    }
+
+    pub fn db(&self) -> PathBuf {
+        self.dir.join("var/csmetro.db")
+    }
+
+    /// SIGTERM, then wait for the exit; returns the exit status.
+    pub fn terminate(&mut self) -> std::process::ExitStatus {
+        let pid = self.child.id().to_string();
+        Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+        let t0 = Instant::now();
+        loop {
+            if let Some(st) = self.child.try_wait().unwrap() {
+                return st;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(30), "serve did not stop");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    pub fn kill9(&mut self) {
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+    }
+
+    fn agent() -> ureq::Agent {
+        ureq::Agent::config_builder()
+            .http_status_as_error(false)
+            .build()
+            .into()
+    }
+
+    /// (status, body) of a request; `token` overrides the server's.
+    pub fn request(
+        &self,
+        method: &str,
+        path: &str,
+        body: Option<(&str, &str)>,
+        token: Option<&str>,
+    ) -> (u16, Vec<u8>, String) {
+        let url = format!("{}{path}", self.url);
+        let token = token.or(self.token.as_deref());
+        let a = Self::agent();
+        let r = match method {
+            "GET" => {
+                let mut r = a.get(&url);
+                if let Some(t) = token {
+                    r = r.header("Authorization", &format!("Bearer {t}"));
+                }
+                r.call()
+            }
+            "POST" => {
+                let mut r = a.post(&url);
+                if let Some(t) = token {
+                    r = r.header("Authorization", &format!("Bearer {t}"));
+                }
+                match body {
+                    Some((ctype, b)) => r.content_type(ctype).send(b),
+                    None => r.send_empty(),
+                }
+            }
+            _ => unreachable!(),
+        };
+        let mut r = r.unwrap();
+        let status = r.status().as_u16();
+        let ctype = r
+            .headers()
+            .get("content-type")
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("")
+            .to_string();
+        let bytes = r
+            .body_mut()
+            .with_config()
+            .limit(1 << 30)
+            .read_to_vec()
+            .unwrap();
+        (status, bytes, ctype)
+    }
+
+    pub fn get(&self, path: &str) -> (u16, Value) {
+        let (s, b, _) = self.request("GET", path, None, None);
+        (s, serde_json::from_slice(&b).unwrap_or(Value::Null))
+    }
+
+    pub fn post(&self, path: &str, body: Option<(&str, &str)>) -> (u16, Value) {
+        let (s, b, _) = self.request("POST", path, body, None);
+        (s, serde_json::from_slice(&b).unwrap_or(Value::Null))
+    }
+
+    /// Submits campaign text; returns its id.
+    pub fn submit(&self, text: &str) -> i64 {
+        let (s, v) = self.post("/campaigns", Some(("application/toml", text)));
+        assert_eq!(s, 201, "{v}");
+        v["id"].as_i64().unwrap()
+    }
+
+    pub fn status(&self, id: i64) -> Value {
+        let (s, v) = self.get(&format!("/campaigns/{id}"));
+        assert_eq!(s, 200, "{v}");
+        v
+    }
+
+    /// Polls until `pred(status)` or the timeout; returns the last status.
+    pub fn wait_for(&self, id: i64, timeout_s: f64, pred: impl Fn(&Value) -> bool) -> Value {
+        let t0 = Instant::now();
+        loop {
+            let st = self.status(id);
+            if pred(&st) {
+                return st;
+            }
+            assert!(
+                t0.elapsed().as_secs_f64() < timeout_s,
+                "timeout waiting on campaign {id}: {st}\nlog:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// Every server-sent event of a campaign's stream until the service ends it.
+    pub fn events(&self, id: i64, after: i64) -> Vec<(String, Option<i64>, Value)> {
+        sse(&self.url, self.token.as_deref(), id, after)
+    }
+}
+
+/// Every server-sent event of a campaign's stream until the service ends it:
+/// (event name, id, parsed data).
+pub fn sse(
+    base: &str,
+    token: Option<&str>,
+    id: i64,
+    after: i64,
+) -> Vec<(String, Option<i64>, Value)> {
+    let url = format!("{base}/campaigns/{id}/events?after={after}");
+    let agent: ureq::Agent = ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .build()
+        .into();
+    let mut r = agent.get(&url);
+    if let Some(t) = token {
+        r = r.header("Authorization", &format!("Bearer {t}"));
+    }
+    let r = r.call().unwrap();
+    assert_eq!(r.status().as_u16(), 200);
+    let mut out = Vec::new();
+    let (mut kind, mut eid, mut data) = (String::new(), None, String::new());
+    for l in BufReader::new(r.into_body().into_reader()).lines() {
+        let l = l.unwrap();
+        if l.is_empty() {
+            if !kind.is_empty() {
+                out.push((
+                    std::mem::take(&mut kind),
+                    eid.take(),
+                    serde_json::from_str(&data).unwrap(),
+                ));
+            }
+            data.clear();
+        } else if let Some(v) = l.strip_prefix("event: ") {
+            kind = v.to_string();
+        } else if let Some(v) = l.strip_prefix("id: ") {
+            eid = v.parse().ok();
+        } else if let Some(v) = l.strip_prefix("data: ") {
+            data.push_str(v);
+        }
+    }
+    out
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The stored samples' seqs of a campaign, read from the store file directly.
+pub fn stored_seqs(db: &Path, id: i64) -> Vec<u64> {
+    let s = csmetro::store::Store::open(db).unwrap();
+    s.samples(id)
+        .unwrap()
+        .iter()
+        .map(|r| r.target.seq)
+        .collect()
+}
