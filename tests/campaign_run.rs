@@ -178,6 +178,26 @@ fn a_campaign_runs_end_to_end_and_reports_against_the_truth() {
     }
     let names = s.result_names(1).unwrap();
     assert!(names.iter().any(|n| n == "plots/ef_yy.svg"), "{names:?}");
+
+    // The stored campaign is gap data as it is: CS and full scan are two runs of one Y line.
+    let ideal = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim/ideal.toml");
+    let g = json_of(
+        &bin()
+            .args(["gap", "--json", "--data", "1", "--db"])
+            .arg(&db)
+            .arg("--model")
+            .arg(&ideal)
+            .arg("--out")
+            .arg(dir.path().join("gap"))
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(g["n_samples"], 202);
+    assert_eq!(g["n_runs"], 2);
+    assert_eq!(g["n_lines"], 2);
+    // The demo stage is far from ideal: the gap is there and located.
+    assert!(g["heldout_rms_before_um"].as_f64().unwrap() > 0.2, "{g}");
+    assert!(!g["where"].as_array().unwrap().is_empty());
 }
 
 #[test]

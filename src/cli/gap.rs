@@ -17,10 +17,13 @@ pub struct Args {
     /// The simulator's stage model (TOML with [[effect]] tables).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Measured data: a campaign CSV (run,axis,direction,target_x_um,target_y_um,time_s,meas_x_um,meas_y_um).
-    /// Stored campaign ids are not supported yet (there is no campaign storage).
+    /// Measured data: a campaign CSV (run,axis,direction,target_x_um,target_y_um,time_s,meas_x_um,meas_y_um),
+    /// or the id of a campaign in the store (`--db`); its run = 2·cycle + 0 for CS, 1 for the full scan.
     #[arg(long)]
     pub data: Option<PathBuf>,
+    /// Store that `--data ID` reads.
+    #[arg(long, env = "CSMETRO_DB", default_value = "csmetro-data/csmetro.db")]
+    pub db: PathBuf,
     /// Print one JSON object on stdout instead of the text report.
     #[arg(long)]
     pub json: bool,
@@ -99,7 +102,14 @@ pub fn run(args: Args) -> CliResult {
         .data
         .ok_or_else(|| CliError::input("gap: --data DATA.csv is required"))?;
     let model = load_model(&model_path)?;
-    let samples = data::read_csv(&data_path).map_err(CliError::input)?;
+    let stored_id = data_path
+        .to_str()
+        .and_then(|t| t.parse::<i64>().ok())
+        .filter(|_| !data_path.exists());
+    let samples = match stored_id {
+        Some(id) => stored_samples(&args.db, id)?,
+        None => data::read_csv(&data_path).map_err(CliError::input)?,
+    };
     let mut opts = gap::Options {
         kinds: args.kinds,
         ..Default::default()
@@ -181,4 +191,35 @@ fn run_simulate(a: SimulateArgs) -> CliResult {
         .map_err(|e| CliError::failure(format!("{}: {e}", a.out.display())))?;
     eprintln!("wrote {} samples to {}", s.len(), a.out.display());
     Ok(ExitCode::SUCCESS)
+}
+
+/// Samples of stored campaign `id`, as gap data.
+fn stored_samples(db: &std::path::Path, id: i64) -> Result<Vec<data::Sample>, CliError> {
+    if !db.exists() {
+        return Err(CliError::input(format!(
+            "gap: --data {id}: no store at {} (give --db)",
+            db.display()
+        )));
+    }
+    let store = crate::store::Store::open(db)
+        .map_err(|e| CliError::failure(format!("store {}: {e}", db.display())))?;
+    if store
+        .campaign(id)
+        .map_err(|e| CliError::failure(e.to_string()))?
+        .is_none()
+    {
+        return Err(CliError::input(format!(
+            "gap: no campaign {id} in {}",
+            db.display()
+        )));
+    }
+    let records = store
+        .samples(id)
+        .map_err(|e| CliError::failure(e.to_string()))?;
+    if records.is_empty() {
+        return Err(CliError::input(format!(
+            "gap: campaign {id} has no samples yet"
+        )));
+    }
+    Ok(data::from_campaign(&records))
 }

@@ -37,6 +37,32 @@ pub struct Sample {
     pub meas_y_um: f64,
 }
 
+/// A campaign's stored samples as gap data: one run per cycle and phase (run = 2·cycle, +1
+/// for the full scan), so the diagnosis can hold a whole sweep out; time is the campaign's
+/// physical time.
+pub fn from_campaign(records: &[crate::campaign::types::SampleRecord]) -> Vec<Sample> {
+    use crate::campaign::types::{AxisId as A, Phase};
+    records
+        .iter()
+        .map(|r| {
+            let k = r.target.run;
+            Sample {
+                run: 2 * k.cycle as i64 + (k.phase == Phase::Full) as i64,
+                moving: match k.axis {
+                    A::X => AxisId::X,
+                    A::Y => AxisId::Y,
+                },
+                direction: k.direction.sign(),
+                target_x_um: r.target.target_x_um,
+                target_y_um: r.target.target_y_um,
+                time_s: r.time_s,
+                meas_x_um: r.meas_x_um,
+                meas_y_um: r.meas_y_um,
+            }
+        })
+        .collect()
+}
+
 impl Sample {
     pub fn context(&self) -> SampleContext {
         SampleContext {
