@@ -365,3 +365,35 @@ fn sigterm_stops_motion_and_leaves_the_campaign_resumable() {
     assert_eq!(j["state"], "done");
     assert_eq!(store(&db).sample_count(1).unwrap(), row.planned);
 }
+
+/// Adaptive mode: a reachable error target ends each sweep early and the summary says how many
+/// measurements that saved; an unreachable one measures the whole design.
+#[test]
+fn adaptive_mode_stops_at_the_error_target_and_reports_the_saving() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign(dir.path(), 1000.0, 120);
+    let text = std::fs::read_to_string(&c).unwrap();
+    let text = text.replace("full_scan = true", "full_scan = false");
+    let mut summaries = Vec::new();
+    for (k, goal) in [(0, 0.5), (1, 1e-4)] {
+        let f = dir.path().join(format!("adaptive{k}.toml"));
+        std::fs::write(
+            &f,
+            text.replace(
+                "seed = 11",
+                &format!("seed = 11\ntarget_error_um = {goal}\nbatch = 30"),
+            ),
+        )
+        .unwrap();
+        let j = json_of(&run(&f, &dir.path().join(format!("a{k}.db"))));
+        assert_eq!(j["state"], "done");
+        summaries.push(j["axes"][0]["phases"]["cs"].clone());
+    }
+    let (easy, hard) = (&summaries[0], &summaries[1]);
+    let saved = easy["saved_by_adaptive"].as_u64().unwrap();
+    let measured = easy["measurements"].as_u64().unwrap();
+    assert!(saved >= 60, "{easy}");
+    assert_eq!(measured + saved, 240, "{easy}");
+    assert_eq!(hard["saved_by_adaptive"], 0, "{hard}");
+    assert_eq!(hard["measurements"], 240, "{hard}");
+}
