@@ -122,6 +122,13 @@ pub fn run(args: Args) -> CliResult {
     }
     let d = gap::diagnose(&model, &samples, &opts)
         .map_err(|e| CliError::input(format!("{}: {e}", data_path.display())))?;
+    if d.n_runs < 5 {
+        // Measured on campaign data: 3 runs x 2 lines found nothing that 6 runs found at once.
+        eprintln!(
+            "note: {} runs only: whole-run hold-out has little power; measure ≥ 5 cycles (runs) to attribute effects",
+            d.n_runs
+        );
+    }
     std::fs::create_dir_all(&args.out)
         .map_err(|e| CliError::failure(format!("{}: {e}", args.out.display())))?;
     let model_out = args.out.join("model.toml");
