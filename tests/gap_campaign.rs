@@ -87,7 +87,20 @@ fn campaign_gap_finds_the_withheld_effects_and_the_shrink_holds_on_a_fresh_campa
             .arg(line_campaign(dir.path(), seed))
             .output()
             .unwrap();
-        assert_eq!(json_of(&o)["state"], "done");
+        let j = json_of(&o);
+        assert_eq!(j["state"], "done");
+        // Six approaches per target and direction: ISO 230-2 figures from the measurements.
+        // Unidirectional repeatability R↑ = max 4 s↑ of the 0.05 µm sensor noise; reversal B
+        // near the stage's 1.5 µm; bidirectional R = max(2s↑ + 2s↓ + |B_i|, ...) holds B.
+        let m = &j["iso230"]["x"]["measured"];
+        let r_up = m["r_up_um"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{:#}", j["iso230"]));
+        assert!(r_up > 0.1 && r_up < 0.5, "R↑ {r_up} µm");
+        let b = m["b_um"].as_f64().unwrap();
+        assert!((b - 1.5).abs() < 0.3, "B {b} µm");
+        let r = m["r_um"].as_f64().unwrap();
+        assert!(r > b && r < b + 0.8, "R {r} µm");
     }
     let fit = dir.path().join("fit");
     let j = gap(&config("ideal.toml"), 1, &db, &fit);

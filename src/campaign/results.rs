@@ -120,7 +120,13 @@ pub fn build(
                     format!("full scan ({})", recon.method)
                 },
                 cv_error_um: recon.cv_error_um,
-                samples: recon.samples.clone(),
+                // Every cycle's samples of that phase: repeated approaches give ISO 230-2 its
+                // measured figures (R, s); the curve itself is cycle 0's reconstruction.
+                samples: curves
+                    .iter()
+                    .filter(|k| k.run.phase == recon.run.phase && k.component == comp)
+                    .flat_map(|k| k.samples.iter().copied())
+                    .collect(),
                 full_scan_um: reference,
                 truth_um: t.clone(),
             });
@@ -270,7 +276,7 @@ pub fn build(
             "full": {"measurements": tot[1][0] as u64, "acquisition_s": tot[1][1], "processing_s": tot[1][2]},
             "acquisition_saved_pct": total_saved,
             // What the counts alone would save: the rest of the gap is the CS moves' longer travel.
-            "measurements_saved_pct": (tot[1][0] > 0.0).then(|| 100.0 * (1.0 - tot[0][0] / tot[1][0])),
+            "measurements_saved_pct": (tot[1][0] > 0.0 && tot[0][0] > 0.0).then(|| 100.0 * (1.0 - tot[0][0] / tot[1][0])),
             "acquisition_and_processing_saved_pct": total_saved_all,
         },
         "iso230": iso,
