@@ -354,6 +354,19 @@ fn describe(e: &Value) -> String {
                 f(&d["meas_y_um"]) - f(&t["target_y_um"]),
             )
         }
+        // The summary rides on the final event; one line of it here, all of it in `report`.
+        "finished" if d.get("summary").is_some() => {
+            let t = &d["summary"]["total"];
+            let pct = |v: &Value| v.as_f64().map_or("-".to_string(), |p| format!("{p:.2} %"));
+            format!(
+                "finished {}: {} samples; acquisition saved {} (full scan {} measurements, CS {}); `csmetro report` for the files",
+                d["state"].as_str().unwrap_or("?"),
+                d["summary"]["samples"],
+                pct(&t["acquisition_saved_pct"]),
+                t["full"]["measurements"],
+                t["cs"]["measurements"],
+            )
+        }
         _ => format!("{kind} {d}"),
     }
 }
