@@ -379,4 +379,55 @@ mod tests {
             check(&mut basis, &dense(&support));
         }
     }
+
+    /// From a poor start (the m lowest frequencies) the simplex reaches a certified optimum; the
+    /// optimal basis itself certifies with zero pivots; and the verification rejects a candidate
+    /// whose primal does not reproduce the samples.
+    #[test]
+    fn finish_certifies_and_verification_rejects_bad_candidates() {
+        use rand::{Rng, SeedableRng};
+        let (n, m) = (128, 40);
+        let mut dct = Dct::new(n);
+        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, m, 5)
+            .indices(n)
+            .unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let h: Vec<f64> = (0..m).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let start: Vec<usize> = (0..m).collect();
+        let r = finish(&mut dct, &idx, &h, start, 1000, 1e-9).expect("certified");
+        assert!(r.pivots > 0);
+        assert!(r.dual_inf_norm <= 1.0 + 1e-9);
+        let objective: f64 = r.theta.iter().map(|v| v.abs()).sum();
+        assert!((objective - r.dual_objective).abs() < 1e-10 * objective);
+        let mut g = r.theta.clone();
+        dct.inverse(&mut g);
+        for (&i, &hk) in idx.iter().zip(&h) {
+            assert!((g[i] - hk).abs() < 1e-12);
+        }
+        let optimal: Vec<usize> = (0..n).filter(|&k| r.theta[k] != 0.0).collect();
+        assert_eq!(optimal.len(), m, "random data: a non-degenerate vertex");
+        let again = finish(&mut dct, &idx, &h, optimal.clone(), 1000, 1e-9).expect("certified");
+        assert_eq!(again.pivots, 0);
+        assert!((again.dual_objective - r.dual_objective).abs() < 1e-10 * objective);
+
+        // The certificate's own y and w, with θ_S perturbed: primal residual, so rejected.
+        let mut basis = Basis::factor(&dct, &idx, &optimal).unwrap();
+        let mut theta_s = Col::<f64>::from_fn(m, |c| r.theta[optimal[c]]);
+        let mut y = Col::<f64>::from_fn(m, |c| sign(theta_s[c]));
+        basis.btran(&mut y);
+        let mut w = vec![0.0; n];
+        for (c, &i) in idx.iter().enumerate() {
+            w[i] = y[c];
+        }
+        dct.forward(&mut w);
+        assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w, 0, 1e-9).is_some());
+        theta_s[0] *= 1.0 + 1e-6;
+        assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w, 0, 1e-9).is_none());
+        // ... and a dual that is infeasible somewhere (|w| > 1) is rejected as well.
+        theta_s[0] = r.theta[optimal[0]];
+        let mut w_bad = w.clone();
+        let off = (0..n).find(|k| !optimal.contains(k)).unwrap();
+        w_bad[off] = 1.0 + 1e-6;
+        assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w_bad, 0, 1e-9).is_none());
+    }
 }
