@@ -37,7 +37,8 @@ pub struct FastSettings {
     /// ADMM iteration one DCT pair, so large m pays for a longer ADMM run with fewer pivots
     /// (measured at n = 1901: best near 200 iterations for m = 600, 50 for m = 100).
     pub finish_iter: Option<usize>,
-    /// ADMM over-relaxation (1 = plain; 1.5-1.8 speeds up support discovery).
+    /// BP: ADMM over-relaxation (1 = plain; 1.5-1.8 speeds up support discovery; 1.8 measured
+    /// ~15 % faster than 1.6 at m = 600, equal at m = 100-300).
     pub relaxation: f64,
     /// Soft threshold 1/ρ as a fraction of the largest minimum-energy coefficient. `None`: for BP
     /// 0.0014·(n/m)² within [0.005, 0.5], for BPDN 1/40.
@@ -56,7 +57,7 @@ impl Default for FastSettings {
             max_iter: 20_000,
             stable_iter: 5,
             finish_iter: None,
-            relaxation: 1.6,
+            relaxation: 1.8,
             threshold_fraction: None,
             certificate_tol: 1e-9,
             admm_tol: 1e-10,
