@@ -4,9 +4,12 @@
 //! - [`solve_clarabel`]: the generic LP/SOCP through Clarabel with the dense sampled basis; the
 //!   reference, slow (tens of seconds at n = 1901, m = 600).
 //! - [`solve_fast`]: ADMM whose projection onto {Aθ = h} is one DCT pair (A·Aᵀ = I), followed by
-//!   an exact *polish*: the BP optimum is a vertex with m non-zeros, so once ADMM has found the
-//!   support S the square system A_S θ_S = h gives the exact primal, A_Sᵀ y = sign(θ_S) the dual,
-//!   and ||Aᵀy||∞ ≤ 1 (one more DCT) certifies optimality with a zero duality gap.
+//!   an exact finish: the BP optimum is a vertex with m non-zeros, so from ADMM's estimate of the
+//!   support S a primal simplex ([`super::simplex`]) pivots to the optimal basis, where the square
+//!   system A_S θ_S = h gives the exact primal, A_Sᵀ y = sign(θ_S) the dual, and ||Aᵀy||∞ ≤ 1
+//!   (one more DCT) certifies optimality with a zero duality gap. ADMM runs only long enough
+//!   (max(50, m/3) iterations) to get S within a few dozen columns: at m = 600 a pivot costs about
+//!   five ADMM iterations, and the last columns are the slowest for ADMM to settle.
 use std::time::Instant;
 
 use nalgebra::{DMatrix, DVector};
@@ -29,10 +32,17 @@ pub struct FastSettings {
     pub max_iter: usize,
     /// BP: the simplex finish starts once ADMM's support has not changed for this many iterations.
     pub stable_iter: usize,
-    /// ADMM over-relaxation (1 = plain; 1.5-1.8 speeds up support discovery).
+    /// BP: ... or after this many ADMM iterations at the latest (later attempts at 2x, 4x, ...).
+    /// `None`: max(50, m/3). A pivot costs two dense triangular solves (O(m²)) and one DCT, an
+    /// ADMM iteration one DCT pair, so large m pays for a longer ADMM run with fewer pivots
+    /// (measured at n = 1901: best near 200 iterations for m = 600, 50 for m = 100).
+    pub finish_iter: Option<usize>,
+    /// BP: ADMM over-relaxation (1 = plain; 1.5-1.8 speeds up support discovery; 1.8 measured
+    /// ~15 % faster than 1.6 at m = 600, equal at m = 100-300).
     pub relaxation: f64,
-    /// Soft threshold 1/ρ as a fraction of the largest minimum-energy coefficient.
-    pub threshold_fraction: f64,
+    /// Soft threshold 1/ρ as a fraction of the largest minimum-energy coefficient. `None`: for BP
+    /// 0.0014·(n/m)² within [0.005, 0.5], for BPDN 1/40.
+    pub threshold_fraction: Option<f64>,
     /// Dual feasibility slack accepted by the certificate (||Aᵀy||∞ ≤ 1 + tol).
     pub certificate_tol: f64,
     /// Relative primal/dual residual at which plain ADMM stops (BPDN, or when the finish fails).
@@ -46,8 +56,9 @@ impl Default for FastSettings {
         Self {
             max_iter: 20_000,
             stable_iter: 5,
-            relaxation: 1.6,
-            threshold_fraction: 1.0 / 40.0,
+            finish_iter: None,
+            relaxation: 1.8,
+            threshold_fraction: None,
             certificate_tol: 1e-9,
             admm_tol: 1e-10,
             max_pivots: 5000,
@@ -133,9 +144,17 @@ pub fn solve_fast(
     project(dct, &mut x);
     let scale = x.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
     let bp = matches!(problem, Problem::BasisPursuit);
-    // A threshold of a few percent of the largest coefficient finds the support quickly; for BP
-    // ρ stays fixed (residual balancing was measured to scramble the support and cost pivots).
-    let mut rho = 1.0 / (s.threshold_fraction * scale);
+    // For BP ρ stays fixed (residual balancing was measured to scramble the support and cost
+    // pivots).
+    let fraction = s.threshold_fraction.unwrap_or(if bp {
+        // Fit of the fastest fraction at n = 1901 (0.5 at m = 100, 0.05 at 300, 0.0125 at 600):
+        // a high threshold leaves few coefficients for small m, a low one lets ADMM find the
+        // ~m non-zeros at large m (a fixed 1/40 cost up to 3x in time at m = 100).
+        (0.0014 * (n as f64 / m.max(1) as f64).powi(2)).clamp(0.005, 0.5)
+    } else {
+        1.0 / 40.0
+    });
+    let mut rho = 1.0 / (fraction * scale);
     let alpha = if bp { s.relaxation } else { 1.0 };
     let mut z: Vec<f64> = x.iter().map(|&v| soft(v, 1.0 / rho)).collect();
     let mut u = vec![0.0; n];
@@ -144,7 +163,9 @@ pub fn solve_fast(
     let mut status = SolveStatus::MaxIterations;
     let mut stable = 0;
     let mut prev_nnz = 0;
-    let mut next_finish = s.stable_iter;
+    let mut next_stable = s.stable_iter;
+    let mut next_finish = s.finish_iter.unwrap_or((m / 3).max(50)).max(1);
+    let mut simplex_failed = false;
 
     for it in 1..=s.max_iter {
         iterations = it;
@@ -176,12 +197,15 @@ pub fn solve_fast(
                 stable + 1
             };
             prev_nnz = nnz;
-            // Exact finish once the support has settled; if it fails, wait twice as long.
-            if stable >= next_finish {
-                // Fewer non-zeros than samples: a degenerate (sparse) optimum, where the square
-                // simplex basis has zero entries; a least-squares fit on the support with a
-                // corrected dual certifies it directly.
-                if nnz < m {
+            // Exact finish once the support has settled or the iteration budget is spent; if it
+            // fails, wait twice as long.
+            if stable >= next_stable || it >= next_finish {
+                // Far fewer non-zeros than samples: a degenerate (sparse) optimum, where the
+                // square simplex basis has zero entries; a least-squares fit on the support with a
+                // corrected dual certifies it directly. Noisy curves have m non-zeros at the
+                // optimum and ADMM reports slightly fewer, so near m the dense least squares
+                // (tens of ms at m = 600) is only tried once the simplex has failed.
+                if nnz < m && (2 * nnz <= m || simplex_failed) {
                     if let Some((theta, dual)) = polish(dct, idx, h, &z, &u, rho, s.certificate_tol)
                     {
                         let obj = theta.iter().map(|v| v.abs()).sum();
@@ -209,7 +233,9 @@ pub fn solve_fast(
                         solve_ms: t0.elapsed().as_secs_f64() * 1e3,
                     };
                 }
-                next_finish *= 2;
+                simplex_failed = true;
+                next_stable *= 2;
+                next_finish = 2 * it;
             }
         } else if it % 10 == 0 {
             // BPDN: residual balancing keeps primal and dual progress in step.

@@ -14,6 +14,9 @@ pub struct Dct {
     sk: f64,
     /// cos(π j / 2n), j < 4n: basis entries are table lookups (dense bases are built often).
     cos_table: Vec<f64>,
+    /// ⌊(2⁶⁴ - 1) / 4n⌋: Barrett reduction of the table index (a hardware division per entry
+    /// was most of the cost of building an m x m basis).
+    barrett: u64,
 }
 
 impl Dct {
@@ -31,6 +34,7 @@ impl Dct {
             s0: (1.0 / nf).sqrt(),
             sk: (2.0 / nf).sqrt(),
             cos_table,
+            barrett: u64::MAX / (4 * n.max(1)) as u64,
         }
     }
 
@@ -70,6 +74,25 @@ impl Dct {
             self.sk * self.cos_table[j]
         }
     }
+
+    /// Column k of Ψ at the given rows: out[r] = Ψ[rows[r], k].
+    pub fn basis_column(&self, k: usize, rows: &[usize], out: &mut [f64]) {
+        if k == 0 {
+            out.fill(self.s0);
+            return;
+        }
+        let p = 4 * self.n as u64;
+        for (o, &i) in out.iter_mut().zip(rows) {
+            let a = k as u64 * (2 * i as u64 + 1);
+            // q undershoots a / p by at most 2, so at most two corrections.
+            let q = ((a as u128 * self.barrett as u128) >> 64) as u64;
+            let mut j = a - q * p;
+            while j >= p {
+                j -= p;
+            }
+            *o = self.sk * self.cos_table[j as usize];
+        }
+    }
 }
 
 #[cfg(test)]
@@ -99,6 +122,31 @@ mod tests {
                 for &i in &[0usize, 3 % n, n - 1] {
                     assert!((e[i] - d.basis(i, k)).abs() < 1e-12, "n={n} i={i} k={k}");
                 }
+                let rows: Vec<usize> = (0..n).collect();
+                let mut col = vec![0.0; n];
+                d.basis_column(k, &rows, &mut col);
+                for (i, (a, b)) in e.iter().zip(&col).enumerate() {
+                    assert!((a - b).abs() < 1e-12, "column n={n} i={i} k={k}");
+                }
+            }
+        }
+    }
+
+    /// The Barrett-reduced table index stays exact where k·(2i+1) is far beyond 4n.
+    #[test]
+    fn basis_column_matches_basis_at_large_n() {
+        let n = 65_536;
+        let d = Dct::new(n);
+        let rows = [0usize, 1, 12_345, n / 2, n - 2, n - 1];
+        let mut col = [0.0; 6];
+        for k in [1usize, 2, 777, n / 3, n - 2, n - 1] {
+            d.basis_column(k, &rows, &mut col);
+            for (&i, &c) in rows.iter().zip(&col) {
+                let exact = (2.0 / n as f64).sqrt()
+                    * (std::f64::consts::PI * k as f64 * (2 * i + 1) as f64 / (2.0 * n as f64))
+                        .cos();
+                assert!((c - d.basis(i, k)).abs() < 1e-15, "i={i} k={k}");
+                assert!((c - exact).abs() < 1e-12, "i={i} k={k}");
             }
         }
     }
