@@ -11,3 +11,4 @@ pub mod samples;
 pub mod sampling;
 pub mod store;
 pub mod synth;
+mod tomlpos;

@@ -25,6 +25,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::tomlpos::{key_at, line_of, span_of_deepest};
+
 /// Port of the service when the configuration does not say.
 pub const DEFAULT_PORT: u16 = 8463;
 
@@ -137,7 +139,7 @@ impl ServiceConfig {
                 .unwrap_or_else(|| "-".into());
             err(span, &key, e.message().trim().to_string())
         })?;
-        let fail = |key: &str, message: String| err(span_of(text, key), key, message);
+        let fail = |key: &str, message: String| err(span_of_deepest(text, key), key, message);
         let resolve = |p: &str| {
             let p = Path::new(p);
             if p.is_absolute() {
@@ -230,67 +232,6 @@ impl ServiceConfig {
             log_filter: raw.log.filter,
         })
     }
-}
-
-/// 1-based line of a byte offset.
-fn line_of(text: &str, offset: usize) -> usize {
-    text[..offset.min(text.len())].matches('\n').count() + 1
-}
-
-/// Span of the key at a dotted path (the deepest part present), e.g. `server.bind`.
-fn span_of(text: &str, path: &str) -> Option<Range<usize>> {
-    use toml::de::{DeTable, DeValue};
-    let doc = DeTable::parse(text).ok()?;
-    let mut table = doc.get_ref();
-    let mut best = None;
-    let parts: Vec<&str> = path.split('.').collect();
-    for (i, part) in parts.iter().enumerate() {
-        let Some((k, v)) = table.iter().find(|(k, _)| k.get_ref().as_ref() == *part) else {
-            return best;
-        };
-        best = Some(k.span());
-        match v.get_ref() {
-            DeValue::Table(t) if i + 1 < parts.len() => table = t,
-            _ => return best,
-        }
-    }
-    best
-}
-
-/// The dotted key whose key or value contains `span`, or the table whose header it is on.
-fn key_at(text: &str, span: Range<usize>) -> Option<String> {
-    use toml::de::{DeTable, DeValue};
-    fn walk(t: &DeTable<'_>, span: &Range<usize>, prefix: &str) -> Option<String> {
-        for (k, v) in t.iter() {
-            let name = if prefix.is_empty() {
-                k.get_ref().to_string()
-            } else {
-                format!("{prefix}.{}", k.get_ref())
-            };
-            let inside =
-                |r: &Range<usize>| r.start <= span.start && span.start < r.end.max(r.start + 1);
-            if let DeValue::Table(sub) = v.get_ref() {
-                if let Some(deeper) = walk(sub, span, &name) {
-                    return Some(deeper);
-                }
-            }
-            if inside(&k.span()) || inside(&v.span()) {
-                return Some(name);
-            }
-        }
-        None
-    }
-    let found = DeTable::parse(text)
-        .ok()
-        .and_then(|doc| walk(doc.get_ref(), &span, ""));
-    found.or_else(|| {
-        let line_start = text[..span.start.min(text.len())]
-            .rfind('\n')
-            .map_or(0, |i| i + 1);
-        let line = text[line_start..].lines().next()?.trim();
-        line.strip_prefix('[')
-            .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
-    })
 }
 
 #[cfg(test)]
