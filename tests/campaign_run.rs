@@ -1,20 +1,15 @@
 //! `csmetro run` / `csmetro resume` end to end on simulated hardware: the C-863 driver talks GCS
 //! to simulated controllers over pseudo-terminals, the simulated camera renders the pattern, the
 //! decoder measures, the store commits, the worker reconstructs, the report is written.
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use common::{bin, json_of, repo};
 use csmetro::campaign::types::CampaignState;
 use csmetro::store::Store;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_csmetro"))
-}
-
-fn model() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim/demo_xy.toml")
-}
 
 /// A small Y campaign: `points` grid points, `m` random targets per direction, full scan.
 fn campaign(dir: &Path, range_um: f64, m: usize) -> PathBuf {
@@ -57,7 +52,7 @@ noise_um = 0.01
 [outputs]
 dir = "{out}/{{name}}-{{id}}"
 "#,
-        model = model().display(),
+        model = repo("config/sim/demo_xy.toml").display(),
         hi = 1000.0 + range_um,
         out = dir.display(),
     );
@@ -75,18 +70,30 @@ fn run(campaign: &Path, db: &Path) -> Output {
         .unwrap()
 }
 
-fn json_of(o: &Output) -> serde_json::Value {
-    assert!(
-        o.status.success(),
-        "exit {:?}: {}",
-        o.status.code(),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap()
-}
-
 fn store(db: &Path) -> Store {
     Store::open(db).unwrap()
+}
+
+/// `csmetro run` in the background (stderr kept for the exit message).
+fn spawn_run(campaign: &Path, db: &Path) -> Child {
+    bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(db)
+        .arg(campaign)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Sends `signal` (e.g. `-INT`) to a running campaign and waits for its exit.
+fn signal(child: Child, signal: &str) -> Output {
+    let st = Command::new("kill")
+        .args([signal, &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    child.wait_with_output().unwrap()
 }
 
 /// Waits until campaign 1 has at least `n` committed samples (the child keeps running).
@@ -205,14 +212,7 @@ fn kill_9_then_resume_loses_nothing_and_measures_nothing_twice() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
     let c = campaign(dir.path(), 2000.0, 60);
-    let mut child = bin()
-        .args(["run", "--quiet", "--db"])
-        .arg(&db)
-        .arg(&c)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spawn_run(&c, &db);
     wait_for_samples(&mut child, &db, 150);
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
@@ -258,21 +258,9 @@ fn sigint_aborts_stops_and_records_the_abort() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
     let c = campaign(dir.path(), 2000.0, 60);
-    let mut child = bin()
-        .args(["run", "--quiet", "--db"])
-        .arg(&db)
-        .arg(&c)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = spawn_run(&c, &db);
     wait_for_samples(&mut child, &db, 30);
-    let st = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(st.success());
-    let o = child.wait_with_output().unwrap();
+    let o = signal(child, "-INT");
     assert_eq!(
         o.status.code(),
         Some(130),
@@ -335,21 +323,9 @@ fn sigterm_stops_motion_and_leaves_the_campaign_resumable() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
     let c = campaign(dir.path(), 1000.0, 30);
-    let mut child = bin()
-        .args(["run", "--quiet", "--db"])
-        .arg(&db)
-        .arg(&c)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = spawn_run(&c, &db);
     wait_for_samples(&mut child, &db, 30);
-    let st = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(st.success());
-    let o = child.wait_with_output().unwrap();
+    let o = signal(child, "-TERM");
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(143), "{err}");
     assert!(err.contains("motion stopped"), "{err}");

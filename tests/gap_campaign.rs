@@ -2,27 +2,14 @@
 //! decoder) runs on a "real" stage model with effects the simulator's ideal model lacks;
 //! `csmetro gap --data ID` finds them from the store, and the updated model shrinks the gap on a
 //! fresh campaign (new noise, not used to fit) by the amount it reported.
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_csmetro"))
-}
+use std::path::{Path, PathBuf};
+
+use common::{bin, json_of, repo};
 
 fn config(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("config/sim")
-        .join(name)
-}
-
-fn json_of(o: &Output) -> serde_json::Value {
-    assert!(
-        o.status.success(),
-        "exit {:?}: {}",
-        o.status.code(),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap()
+    repo("config/sim").join(name)
 }
 
 /// Full-scan lines on both axes, six cycles each way (six runs to hold out: with three the held-out test has too little power to accept anything).

@@ -12,6 +12,17 @@ pub fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_csmetro"))
 }
 
+/// The single JSON object a successful `--json` command printed on stdout.
+pub fn json_of(o: &std::process::Output) -> Value {
+    assert!(
+        o.status.success(),
+        "exit {:?}: {}",
+        o.status.code(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap()
+}
+
 pub fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
 }
