@@ -281,18 +281,22 @@ impl Manager {
                     // E.g. its stage model file is gone: keep it resumable once fixed.
                     tracing::error!(campaign = id, error = %e, "cannot load the stored campaign");
                     self.inner().running.remove(stage);
-                    let msg = format!("cannot load: {e}");
-                    let _ = self
-                        .db()
-                        .set_state(id, CampaignState::Interrupted, Some(&msg));
-                    self.emit(
-                        id,
-                        "finished",
-                        json!({"state": "interrupted", "error": msg}),
-                    );
+                    self.interrupt(id, format!("cannot load: {e}"));
                 }
             }
         }
+    }
+
+    /// Ends a campaign's attempt as resumable (state interrupted) and closes its event stream.
+    fn interrupt(&self, id: i64, msg: String) {
+        let _ = self
+            .db()
+            .set_state(id, CampaignState::Interrupted, Some(&msg));
+        self.emit(
+            id,
+            "finished",
+            json!({"state": "interrupted", "error": msg}),
+        );
     }
 
     fn launch(
@@ -356,14 +360,7 @@ impl Manager {
             Err(e) => {
                 let msg = format!("campaign task failed: {e}");
                 tracing::error!(campaign = id, error = %msg);
-                let _ = self
-                    .db()
-                    .set_state(id, CampaignState::Interrupted, Some(&msg));
-                self.emit(
-                    id,
-                    "finished",
-                    json!({"state": "interrupted", "error": msg}),
-                );
+                self.interrupt(id, msg);
             }
         }
         self.active.send_modify(|n| *n = n.saturating_sub(1));

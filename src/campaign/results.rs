@@ -105,26 +105,22 @@ pub fn build(
             }
             comps.push(j);
             // The report's view: CS against the full scan and the truth where they exist.
-            let (recon, reference) = match (cs, full) {
-                (Some(k), f) => (k, f.map(|f| f.values_um.clone())),
-                (None, Some(f)) => (f, None),
-                (None, None) => unreachable!("main is one of them"),
-            };
+            let reference = cs.and(full).map(|f| f.values_um.clone());
             report_curves.push(ComponentCurve {
                 component: comp.name().to_string(),
                 grid_um: main.positions_um.clone(),
-                reconstructed_um: recon.values_um.clone(),
+                reconstructed_um: main.values_um.clone(),
                 method: if cs.is_some() {
-                    recon.method.clone()
+                    main.method.clone()
                 } else {
-                    format!("full scan ({})", recon.method)
+                    format!("full scan ({})", main.method)
                 },
-                cv_error_um: recon.cv_error_um,
+                cv_error_um: main.cv_error_um,
                 // Every cycle's samples of that phase: repeated approaches give ISO 230-2 its
                 // measured figures (R, s); the curve itself is cycle 0's reconstruction.
                 samples: curves
                     .iter()
-                    .filter(|k| k.run.phase == recon.run.phase && k.component == comp)
+                    .filter(|k| k.run.phase == main.run.phase && k.component == comp)
                     .flat_map(|k| k.samples.iter().copied())
                     .collect(),
                 full_scan_um: reference,

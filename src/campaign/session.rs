@@ -127,6 +127,8 @@ impl Recorder for StoreRecorder {
     }
 }
 
+const STOPPED: &str = "stopped (service shutdown); resumes from the last stored sample";
+
 /// What a finished campaign reports.
 #[derive(Debug, Clone, Serialize)]
 pub struct Finished {
@@ -248,33 +250,26 @@ pub async fn execute(
         .unwrap_or_default();
     let truth = TruthSource::new(&rig, &c);
     rig.close().await;
-    if outcome.end == EndState::Stopped {
-        let msg = "stopped (service shutdown); resumes from the last stored sample";
-        let _ = lock(&store).set_state(id, CampaignState::Interrupted, Some(msg));
-        emit(
-            &store,
-            &events,
-            id,
-            "finished",
-            json!({"state": "interrupted", "reason": msg}),
-        );
+    // Halted before the end: stopped (resumable) or aborted, motion already stopped.
+    let halted = match outcome.end {
+        EndState::Done => None,
+        EndState::Stopped => Some((
+            CampaignState::Interrupted,
+            STOPPED,
+            json!({"state": "interrupted", "reason": STOPPED}),
+        )),
+        EndState::Aborted => Some((
+            CampaignState::Aborted,
+            "aborted by the operator",
+            json!({"state": "aborted"}),
+        )),
+    };
+    if let Some((state, msg, data)) = halted {
+        let _ = lock(&store).set_state(id, state, Some(msg));
+        emit(&store, &events, id, "finished", data);
         return Ok(Finished {
             id,
-            state: CampaignState::Interrupted,
-            outcome,
-            summary: None,
-            table: None,
-            out_dir: None,
-        });
-    }
-    if outcome.end == EndState::Aborted {
-        let s = lock(&store);
-        let _ = s.set_state(id, CampaignState::Aborted, Some("aborted by the operator"));
-        drop(s);
-        emit(&store, &events, id, "finished", json!({"state": "aborted"}));
-        return Ok(Finished {
-            id,
-            state: CampaignState::Aborted,
+            state,
             outcome,
             summary: None,
             table: None,
