@@ -782,6 +782,8 @@ impl Decoder {
         };
         // Class means by (i mod 3, j mod 3): the corner class is the darkest.
         let mut cls = [[(0f64, 0usize); 3]; 3];
+        // Sums of squares per class too: the noise of a class mean, for the orientation test.
+        let mut sq = [[0f64; 3]; 3];
         for jj in 0..nj {
             for ii in 0..ni {
                 let v = dots[jj * ni + ii];
@@ -792,6 +794,7 @@ impl Decoder {
                     );
                     cls[ci][cj].0 += v as f64;
                     cls[ci][cj].1 += 1;
+                    sq[ci][cj] += (v as f64).powi(2);
                 }
             }
         }
@@ -823,25 +826,15 @@ impl Decoder {
         // visible code densities: ~0.09 where a frame sees long runs of zero bits. So the corner
         // must stand out from it by more than the noise of a class mean (and 2 % of a dot),
         // not by a fixed 10 %; a wrong pick still fails the code match downstream.
-        let mut var = (0f64, 0usize);
-        for jj in 0..nj {
-            for ii in 0..ni {
-                let v = dots[jj * ni + ii];
-                let (ci, cj) = (
-                    (i0 + ii as i64).rem_euclid(3) as usize,
-                    (j0 + jj as i64).rem_euclid(3) as usize,
-                );
-                let full_class = [(ac, bc + 2), (ac + 2, bc), (ac + 2, bc + 2)]
-                    .iter()
-                    .any(|&(x, y)| (x % 3, y % 3) == (ci, cj));
-                if v.is_finite() && full_class {
-                    var.0 += (v as f64 - mean(ci, cj)).powi(2);
-                    var.1 += 1;
-                }
-            }
-        }
+        let (ss, n) = [(ac, bc + 2), (ac + 2, bc), (ac + 2, bc + 2)]
+            .iter()
+            .map(|&(x, y)| {
+                let (sum, k) = cls[x % 3][y % 3];
+                (sq[x % 3][y % 3] - sum * sum / k.max(1) as f64, k)
+            })
+            .fold((0.0, 0usize), |(a, m), (s, k)| (a + s, m + k));
         let min_count = cls.iter().flatten().map(|c| c.1).min().unwrap_or(1).max(1);
-        let se = (var.0 / var.1.max(1) as f64).sqrt() / (min_count as f64).sqrt();
+        let se = (ss.max(0.0) / n.max(1) as f64).sqrt() / (min_count as f64).sqrt();
         let needed = (8.0 * se / full_mean).max(0.02);
         if q.corner_level > self.cfg.max_corner_level
             || (others_min - mean(ac, bc)) / full_mean < needed
