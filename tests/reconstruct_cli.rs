@@ -89,6 +89,8 @@ fn round_trip_every_method_writes_the_whole_grid_and_beats_a_lookup_table() {
         if method == "bp" {
             assert_eq!(j["status"], "optimal");
             assert!(j["objective"].as_f64().unwrap() > 0.0);
+            // Optimal means certified: primal and dual objectives agree.
+            assert!(j["relative_gap"].as_f64().unwrap() < 1e-9, "{j}");
         }
         if method == "auto" {
             assert!(j["cv_error_um"].as_f64().unwrap() > 0.0);
@@ -168,6 +170,12 @@ fn bad_input_gives_one_line_exit_2() {
         Some("position_um,error_um\n0,1\n5,2\n"),
         &["--method", "magic"],
         "unknown method",
+    );
+    expect_input_error(
+        d,
+        Some("position_um,error_um\n0,1\n5,2\n"),
+        &["--method", "bp", "--gap-tol", "0"],
+        "--gap-tol",
     );
 }
 

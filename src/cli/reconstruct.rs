@@ -27,6 +27,10 @@ pub struct Args {
     /// Leadscrew thread pitch in µm (physics model).
     #[arg(long, default_value_t = 400.0)]
     pitch_um: f64,
+    /// BP with more samples than the exact finish takes (m > 2000): stop at this certified
+    /// relative duality gap (||θ||₁ - hᵀy) / ||θ||₁. Below 2000 samples BP is solved exactly.
+    #[arg(long, default_value_t = 1e-3)]
+    gap_tol: f64,
     /// Output CSV `position_um,error_um` at every grid point (default: stdout unless --json).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -54,6 +58,9 @@ pub fn run(a: Args) -> CliResult {
     if !(a.pitch_um.is_finite() && a.pitch_um > 0.0) {
         return Err(CliError::input("--pitch-um must be a positive number"));
     }
+    if !(a.gap_tol.is_finite() && a.gap_tol > 0.0 && a.gap_tol < 1.0) {
+        return Err(CliError::input("--gap-tol must be a number in (0, 1)"));
+    }
     let s = samples::read_samples_csv(&a.samples, &grid).map_err(CliError::input)?;
     if s.len() > grid.n {
         return Err(CliError::input(format!(
@@ -63,13 +70,14 @@ pub fn run(a: Args) -> CliResult {
             grid.n
         )));
     }
-    let settings = ReconSettings {
+    let mut settings = ReconSettings {
         method,
         solver,
         noise_um: a.noise_um,
         pitch_um: a.pitch_um,
         ..Default::default()
     };
+    settings.fast.gap_tol = a.gap_tol;
     let r = recon::reconstruct(&grid, &s, &settings)
         .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
     let positions = grid.positions();

@@ -137,6 +137,8 @@ pub struct Reconstruction {
     /// ||θ||₁ for bp/bpdn.
     pub objective: Option<f64>,
     pub dual_objective: Option<f64>,
+    /// Certified (objective - dual_objective) / objective: 0 up to rounding when `optimal`.
+    pub relative_gap: Option<f64>,
     pub status: Option<SolveStatus>,
     /// Cross-validated mean absolute error estimate, µm.
     pub cv_error_um: Option<f64>,
@@ -175,6 +177,7 @@ pub fn reconstruct(
         iterations: 0,
         objective: None,
         dual_objective: None,
+        relative_gap: None,
         status: None,
         cv_error_um: None,
         params: None,
@@ -198,6 +201,9 @@ pub fn reconstruct(
             out.iterations = sol.iterations;
             out.objective = Some(sol.objective);
             out.dual_objective = sol.dual_objective.is_finite().then_some(sol.dual_objective);
+            out.relative_gap = out
+                .dual_objective
+                .map(|d| ((sol.objective - d) / sol.objective.max(1e-300)).max(0.0));
             out.status = Some(sol.status);
             let mut g = sol.theta;
             Dct::new(n).inverse(&mut g);
