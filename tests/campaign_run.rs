@@ -373,3 +373,70 @@ fn adaptive_mode_stops_at_the_error_target_and_reports_the_saving() {
     assert_eq!(hard["saved_by_adaptive"], 0, "{hard}");
     assert_eq!(hard["measurements"], 240, "{hard}");
 }
+
+/// One process drives a stage: while a foreground run measures, a second `run` or a `resume` on
+/// the same stage is refused before anything is stored or moved, and a service starting on the
+/// same store neither re-runs that campaign nor starts its own on the stage until it is free.
+#[test]
+fn one_process_per_stage_a_second_run_and_a_starting_service_keep_off() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("var")).unwrap();
+    let db = dir.path().join("var/csmetro.db");
+    let c = campaign(dir.path(), 2000.0, 60);
+    let mut child = spawn_run(&c, &db);
+    wait_for_samples(&mut child, &db, 20);
+
+    let o = run(&c, &db);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("driven by another csmetro process")
+            && err.contains(&format!("pid {}", child.id())),
+        "{err}"
+    );
+    assert_eq!(store(&db).campaigns().unwrap().len(), 1, "nothing stored");
+    let o = bin()
+        .args(["resume", "1", "--db"])
+        .arg(&db)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+
+    common::write_config(dir.path(), "127.0.0.1:0", None);
+    let mut server = common::Server::start(dir.path(), None);
+    assert_eq!(server.db(), db);
+    assert_eq!(server.status(1)["state"], "running");
+    let queued = server.submit(&common::campaign("queued", "sim-xy", 5, 1000.0));
+    let st = server.wait_for(queued, 10.0, |s| {
+        s["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("another csmetro process"))
+    });
+    assert_eq!(st["state"], "queued", "{st}");
+
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let st = server.wait_for(queued, 60.0, |s| s["state"] == "done");
+    assert_eq!(st["stored"], st["planned"]);
+    let s = store(&db);
+    let row = s.campaign(1).unwrap().unwrap();
+    assert_eq!(row.state, CampaignState::Done);
+    let mut seqs = common::stored_seqs(&db, 1);
+    let n = seqs.len();
+    seqs.sort();
+    seqs.dedup();
+    assert_eq!((n as u64, seqs.len() as u64), (row.planned, row.planned));
+    let events = s.events_after(1, 0).unwrap();
+    assert!(
+        !events
+            .iter()
+            .any(|e| e.kind == "requeued" || e.kind == "resumed_from_store"),
+        "the service left campaign 1 alone"
+    );
+    assert!(server.log().contains("left to the process that runs it"));
+    assert!(server.terminate().success());
+}

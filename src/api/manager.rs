@@ -5,6 +5,9 @@
 //! Crash safety comes from the store: every sample is committed as it is taken, so a campaign
 //! left `running`/`paused`/`interrupted`/`queued` by a killed service is queued again by
 //! [`Manager::start`] and resumed by `session::execute`, which skips the stored targets.
+//! Liveness comes from a lock file per stage ([`crate::campaign::stagelock`]): a campaign still
+//! run by a live process (a foreground `csmetro run` on the same store) is left to it, and a
+//! queued campaign waits while another process holds its stage.
 //!
 //! Shutdown: [`Manager::shutdown`] sends `Control::Stop`: the engine stops motion and the session
 //! ends the campaign `interrupted`, which the next start resumes. Only an operator's abort
@@ -22,8 +25,12 @@ use super::ApiError;
 use crate::campaign::engine::Control;
 use crate::campaign::session::{self, Event, SharedStore};
 use crate::campaign::spec::Campaign;
+use crate::campaign::stagelock::{self, StageLock, StageLockError};
 use crate::campaign::types::CampaignState;
 use crate::store::{CampaignRow, EventRow, StoreError};
+
+/// How often a campaign waiting for a stage held by another process tries again.
+const STAGE_RETRY: Duration = Duration::from_secs(2);
 
 /// Live events buffered per subscriber before a slow one lags (it then catches up from the store).
 const EVENT_BUFFER: usize = 4096;
@@ -54,6 +61,8 @@ struct Active {
     control: watch::Sender<Control>,
     /// An operator asked for the abort (as opposed to the service shutting down).
     operator_abort: bool,
+    /// Keeps other processes off the stage while this campaign drives it.
+    _stage_lock: Option<StageLock>,
 }
 
 #[derive(Default)]
@@ -155,7 +164,19 @@ impl Manager {
     pub fn start(self: &Arc<Self>) -> Result<Vec<i64>, String> {
         let rows = self.db().unfinished().map_err(|e| e.to_string())?;
         let mut ids = Vec::new();
+        let db_path = self.db().path().map(Path::to_path_buf);
         for row in rows {
+            // Running or paused in a process that is still alive (a foreground `csmetro run` on
+            // this store): that process owns it; do not drive the stage a second time.
+            if matches!(row.state, CampaignState::Running | CampaignState::Paused) {
+                if let Some(e) = db_path
+                    .as_deref()
+                    .and_then(|p| stagelock::held_elsewhere(p, &row.stage))
+                {
+                    tracing::warn!(campaign = row.id, error = %e, "left to the process that runs it");
+                    continue;
+                }
+            }
             if row.state != CampaignState::Queued {
                 let msg = format!("resumed at service start (was {})", row.state.as_str());
                 self.db()
@@ -253,14 +274,25 @@ impl Manager {
             if self.shutting_down() {
                 return;
             }
+            let db_path = self.db().path().map(Path::to_path_buf);
             let (id, rx) = {
                 let mut inner = self.inner();
                 if inner.running.contains_key(stage) {
                     return;
                 }
-                let Some(id) = inner.queues.get_mut(stage).and_then(|q| q.pop_front()) else {
+                let Some(&id) = inner.queues.get(stage).and_then(|q| q.front()) else {
                     return;
                 };
+                let lock = match db_path.as_deref().map(|p| stagelock::try_lock(p, stage)) {
+                    None => None,
+                    Some(Ok(l)) => Some(l),
+                    Some(Err(e)) => {
+                        drop(inner);
+                        self.wait_for_stage(id, stage, e);
+                        return;
+                    }
+                };
+                inner.queues.get_mut(stage).and_then(|q| q.pop_front());
                 let (tx, rx) = watch::channel(Control::Run);
                 inner.running.insert(
                     stage.to_string(),
@@ -268,10 +300,22 @@ impl Manager {
                         id,
                         control: tx,
                         operator_abort: false,
+                        _stage_lock: lock,
                     },
                 );
                 (id, rx)
             };
+            // Another process may have finished it while it waited for the stage.
+            if self
+                .db()
+                .campaign(id)
+                .ok()
+                .flatten()
+                .is_some_and(|r| r.state.is_final())
+            {
+                self.inner().running.remove(stage);
+                continue;
+            }
             match session::load_stored(&self.store, id) {
                 Ok(c) => {
                     self.launch(id, stage.to_string(), c, rx);
@@ -285,6 +329,35 @@ impl Manager {
                 }
             }
         }
+    }
+
+    /// The head of `stage`'s queue stays queued while another process holds the stage; the
+    /// scheduler tries again every [`STAGE_RETRY`].
+    fn wait_for_stage(self: &Arc<Self>, id: i64, stage: &str, e: StageLockError) {
+        let msg = e.to_string();
+        let first = self
+            .db()
+            .campaign(id)
+            .ok()
+            .flatten()
+            .is_none_or(|r| r.message.as_deref() != Some(msg.as_str()));
+        if first {
+            tracing::warn!(campaign = id, error = %msg, "waiting for the stage");
+            let _ = self.db().set_state(id, CampaignState::Queued, Some(&msg));
+            self.emit(
+                id,
+                "waiting_for_stage",
+                json!({"stage": stage, "reason": msg}),
+            );
+        }
+        let (me, stage) = (Arc::clone(self), stage.to_string());
+        let mut stop = self.shutdown_signal();
+        tokio::spawn(async move {
+            tokio::select! {
+                _ = tokio::time::sleep(STAGE_RETRY) => me.schedule(&stage),
+                _ = stop.changed() => {}
+            }
+        });
     }
 
     /// Ends a campaign's attempt as resumable (state interrupted) and closes its event stream.

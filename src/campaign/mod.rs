@@ -6,6 +6,7 @@ pub mod results;
 pub mod rig;
 pub mod session;
 pub mod spec;
+pub mod stagelock;
 pub mod types;
 pub mod worker;
 

@@ -11,6 +11,7 @@ use super::{CliError, CliResult};
 use crate::campaign::engine::Control;
 use crate::campaign::session::{self, SharedStore};
 use crate::campaign::spec::Campaign;
+use crate::campaign::stagelock::{self, StageLock};
 use crate::campaign::types::CampaignState;
 use crate::store::Store;
 
@@ -50,9 +51,16 @@ fn open(db: &std::path::Path) -> Result<SharedStore, CliError> {
         .map_err(|e| CliError::failure(format!("store {}: {e}", db.display())))
 }
 
+/// The stage for the whole foreground run: refused, before anything is stored or moved, while
+/// another process (the service, another `run`) drives it.
+fn take_stage(db: &std::path::Path, stage: &str) -> Result<StageLock, CliError> {
+    stagelock::try_lock(db, stage).map_err(|e| CliError::failure(e.to_string()))
+}
+
 pub fn run(a: Args) -> CliResult {
     let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
+    let _stage = take_stage(&a.db, &c.spec.campaign.stage)?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
     eprintln!(
         "campaign {id} \"{}\" stored in {} (resume with `csmetro resume {id}`)",
@@ -77,6 +85,7 @@ pub fn resume(a: ResumeArgs) -> CliResult {
             row.state.as_str()
         )));
     }
+    let _stage = take_stage(&a.db, &row.stage)?;
     let c = session::load_stored(&store, a.id).map_err(CliError::failure)?;
     foreground(store, a.id, c, a.json, a.quiet)
 }

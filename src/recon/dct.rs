@@ -44,7 +44,7 @@ pub struct Dct {
 
 impl Dct {
     pub fn new(n: usize) -> Self {
-        Self::with_backend(n, n % 2 == 0 && n >= 2)
+        Self::with_backend(n, n.is_multiple_of(2) && n >= 2)
     }
 
     /// `makhoul`: the real-FFT path (even n only); otherwise rustdct.

@@ -34,8 +34,16 @@ fn sample(seq: u64) -> SampleRecord {
         target: Target {
             seq,
             run: RunKey {
-                phase: if seq % 3 == 0 { Phase::Full } else { Phase::Cs },
-                axis: if seq % 2 == 0 { AxisId::X } else { AxisId::Y },
+                phase: if seq.is_multiple_of(3) {
+                    Phase::Full
+                } else {
+                    Phase::Cs
+                },
+                axis: if seq.is_multiple_of(2) {
+                    AxisId::X
+                } else {
+                    AxisId::Y
+                },
                 direction: if seq % 4 < 2 {
                     Direction::Forward
                 } else {
@@ -576,7 +584,7 @@ fn child_inserts_until_killed() {
     let mut seq = start;
     while Instant::now() < deadline {
         assert!(store.insert_sample(campaign, &sample(seq)).unwrap());
-        if seq % 16 == 0 {
+        if seq.is_multiple_of(16) {
             store
                 .add_event(campaign, "progress", &serde_json::json!({ "seq": seq }))
                 .unwrap();

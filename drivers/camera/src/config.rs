@@ -324,7 +324,7 @@ fn check_axis(what: &str, v: u32, (lo, hi): (u32, u32), inc: u32) -> Result<(), 
 }
 
 fn check_increment(what: &str, v: u32, inc: u32) -> Result<(), ConfigError> {
-    if inc > 1 && v % inc != 0 {
+    if inc > 1 && !v.is_multiple_of(inc) {
         return Err(ConfigError(format!(
             "roi {what} = {v} is not a multiple of the camera's increment {inc}"
         )));

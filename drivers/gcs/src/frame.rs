@@ -296,7 +296,7 @@ impl Command {
                 Ok(Command::Reference { mode, axes: axes() })
             }
             "SPA" => {
-                if args.is_empty() || args.len() % 3 != 0 {
+                if args.is_empty() || !args.len().is_multiple_of(3) {
                     return Err(E1_PARAM_SYNTAX);
                 }
                 let items = args
@@ -306,7 +306,7 @@ impl Command {
                 Ok(Command::SetParam { items })
             }
             "SPA?" => {
-                if args.len() % 2 != 0 {
+                if !args.len().is_multiple_of(2) {
                     return Err(E1_PARAM_SYNTAX);
                 }
                 let items = args
@@ -323,7 +323,7 @@ impl Command {
                     });
                 }
                 if let Some(s) = AxisSetter::ALL.iter().find(|s| s.mnemonic() == h) {
-                    if args.is_empty() || args.len() % 2 != 0 {
+                    if args.is_empty() || !args.len().is_multiple_of(2) {
                         return Err(E1_PARAM_SYNTAX);
                     }
                     let mut pairs = Vec::new();
