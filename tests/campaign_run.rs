@@ -133,6 +133,18 @@ fn a_campaign_runs_end_to_end_and_reports_against_the_truth() {
         saved > 60.0 && saved < 100.0 * (1.0 - 40.0 / 162.0),
         "{saved}"
     );
+    // Time per measured point: a CS point (20 µm moves) costs about what a full-scan point (5 µm)
+    // does, as on the paper's rig; getting to a run's start is reported apart (CS runs first and
+    // pays the trip from the reference switches).
+    let phase = |p: &str, k: &str| y["phases"][p][k].as_f64().unwrap();
+    let per_point =
+        (phase("cs", "acquisition_s") / 40.0) / (phase("full", "acquisition_s") / 162.0);
+    assert!(
+        (1.0..1.02).contains(&per_point),
+        "CS/full time per point {per_point}"
+    );
+    assert!(phase("cs", "positioning_s") > 1.0, "{}", y["phases"]);
+    assert!(phase("full", "positioning_s") < phase("cs", "positioning_s"));
     let comps: Vec<&str> = y["components"]
         .as_array()
         .unwrap()

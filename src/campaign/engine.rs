@@ -52,8 +52,14 @@ pub trait Recorder: Send {
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct PhaseStats {
     pub measurements: u64,
-    /// Physical acquisition time: moves, settling, dwell, frames, approaches, referencing, s.
+    /// Physical time measuring the run's targets: moves between them, settling, dwell, frames,
+    /// and the re-approaches of retried points, s.
     pub acquisition_s: f64,
+    /// Physical time getting to a run's start (the other axis into place, the approach
+    /// pre-travel), and back after a pause, s. Kept apart: it depends on where the previous run
+    /// or the reference move left the stage, i.e. on the plan order, not on the phase (the
+    /// first phase after referencing pays the trip from the reference switch).
+    pub positioning_s: f64,
     /// Wall time decoding frames, s.
     pub decode_s: f64,
     pub frames: u64,
@@ -224,6 +230,10 @@ impl<'a> Engine<'a> {
 
     fn advance(&mut self, run: RunKey, physical_s: f64) {
         self.stat(run).acquisition_s += physical_s;
+        self.tick(physical_s);
+    }
+
+    fn tick(&mut self, physical_s: f64) {
         let t = self.rig.clock.get() + physical_s;
         self.rig.clock.set(t);
     }
@@ -342,7 +352,14 @@ impl<'a> Engine<'a> {
     }
 
     /// Puts the stage where a sweep to `first` in `direction` approaches it from the right side.
-    async fn approach(&mut self, run: RunKey, first: &Target) -> Result<(), EngineError> {
+    /// `positioning`: the time counts as [`PhaseStats::positioning_s`] (a run's start, a resume
+    /// after a pause), otherwise as acquisition (a retried point, an adaptive batch's sweep).
+    async fn approach(
+        &mut self,
+        run: RunKey,
+        first: &Target,
+        positioning: bool,
+    ) -> Result<(), EngineError> {
         let other = run.axis.other();
         let other_at = match other {
             AxisId::X => first.target_x_um,
@@ -355,7 +372,12 @@ impl<'a> Engine<'a> {
         // The other axis stands still during a run: put it in place first.
         phys += self.move_axis(other, other_at).await?;
         phys += self.move_axis(run.axis, start).await?;
-        self.advance(run, phys);
+        if positioning {
+            self.stat(run).positioning_s += phys;
+            self.tick(phys);
+        } else {
+            self.advance(run, phys);
+        }
         Ok(())
     }
 
@@ -479,7 +501,7 @@ impl<'a> Engine<'a> {
         if todo.is_empty() {
             return Ok(Control::Run);
         }
-        self.approach(b.run, &todo[0]).await?;
+        self.approach(b.run, &todo[0], b.index == 0).await?;
         let mut flight: VecDeque<InFlight> = VecDeque::new();
         let mut retry: Vec<Target> = Vec::new();
         let mut halted = None;
@@ -496,7 +518,7 @@ impl<'a> Engine<'a> {
                     break;
                 }
                 // Resumed: approach again from the run's side.
-                self.approach(b.run, t).await?;
+                self.approach(b.run, t, true).await?;
             }
             let f = self.measure(t).await?;
             flight.push_back(f);
@@ -528,7 +550,7 @@ impl<'a> Engine<'a> {
                     );
                     break;
                 }
-                self.approach(b.run, &t).await?;
+                self.approach(b.run, &t, false).await?;
                 let f = self.measure(&t).await?;
                 if self.land(f, attempt).await?.is_none() {
                     break;

@@ -171,7 +171,7 @@ pub fn build(
             tot[pi][2] += processing;
             phase_json.insert(
                 phase.as_str().into(),
-                json!({"measurements": st.measurements, "acquisition_s": st.acquisition_s, "processing_s": processing,
+                json!({"measurements": st.measurements, "acquisition_s": st.acquisition_s, "positioning_s": st.positioning_s, "processing_s": processing,
                        "decode_s": st.decode_s, "reconstruction_s": proc_s[pi], "frames": st.frames,
                        "rejected_frames": st.rejected_frames, "failed_points": st.failed_points,
                        "saved_by_adaptive": st.saved_by_adaptive}),

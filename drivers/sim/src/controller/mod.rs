@@ -85,9 +85,11 @@ impl Default for ControllerConfig {
             stage: "M-111.1DG".into(),
             travel_mm: [0.0, 15.0],
             max_velocity_mm_s: 1.5,
-            max_acceleration_mm_s2: 10.0,
+            // Acceleration: see `hardware.sim.acceleration_mm_s2` (calibrated on the paper's
+            // Table III timings; the datasheet does not give it).
+            max_acceleration_mm_s2: 200.0,
             velocity_mm_s: 1.5,
-            acceleration_mm_s2: 5.0,
+            acceleration_mm_s2: 50.0,
             reference_velocity_mm_s: 1.0,
             reference_switch_mm: 7.5,
             start_mm: 3.0,
