@@ -281,20 +281,25 @@ fn i64_from(v: u64, what: &str) -> Result<i64, String> {
 
 /// A raw sample row, decoded into a record (or a description of what is wrong with it).
 fn sample_from_row(row: &Row<'_>) -> rusqlite::Result<Result<SampleRecord, String>> {
-    let seq: i64 = row.get(0)?;
-    let phase: String = row.get(1)?;
-    let axis: String = row.get(2)?;
-    let direction: String = row.get(3)?;
-    let cycle: i64 = row.get(4)?;
-    let grid_index: i64 = row.get(5)?;
+    sample_from_row_at(row, 0)
+}
+
+/// A sample whose [`SAMPLE_COLS`] start at column `o` of the row.
+fn sample_from_row_at(row: &Row<'_>, o: usize) -> rusqlite::Result<Result<SampleRecord, String>> {
+    let seq: i64 = row.get(o)?;
+    let phase: String = row.get(o + 1)?;
+    let axis: String = row.get(o + 2)?;
+    let direction: String = row.get(o + 3)?;
+    let cycle: i64 = row.get(o + 4)?;
+    let grid_index: i64 = row.get(o + 5)?;
     let mut vals = [0.0f64; 10];
     for (i, idx) in (6..=14).chain([17]).enumerate() {
-        let v: Option<f64> = row.get(idx)?;
+        let v: Option<f64> = row.get(o + idx)?;
         vals[i] = v.unwrap_or(f64::NAN);
     }
-    let frames: i64 = row.get(15)?;
-    let rejected: i64 = row.get(16)?;
-    let raw: Option<String> = row.get(18)?;
+    let frames: i64 = row.get(o + 15)?;
+    let rejected: i64 = row.get(o + 16)?;
+    let raw: Option<String> = row.get(o + 18)?;
     Ok((|| {
         if let Some(raw) = raw {
             for part in raw.split(',').filter(|p| !p.is_empty()) {
@@ -751,6 +756,37 @@ impl Store {
     }
 
     /// Every sample of a campaign, ordered by seq.
+    /// Samples in commit order after commit number `after` (0: from the first), at most
+    /// `limit`: `(n, sample)` where `n` is the cursor for the next call. A client that missed
+    /// live `sample` events (a reconnect, a slow reader) reads them here, each exactly once.
+    pub fn samples_after(
+        &self,
+        campaign: i64,
+        after: i64,
+        limit: usize,
+    ) -> Result<Vec<(i64, SampleRecord)>, StoreError> {
+        const OP: &str = "read samples after a commit";
+        let sql = format!(
+            "SELECT id, {SAMPLE_COLS} FROM samples WHERE campaign_id = ?1 AND id > ?2 \
+             ORDER BY id LIMIT ?3"
+        );
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let mut st = self
+            .conn
+            .prepare_cached(&sql)
+            .map_err(|e| self.err(OP, e))?;
+        let rows = st
+            .query_map(params![campaign, after, limit], |row| {
+                let n: i64 = row.get(0)?;
+                Ok((n, sample_from_row_at(row, 1)?))
+            })
+            .and_then(|rows| rows.collect::<rusqlite::Result<Vec<_>>>())
+            .map_err(|e| self.err(OP, e))?;
+        rows.into_iter()
+            .map(|(n, r)| r.map(|s| (n, s)).map_err(|w| self.corrupt(OP, w)))
+            .collect()
+    }
+
     pub fn samples(&self, campaign: i64) -> Result<Vec<SampleRecord>, StoreError> {
         const OP: &str = "read samples";
         let sql = format!("SELECT {SAMPLE_COLS} FROM samples WHERE campaign_id = ?1 ORDER BY seq");

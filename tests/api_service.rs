@@ -105,6 +105,38 @@ fn submitted_campaign_runs_streams_its_events_and_serves_its_results() {
     }
     let (s, e) = srv.get(&format!("/campaigns/{id}/results/nope.csv"));
     assert_eq!(s, 404, "{e}");
+
+    // Every committed sample, in pages, each once: what a client that missed live `sample`
+    // events reads back.
+    let (mut after, mut seqs) = (0i64, Vec::new());
+    loop {
+        let (s, page) = srv.get(&format!("/campaigns/{id}/samples?after={after}&limit=15"));
+        assert_eq!(s, 200, "{page}");
+        let items = page["samples"].as_array().unwrap();
+        if items.is_empty() {
+            assert_eq!(page["next"], after);
+            break;
+        }
+        assert!(items.len() <= 15);
+        for it in items {
+            assert!(it["n"].as_i64().unwrap() > after);
+            seqs.push(it["sample"]["target"]["seq"].as_u64().unwrap());
+        }
+        after = page["next"].as_i64().unwrap();
+    }
+    assert_eq!(seqs.len(), 40);
+    let distinct: BTreeSet<u64> = seqs.iter().copied().collect();
+    assert_eq!(distinct.len(), 40);
+    assert_eq!(
+        distinct,
+        stored_seqs(&srv.db(), id)
+            .into_iter()
+            .collect::<BTreeSet<u64>>()
+    );
+    let (s, e) = srv.get(&format!("/campaigns/{id}/samples?limit=0"));
+    assert_eq!(s, 400, "{e}");
+    let (s, e) = srv.get("/campaigns/999/samples");
+    assert_eq!(s, 404, "{e}");
     // Result files also land under the configured results_dir.
     assert!(dir.path().join(format!("var/results/quick-{id}")).is_dir());
 }
@@ -269,6 +301,7 @@ fn a_token_is_required_on_every_route_when_configured() {
         ("POST", "/campaigns/1/pause"),
         ("POST", "/campaigns/1/resume"),
         ("POST", "/campaigns/1/abort"),
+        ("GET", "/campaigns/1/samples"),
         ("GET", "/campaigns/1/results"),
         ("GET", "/campaigns/1/results/summary.json"),
         ("GET", "/nowhere"),

@@ -617,6 +617,18 @@ impl Manager {
         self.db().events_after(id, after).map_err(store_err)
     }
 
+    /// Committed samples in commit order after cursor `after` (0: from the first), at most
+    /// `limit`.
+    pub fn samples_after(
+        &self,
+        id: i64,
+        after: i64,
+        limit: usize,
+    ) -> Result<Vec<(i64, crate::campaign::types::SampleRecord)>, ApiError> {
+        self.row(id)?;
+        self.db().samples_after(id, after, limit).map_err(store_err)
+    }
+
     pub fn result_names(&self, id: i64) -> Result<Vec<String>, ApiError> {
         self.row(id)?;
         self.db().result_names(id).map_err(store_err)

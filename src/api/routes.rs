@@ -9,6 +9,7 @@
 //! | `GET /campaigns/{id}` | state, planned, stored, percent, message, queue position |
 //! | `GET /campaigns/{id}/events[?after=ID]` | server-sent events: the stored log, then live events (`sample` ones too); ends after `finished` |
 //! | `POST /campaigns/{id}/pause`, `/resume`, `/abort` | control; answers the status |
+//! | `GET /campaigns/{id}/samples[?after=N&limit=L]` | committed samples in commit order: `{"id", "samples": [{"n", "sample"}], "next"}`; `next` is the `after` of the following page (live `sample` events a client missed are all here) |
 //! | `GET /campaigns/{id}/results` | `{"id": .., "results": [names]}` |
 //! | `GET /campaigns/{id}/results/{*name}` | the bytes, with their stored content type |
 //!
@@ -62,6 +63,7 @@ pub fn router(manager: Arc<Manager>, token: Option<String>) -> Router {
         .route("/campaigns/{id}/pause", post(pause))
         .route("/campaigns/{id}/resume", post(resume))
         .route("/campaigns/{id}/abort", post(abort))
+        .route("/campaigns/{id}/samples", get(samples))
         .route("/campaigns/{id}/results", get(results))
         .route("/campaigns/{id}/results/{*name}", get(result))
         .fallback(|| async { ApiError::not_found("no such route") })
@@ -186,6 +188,37 @@ async fn abort(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<Ca
     })
     .await
     .map(Json)
+}
+
+#[derive(Deserialize)]
+struct SamplesQuery {
+    after: Option<i64>,
+    limit: Option<usize>,
+}
+
+/// Largest page of samples (a full demo campaign is ~6400).
+const MAX_SAMPLES_PAGE: usize = 10_000;
+
+async fn samples(
+    State(app): State<App>,
+    Path(id): Path<i64>,
+    Query(q): Query<SamplesQuery>,
+) -> ApiResult<Json<serde_json::Value>> {
+    let after = q.after.unwrap_or(0);
+    let limit = q.limit.unwrap_or(MAX_SAMPLES_PAGE);
+    if after < 0 || limit == 0 || limit > MAX_SAMPLES_PAGE {
+        return Err(ApiError::bad_request(format!(
+            "after must be ≥ 0 and limit in 1..={MAX_SAMPLES_PAGE}"
+        )));
+    }
+    let m = app.manager.clone();
+    let rows = blocking(move || m.samples_after(id, after, limit)).await?;
+    let next = rows.last().map_or(after, |(n, _)| *n);
+    let samples: Vec<_> = rows
+        .into_iter()
+        .map(|(n, s)| json!({"n": n, "sample": s}))
+        .collect();
+    Ok(Json(json!({"id": id, "samples": samples, "next": next})))
 }
 
 async fn results(
