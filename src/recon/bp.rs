@@ -566,6 +566,27 @@ mod tests {
         (theta, idx, h)
     }
 
+    /// A paper-like curve on n points `step_um` apart, sampled at m random grid points.
+    fn paper_problem(n: usize, step_um: f64, m: usize, seed: u64) -> (Vec<usize>, Vec<f64>) {
+        use csmetro_sim::reference::{error_curve, paper_like_model, ReferenceCurveParams};
+        let grid: Vec<f64> = (0..n).map(|i| i as f64 * step_um).collect();
+        let params = ReferenceCurveParams {
+            travel_um: [0.0, grid[n - 1]],
+            ..Default::default()
+        };
+        let f = error_curve(
+            &paper_like_model(seed, &params),
+            csmetro_sim::AxisId::X,
+            &grid,
+            0.0,
+        );
+        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, m, seed)
+            .indices(n)
+            .unwrap();
+        let h = idx.iter().map(|&i| f[i]).collect();
+        (idx, h)
+    }
+
     /// Exact recovery of an s-sparse DCT signal from m ≈ 4 s ln n samples.
     #[test]
     fn exact_recovery_of_sparse_signal() {
@@ -595,24 +616,9 @@ mod tests {
     /// recovered curve within 1e-6 µm.
     #[test]
     fn fast_solver_agrees_with_clarabel() {
-        use csmetro_sim::reference::{error_curve, paper_like_model, ReferenceCurveParams};
         let n = 381;
-        let grid: Vec<f64> = (0..n).map(|i| i as f64 * 25.0).collect();
-        let params = ReferenceCurveParams {
-            travel_um: [0.0, 9500.0],
-            ..Default::default()
-        };
         for (seed, m) in [(1u64, 60usize), (2, 120)] {
-            let f = error_curve(
-                &paper_like_model(seed, &params),
-                csmetro_sim::AxisId::X,
-                &grid,
-                0.0,
-            );
-            let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, m, seed)
-                .indices(n)
-                .unwrap();
-            let h: Vec<f64> = idx.iter().map(|&i| f[i]).collect();
+            let (idx, h) = paper_problem(n, 25.0, m, seed);
             let mut dct = Dct::new(n);
             let fast = solve_fast(
                 &mut dct,
@@ -657,24 +663,8 @@ mod tests {
     /// samples, and [hᵀy, ||θ||₁] brackets the true optimum (taken from the exact finish).
     #[test]
     fn gap_certified_path_brackets_the_optimum() {
-        use csmetro_sim::reference::{error_curve, paper_like_model, ReferenceCurveParams};
         let n = 2048;
-        let grid: Vec<f64> = (0..n).map(|i| i as f64 * 4.0).collect();
-        let params = ReferenceCurveParams {
-            travel_um: [0.0, 8188.0],
-            ..Default::default()
-        };
-        let f = error_curve(
-            &paper_like_model(3, &params),
-            csmetro_sim::AxisId::X,
-            &grid,
-            0.0,
-        );
-        let m = 300;
-        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, m, 3)
-            .indices(n)
-            .unwrap();
-        let h: Vec<f64> = idx.iter().map(|&i| f[i]).collect();
+        let (idx, h) = paper_problem(n, 4.0, 300, 3);
         let mut dct = Dct::new(n);
         let exact = solve_fast(
             &mut dct,
