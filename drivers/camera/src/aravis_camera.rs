@@ -1,9 +1,11 @@
 //! GigE Vision / USB3 Vision cameras through libaravis 0.8.
 //!
-//! One `grab` = drain stale buffers, software trigger, wait (bounded) for the buffer, check its
-//! status. Missing packets and timeouts are errors. When the camera drops (trigger refused,
-//! heartbeat lost, or a timeout after which the camera no longer lists us as its controller),
-//! the driver reopens it with bounded attempts and backoff and retries the grab once.
+//! One `grab` = drain stale buffers (waiting, bounded, for the late frames of timed-out grabs),
+//! software trigger, wait (bounded) for the buffer, reject older exposures (arrival before the
+//! trigger, block id not newer than the last frame returned), check its status. Missing packets
+//! and timeouts are errors. When the camera drops (trigger refused, heartbeat lost, or a timeout
+//! after which the camera no longer lists us as its controller), the driver reopens it with
+//! bounded attempts and backoff and retries the grab once.
 use std::ffi::CStr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -55,6 +57,24 @@ struct Session {
     roi: Roi,
     format: PixelFormat,
     exposure_us: f64,
+    /// Timed-out triggers whose frames may still arrive: the next grab waits for them (bounded)
+    /// and throws them away, since one arriving after its trigger would pass the time check.
+    owed: u32,
+    /// GigE Vision block id of the last frame returned: an id at or before it is an older
+    /// exposure whatever its arrival time.
+    last_id: Option<u64>,
+}
+
+/// Longest wait, at the start of a grab, for the late frames of earlier timed-out grabs.
+const LATE_FRAME_WAIT: Duration = Duration::from_secs(2);
+
+/// Whether block id `id` is not newer than `last` (16-bit GVSP ids wrap at 65535, skipping 0).
+fn not_newer(id: u64, last: u64) -> bool {
+    if id <= 0xFFFF && last <= 0xFFFF {
+        (last.wrapping_sub(id) & 0xFFFF) < 0x8000
+    } else {
+        id <= last
+    }
 }
 
 /// Why one grab attempt failed.
@@ -374,6 +394,8 @@ impl Session {
             roi,
             format: config.pixel_format,
             exposure_us,
+            owed: 0,
+            last_id: None,
         };
         // Aravis sizes the stream socket buffer only when the first packet of the first frame
         // arrives, so that frame can overflow the default buffer and lose packets. Grab one
@@ -383,11 +405,29 @@ impl Session {
     }
 
     fn grab(&mut self, timeout: Duration) -> Result<Frame, GrabFailure> {
-        let deadline = Instant::now() + timeout;
         // A frame that arrived after an earlier grab gave up must not pass for this one.
         while let Some(b) = self.stream.try_pop_buffer() {
+            self.owed = self.owed.saturating_sub(1);
             self.stream.push_buffer(b);
         }
+        // Frames still owed by timed-out grabs: wait for them here, or one of them, sent after
+        // this grab's trigger, would be taken for its exposure. A camera that dropped the
+        // trigger never sends one: give up after the bounded wait.
+        if self.owed > 0 {
+            let until = Instant::now() + timeout.min(LATE_FRAME_WAIT);
+            while self.owed > 0 {
+                let left = until.saturating_duration_since(Instant::now());
+                match self.stream.timeout_pop_buffer(left.as_micros() as u64) {
+                    Some(b) => {
+                        self.owed -= 1;
+                        self.stream.push_buffer(b);
+                    }
+                    None => break,
+                }
+            }
+            self.owed = 0;
+        }
+        let deadline = Instant::now() + timeout;
         let trigger_ns = SystemTime::now()
             .duration_since(UNIX_EPOCH)
             .map(|d| d.as_nanos() as u64)
@@ -405,21 +445,29 @@ impl Session {
                 .stream
                 .timeout_pop_buffer(left.as_micros().min(u128::from(u64::MAX)) as u64)
             else {
+                self.owed += 1;
                 return Err(GrabFailure::Frame(CameraError::Timeout(timeout)));
             };
             // Aravis stamps a buffer (host wall clock) when its first packet arrives: anything
             // older than the trigger belongs to an earlier exposure still in flight then.
             // (0: the stream does not stamp buffers; nothing to compare.)
             let stamped = buffer.system_timestamp();
-            if stamped != 0 && stamped < trigger_ns {
+            let id = buffer.frame_id();
+            // Block id 0 is not a valid GVSP id (some transports leave it unset): no check then.
+            let stale = id != 0 && self.last_id.is_some_and(|last| not_newer(id, last));
+            if stale || (stamped != 0 && stamped < trigger_ns) {
                 self.stream.push_buffer(buffer);
                 if Instant::now() >= deadline {
+                    self.owed += 1;
                     return Err(GrabFailure::Frame(CameraError::Timeout(timeout)));
                 }
                 continue;
             }
             let frame = self.to_frame(&buffer);
             self.stream.push_buffer(buffer);
+            if frame.is_ok() {
+                self.last_id = Some(id);
+            }
             return frame.map_err(GrabFailure::Frame);
         }
     }
@@ -618,5 +666,24 @@ fn device_id_for_serial(serial: &str) -> Result<String, CameraError> {
             "serial {serial} is ambiguous: {}; configure a device id instead",
             found.join(", ")
         ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::not_newer;
+
+    #[test]
+    fn block_ids_compare_across_the_16_bit_wrap() {
+        assert!(not_newer(7, 7));
+        assert!(not_newer(6, 7));
+        assert!(!not_newer(8, 7));
+        // GVSP 1.x ids run 1..=65535 and wrap: 1 after 65535 is newer, 65535 after 1 is older.
+        assert!(!not_newer(1, 65_535));
+        assert!(not_newer(65_535, 1));
+        assert!(not_newer(65_530, 65_535));
+        // 64-bit ids (GVSP 2.x) compare plainly.
+        assert!(not_newer(70_000, 70_001));
+        assert!(!not_newer(70_002, 70_001));
     }
 }
