@@ -47,7 +47,8 @@ impl Dct {
         Self::with_backend(n, n.is_multiple_of(2) && n >= 2)
     }
 
-    /// `makhoul`: the real-FFT path (even n only); otherwise rustdct.
+    /// `makhoul`: the real-FFT path (any n ≥ 2; [`Dct::new`] takes it for even n only, where it
+    /// is faster); otherwise rustdct.
     pub fn with_backend(n: usize, makhoul: bool) -> Self {
         let backend = if makhoul && n >= 2 {
             let mut planner = RealFftPlanner::<f64>::new();
@@ -189,6 +190,23 @@ impl Dct {
             let j = (k * (2 * i + 1)) % (4 * self.n);
             self.sk * self.cos_table[j]
         }
+    }
+
+    /// A·v for the sampled transform A = rows `idx` of Ψ: the signal of `v` at `idx`
+    /// (`v` is transformed in place on the way).
+    pub fn sample(&mut self, v: &mut [f64], idx: &[usize]) -> Vec<f64> {
+        self.inverse(v);
+        idx.iter().map(|&i| v[i]).collect()
+    }
+
+    /// w = Aᵀy for the sampled transform A = rows `idx` of Ψ: Ψᵀ of y scattered onto `idx`
+    /// (`y(r)` is the r-th entry, so any vector type serves).
+    pub fn adjoint(&mut self, idx: &[usize], y: impl Fn(usize) -> f64, w: &mut [f64]) {
+        w.fill(0.0);
+        for (r, &i) in idx.iter().enumerate() {
+            w[i] = y(r);
+        }
+        self.forward(w);
     }
 
     /// Column k of Ψ at the given rows: out[r] = Ψ[rows[r], k].

@@ -181,11 +181,7 @@ pub fn finish(
         if !finite(&y) {
             return None;
         }
-        w.iter_mut().for_each(|v| *v = 0.0);
-        for (r, &i) in idx.iter().enumerate() {
-            w[i] = y[r];
-        }
-        dct.forward(&mut w);
+        dct.adjoint(idx, |r| y[r], &mut w);
         // Dantzig pricing over the non-basic columns.
         // (Measured: ranking the violators by ADMM's confidence instead took 3-10x more pivots.)
         let (mut j, mut best) = (usize::MAX, 1.0 + tol);
@@ -311,13 +307,12 @@ fn verify(
     for (c, &k) in support.iter().enumerate() {
         theta[k] = theta_s[c];
     }
-    let mut g = theta.clone();
-    dct.inverse(&mut g);
     let scale = h.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
-    let resid = idx
+    let resid = dct
+        .sample(&mut theta.clone(), idx)
         .iter()
         .zip(h)
-        .map(|(&i, &hk)| (g[i] - hk).abs())
+        .map(|(g, hk)| (g - hk).abs())
         .fold(0.0, f64::max);
     if resid.is_nan() || resid > 1e-10 * scale {
         return None;
@@ -416,10 +411,7 @@ mod tests {
         let mut y = Col::<f64>::from_fn(m, |c| sign(theta_s[c]));
         basis.btran(&mut y);
         let mut w = vec![0.0; n];
-        for (c, &i) in idx.iter().enumerate() {
-            w[i] = y[c];
-        }
-        dct.forward(&mut w);
+        dct.adjoint(&idx, |c| y[c], &mut w);
         assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w, 0, 1e-9).is_some());
         theta_s[0] *= 1.0 + 1e-6;
         assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w, 0, 1e-9).is_none());
