@@ -125,8 +125,9 @@ pub struct SimHardware {
     /// gives 1.5 mm/s; its acceleration is not published. The default (50 mm/s², 1.5 mm/s
     /// reached in 30 ms) is calibrated on the rig's one timing record, the paper's Table III: it
     /// spent the same time per point (3.00 s, ±1 % from the rounding of the hours) on 600 random
-    /// targets ~32 µm apart as on 3801 targets 5 µm apart, which a trapezoidal profile only
-    /// reproduces at ≥ 30 mm/s² (at 5 mm/s² a random point would cost 0.1 s, 3.6 %, more).
+    /// targets ~32 µm apart as on 3801 targets 5 µm apart, which the simulated rig reproduces
+    /// from ~50 mm/s² on (CS/full time per point 1.031 at 5, 1.013 at 30, 1.010 at 50 mm/s²;
+    /// BENCHMARKS.md).
     pub velocity_mm_s: f64,
     pub acceleration_mm_s2: f64,
 }

@@ -13,7 +13,6 @@ use std::path::{Path, PathBuf};
 #[derive(Debug)]
 pub struct StageLock {
     _file: File,
-    pub path: PathBuf,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -79,7 +78,7 @@ pub fn try_lock(store: &Path, stage: &str) -> Result<StageLock, StageLockError> 
     file.set_len(0).map_err(io)?;
     file.seek(SeekFrom::Start(0)).map_err(io)?;
     writeln!(file, "{}", std::process::id()).map_err(io)?;
-    Ok(StageLock { _file: file, path })
+    Ok(StageLock { _file: file })
 }
 
 /// Whether another process holds the stage (the lock is taken and released at once).

@@ -405,28 +405,23 @@ impl Session {
     }
 
     fn grab(&mut self, timeout: Duration) -> Result<Frame, GrabFailure> {
-        // A frame that arrived after an earlier grab gave up must not pass for this one.
-        while let Some(b) = self.stream.try_pop_buffer() {
+        // A frame that arrived after an earlier grab gave up must not pass for this one. Frames
+        // still owed by timed-out grabs are waited for, or one of them, sent after this grab's
+        // trigger, would be taken for its exposure; a camera that dropped the trigger never
+        // sends one, so the wait is bounded.
+        let until = Instant::now() + timeout.min(LATE_FRAME_WAIT);
+        loop {
+            let b = if self.owed > 0 {
+                let left = until.saturating_duration_since(Instant::now());
+                self.stream.timeout_pop_buffer(left.as_micros() as u64)
+            } else {
+                self.stream.try_pop_buffer()
+            };
+            let Some(b) = b else { break };
             self.owed = self.owed.saturating_sub(1);
             self.stream.push_buffer(b);
         }
-        // Frames still owed by timed-out grabs: wait for them here, or one of them, sent after
-        // this grab's trigger, would be taken for its exposure. A camera that dropped the
-        // trigger never sends one: give up after the bounded wait.
-        if self.owed > 0 {
-            let until = Instant::now() + timeout.min(LATE_FRAME_WAIT);
-            while self.owed > 0 {
-                let left = until.saturating_duration_since(Instant::now());
-                match self.stream.timeout_pop_buffer(left.as_micros() as u64) {
-                    Some(b) => {
-                        self.owed -= 1;
-                        self.stream.push_buffer(b);
-                    }
-                    None => break,
-                }
-            }
-            self.owed = 0;
-        }
+        self.owed = 0;
         let deadline = Instant::now() + timeout;
         let trigger_ns = SystemTime::now()
             .duration_since(UNIX_EPOCH)
