@@ -4,12 +4,13 @@
 //! - [`solve_clarabel`]: the generic LP/SOCP through Clarabel with the dense sampled basis; the
 //!   reference, slow (tens of seconds at n = 1901, m = 600).
 //! - [`solve_fast`]: ADMM whose projection onto {Aθ = h} is one DCT pair (A·Aᵀ = I), followed by
-//!   an exact finish: the BP optimum is a vertex with m non-zeros, so from ADMM's estimate of the
-//!   support S a primal simplex ([`super::simplex`]) pivots to the optimal basis, where the square
-//!   system A_S θ_S = h gives the exact primal, A_Sᵀ y = sign(θ_S) the dual, and ||Aᵀy||∞ ≤ 1
-//!   (one more DCT) certifies optimality with a zero duality gap. ADMM runs only long enough
-//!   (max(50, m/3) iterations) to get S within a few dozen columns: at m = 600 a pivot costs about
-//!   five ADMM iterations, and the last columns are the slowest for ADMM to settle.
+//!   an exact finish: the BP optimum is a vertex with m non-zeros, so from ADMM's ranking of the
+//!   columns a simplex restricted to the best-ranked ones ([`super::simplex`]) pivots to the
+//!   optimal basis, where the square system A_S θ_S = h gives the exact primal, A_Sᵀ y = sign(θ_S)
+//!   the dual, and ||Aᵀy||∞ ≤ 1 (one more DCT) certifies optimality with a zero duality gap. ADMM
+//!   runs only long enough (max(50, m/6) iterations) for the optimal basis to lie within the top
+//!   m + m/12 ranked columns but for a handful (measured at m = 600, n = 1901: after 100
+//!   iterations 8-16 of its columns rank below m, none below ~680).
 use std::time::Instant;
 
 use nalgebra::{DMatrix, DVector};
@@ -33,9 +34,8 @@ pub struct FastSettings {
     /// BP: the simplex finish starts once ADMM's support has not changed for this many iterations.
     pub stable_iter: usize,
     /// BP: ... or after this many ADMM iterations at the latest (later attempts at 2x, 4x, ...).
-    /// `None`: max(50, m/3). A pivot costs two dense triangular solves (O(m²)) and one DCT, an
-    /// ADMM iteration one DCT pair, so large m pays for a longer ADMM run with fewer pivots
-    /// (measured at n = 1901: best near 200 iterations for m = 600, 50 for m = 100).
+    /// `None`: max(50, m/6). Fewer iterations cost more pivots (measured at n = 1901, m = 600:
+    /// ~100 pivots after 75 iterations, ~50 after 100, ~25 after 150).
     pub finish_iter: Option<usize>,
     /// BP: ADMM over-relaxation (1 = plain; 1.5-1.8 speeds up support discovery; 1.8 measured
     /// ~15 % faster than 1.6 at m = 600, equal at m = 100-300).
@@ -47,6 +47,9 @@ pub struct FastSettings {
     pub certificate_tol: f64,
     /// Relative primal/dual residual at which plain ADMM stops (BPDN, or when the finish fails).
     pub admm_tol: f64,
+    /// BP: candidate columns beyond the m ranked first that the simplex starts with (more join
+    /// by column generation). `None`: max(8, m/12).
+    pub candidates: Option<usize>,
     /// Pivot budget of one simplex finish.
     pub max_pivots: usize,
     /// BP: largest m for the exact finish (its dense m x m factorization grows as m³: ~6 ms at
@@ -67,6 +70,7 @@ impl Default for FastSettings {
             threshold_fraction: None,
             certificate_tol: 1e-9,
             admm_tol: 1e-10,
+            candidates: None,
             max_pivots: 5000,
             exact_max_m: 2000,
             gap_tol: 1e-3,
@@ -185,7 +189,7 @@ pub fn solve_fast(
     let mut stable = 0;
     let mut prev_nnz = 0;
     let mut next_stable = s.stable_iter;
-    let mut next_finish = s.finish_iter.unwrap_or((m / 3).max(50)).max(1);
+    let mut next_finish = s.finish_iter.unwrap_or((m / 6).max(50)).max(1);
     let mut simplex_failed = false;
 
     for i in 0..n {
@@ -257,9 +261,10 @@ pub fn solve_fast(
                         };
                     }
                 }
-                let support = rank_support(&z, &u, rho, m);
+                let order = rank_columns(&z, &u, rho);
+                let k0 = s.candidates.unwrap_or((m / 12).max(8));
                 if let Some(r) =
-                    super::simplex::finish(dct, idx, h, support, s.max_pivots, s.certificate_tol)
+                    super::simplex::finish(dct, idx, h, &order, k0, s.max_pivots, s.certificate_tol)
                 {
                     let obj = r.theta.iter().map(|v| v.abs()).sum();
                     return BpSolution {
@@ -343,9 +348,9 @@ fn certified_gap(
     (theta, primal, dual)
 }
 
-/// The m columns most likely in the optimal basis: ADMM's non-zeros by magnitude, then the
-/// columns whose dual ρu is closest to ±1.
-fn rank_support(z: &[f64], u: &[f64], rho: f64, m: usize) -> Vec<usize> {
+/// All columns, the most likely in the optimal basis first: ADMM's non-zeros by magnitude, then
+/// the columns whose dual ρu is closest to ±1.
+fn rank_columns(z: &[f64], u: &[f64], rho: f64) -> Vec<usize> {
     let key = |k: usize| {
         if z[k] != 0.0 {
             2.0 + z[k].abs()
@@ -359,7 +364,6 @@ fn rank_support(z: &[f64], u: &[f64], rho: f64, m: usize) -> Vec<usize> {
             .partial_cmp(&key(a))
             .unwrap_or(std::cmp::Ordering::Equal)
     });
-    order.truncate(m);
     order
 }
 

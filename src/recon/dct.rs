@@ -13,6 +13,58 @@ use realfft::num_complex::Complex;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustdct::{DctPlanner, TransformType2And3};
 
+use super::rader::RaderReal;
+
+/// A real FFT pair of length n: realfft's plans, or Rader's algorithm for a prime n.
+enum RealPair {
+    Plans {
+        r2c: Arc<dyn RealToComplex<f64>>,
+        c2r: Arc<dyn ComplexToReal<f64>>,
+    },
+    Rader(Box<RaderReal<f64>>),
+}
+
+impl RealPair {
+    fn new(n: usize) -> Self {
+        // Rader pays off once n − 1 has small factors and n is not tiny (measured at 1901).
+        if n >= 64 {
+            if let Some(r) = RaderReal::new(n) {
+                return RealPair::Rader(Box::new(r));
+            }
+        }
+        let mut planner = RealFftPlanner::<f64>::new();
+        RealPair::Plans {
+            r2c: planner.plan_fft_forward(n),
+            c2r: planner.plan_fft_inverse(n),
+        }
+    }
+
+    fn scratch_len(&self) -> usize {
+        match self {
+            RealPair::Plans { r2c, c2r } => r2c.get_scratch_len().max(c2r.get_scratch_len()),
+            RealPair::Rader(_) => 0,
+        }
+    }
+
+    fn forward(&mut self, v: &mut [f64], spec: &mut [Complex<f64>], scratch: &mut [Complex<f64>]) {
+        match self {
+            RealPair::Plans { r2c, .. } => r2c
+                .process_with_scratch(v, spec, scratch)
+                .expect("buffer lengths fixed at planning"),
+            RealPair::Rader(r) => r.forward(v, spec),
+        }
+    }
+
+    fn inverse(&mut self, spec: &mut [Complex<f64>], v: &mut [f64], scratch: &mut [Complex<f64>]) {
+        match self {
+            RealPair::Plans { c2r, .. } => c2r
+                .process_with_scratch(spec, v, scratch)
+                .expect("buffer lengths fixed at planning"),
+            RealPair::Rader(r) => r.inverse(spec, v),
+        }
+    }
+}
+
 enum Backend {
     Rustdct {
         plan: Arc<dyn TransformType2And3<f64>>,
@@ -20,8 +72,7 @@ enum Backend {
     },
     /// Even n: v = (g₀, g₂, …, g₃, g₁) (evens up, odds down), X_k = Re(e^{-iπk/2n}·FFT(v)_k).
     Makhoul {
-        r2c: Arc<dyn RealToComplex<f64>>,
-        c2r: Arc<dyn ComplexToReal<f64>>,
+        fft: RealPair,
         v: Vec<f64>,
         spec: Vec<Complex<f64>>,
         scratch: Vec<Complex<f64>>,
@@ -44,17 +95,18 @@ pub struct Dct {
 
 impl Dct {
     pub fn new(n: usize) -> Self {
-        Self::with_backend(n, n.is_multiple_of(2) && n >= 2)
+        Self::with_backend(
+            n,
+            (n.is_multiple_of(2) && n >= 2) || (n >= 64 && super::rader::is_prime(n)),
+        )
     }
 
     /// `makhoul`: the real-FFT path (any n ≥ 2; [`Dct::new`] takes it for even n only, where it
     /// is faster); otherwise rustdct.
     pub fn with_backend(n: usize, makhoul: bool) -> Self {
         let backend = if makhoul && n >= 2 {
-            let mut planner = RealFftPlanner::<f64>::new();
-            let r2c = planner.plan_fft_forward(n);
-            let c2r = planner.plan_fft_inverse(n);
-            let len = r2c.get_scratch_len().max(c2r.get_scratch_len());
+            let fft = RealPair::new(n);
+            let len = fft.scratch_len();
             let twiddle = (0..=n / 2)
                 .map(|k| {
                     let phi = std::f64::consts::PI * k as f64 / (2.0 * n as f64);
@@ -62,8 +114,7 @@ impl Dct {
                 })
                 .collect();
             Backend::Makhoul {
-                r2c,
-                c2r,
+                fft,
                 v: vec![0.0; n],
                 spec: vec![Complex::default(); n / 2 + 1],
                 scratch: vec![Complex::default(); len],
@@ -108,7 +159,7 @@ impl Dct {
                 }
             }
             Backend::Makhoul {
-                r2c,
+                fft,
                 v,
                 spec,
                 scratch,
@@ -121,8 +172,7 @@ impl Dct {
                 for j in 0..n / 2 {
                     v[n - 1 - j] = buf[2 * j + 1];
                 }
-                r2c.process_with_scratch(v, spec, scratch)
-                    .expect("buffer lengths fixed at planning");
+                fft.forward(v, spec, scratch);
                 buf[0] = s0 * spec[0].re;
                 for k in 1..n.div_ceil(2) {
                     let (c, s) = twiddle[k];
@@ -150,7 +200,7 @@ impl Dct {
                 plan.process_dct3_with_scratch(buf, scratch);
             }
             Backend::Makhoul {
-                c2r,
+                fft,
                 v,
                 spec,
                 scratch,
@@ -170,8 +220,7 @@ impl Dct {
                 if n % 2 == 0 {
                     spec[n / 2] = Complex::new(ak * buf[n / 2] * std::f64::consts::SQRT_2, 0.0);
                 }
-                c2r.process_with_scratch(spec, v, scratch)
-                    .expect("buffer lengths fixed at planning");
+                fft.inverse(spec, v, scratch);
                 for j in 0..n.div_ceil(2) {
                     buf[2 * j] = v[j];
                 }

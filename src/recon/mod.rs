@@ -8,6 +8,7 @@ pub mod bp;
 pub mod dct;
 pub mod interp;
 pub mod physics;
+pub mod rader;
 pub mod simplex;
 
 use std::str::FromStr;

@@ -1,22 +1,34 @@
-//! Exact finish for basis pursuit: a primal simplex for min ||θ||₁ s.t. Aθ = h on the sampled
-//! orthonormal DCT, started from the support a short ADMM run found.
+//! Exact finish for basis pursuit: a simplex for min ||θ||₁ s.t. Aθ = h on the sampled orthonormal
+//! DCT, restricted to candidate columns K = S₀ ∪ E with column generation over all n columns.
 //!
-//! The basis B = A_S is square (m columns). Pricing needs w = Aᵀy for all n columns, which is one
-//! DCT instead of an m x n product; the ratio test is the long-step rule of l1 simplex methods
-//! (pass breakpoints while the objective still decreases), which cuts the number of pivots.
-//! Basis changes are kept as an eta file on top of one dense LU and refactored periodically.
+//! A short ADMM run ranks the columns; S₀ (the top m) gives a non-singular basis B₀ = A_S₀ and E
+//! (the next k) the columns most likely to replace part of it. Multiplying the constraints by B₀⁻¹
+//! turns the LP restricted to K into min ||x||₁ s.t. [I T] x = θ₀ with T = B₀⁻¹A_E, θ₀ = B₀⁻¹h:
+//! one dense LU and one multi-right-hand-side triangular solve (BLAS-3 work), after which a pivot
+//! costs O(m·k) instead of two O(m²) triangular solves with an updated B (measured: 5-10x cheaper
+//! per pivot at m = 600, the same number of pivots). The simplex basis of the small problem is the
+//! identity with the columns of rows R replaced by T columns C, so its solves reduce to the
+//! |R| x |R| block T_{R,C}, refactored at each pivot (|R| stays at a few dozen).
 //!
-//! Optimality is never taken from the factorization alone: the final θ and y are checked against
+//! The ratio test is the long-step rule of l1 simplex methods (pass breakpoints while the
+//! objective still decreases). Once the restricted problem is optimal, its dual ŷ maps back to
+//! y = B₀⁻ᵀŷ and one DCT prices every column outside K; violators join E and the simplex carries
+//! on from its basis.
+//!
+//! Optimality is never taken from the factorizations alone: the final θ and y are checked against
 //! the transforms (primal residual by one inverse DCT, |Aᵀy| ≤ 1 + tol by one forward DCT, and
-//! ||θ||₁ = hᵀy), so rounding in the eta file can cost a refactorization but never a wrong
-//! "optimal".
+//! ||θ||₁ = hᵀy), so rounding can cost a failed finish but never a wrong "optimal".
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::lu::partial_pivoting::factor::{lu_in_place, lu_in_place_scratch};
+use faer::linalg::matmul::matmul;
 use faer::linalg::triangular_solve::{
     solve_lower_triangular_in_place, solve_unit_lower_triangular_in_place,
     solve_unit_upper_triangular_in_place, solve_upper_triangular_in_place,
 };
-use faer::{Col, Mat, Par};
+use faer::{Accum, Col, ColRef, Mat, MatRef, Par};
 
 use super::dct::Dct;
 
@@ -30,10 +42,7 @@ pub struct SimplexResult {
     pub dual_inf_norm: f64,
 }
 
-/// Refactor after this many pivots: each eta costs O(m) per solve, and rounding accumulates.
-const MAX_ETAS: usize = 64;
-
-/// Basis B = A_S as one dense LU plus an eta file of the pivots since.
+/// A square matrix as one dense LU with partial pivoting.
 ///
 /// The factorization and the solves run single-threaded (`Par::Seq`): the solver is specified
 /// single-threaded, and on a loaded 2-core machine faer's default thread pool made each triangular
@@ -43,18 +52,22 @@ struct Basis {
     lu: Mat<f64>,
     /// Row i of P·B is row `perm[i]` of B.
     perm: Vec<usize>,
-    /// Eta file: (position r, column d) for each pivot since the last factorization.
-    etas: Vec<(usize, Col<f64>)>,
-    tmp: Col<f64>,
 }
 
 impl Basis {
+    /// LU of B = A_S, the sampled DCT columns `support`.
     fn factor(dct: &Dct, idx: &[usize], support: &[usize]) -> Option<Self> {
         let m = idx.len();
         let mut lu = Mat::<f64>::zeros(m, m);
         for (c, &k) in support.iter().enumerate() {
             dct.basis_column(k, idx, lu.col_mut(c).try_as_col_major_mut()?.as_slice_mut());
         }
+        Self::from_matrix(lu)
+    }
+
+    /// LU of a square matrix; `None` when (nearly) singular.
+    fn from_matrix(mut lu: Mat<f64>) -> Option<Self> {
+        let m = lu.nrows();
         let mut perm = vec![0usize; m];
         let mut perm_inv = vec![0usize; m];
         let mut buf = MemBuffer::new(lu_in_place_scratch::<usize, f64>(
@@ -80,60 +93,42 @@ impl Basis {
         if dmin.is_nan() || dmin <= 1e-12 * dmax {
             return None;
         }
-        Some(Self {
-            lu,
-            perm,
-            etas: Vec::new(),
-            tmp: Col::zeros(m),
-        })
+        Some(Self { lu, perm })
     }
 
-    /// x = B⁻¹ b, in place.
-    fn ftran(&mut self, x: &mut Col<f64>) {
+    /// X = B⁻¹X for a block of right-hand sides.
+    fn solve_mat(&self, x: &mut Mat<f64>) {
         let m = x.nrows();
-        for i in 0..m {
-            self.tmp[i] = x[self.perm[i]];
-        }
-        solve_unit_lower_triangular_in_place(self.lu.as_ref(), self.tmp.as_mat_mut(), Par::Seq);
-        solve_upper_triangular_in_place(self.lu.as_ref(), self.tmp.as_mat_mut(), Par::Seq);
-        x.copy_from(&self.tmp);
-        for (r, d) in &self.etas {
-            let xr = x[*r] / d[*r];
-            for i in 0..m {
-                x[i] -= d[i] * xr;
-            }
-            x[*r] = xr;
-        }
+        let mut p = Mat::<f64>::from_fn(m, x.ncols(), |i, c| x[(self.perm[i], c)]);
+        solve_unit_lower_triangular_in_place(self.lu.as_ref(), p.as_mut(), Par::Seq);
+        solve_upper_triangular_in_place(self.lu.as_ref(), p.as_mut(), Par::Seq);
+        x.copy_from(&p);
     }
 
-    /// y = B⁻ᵀ c, in place.
-    fn btran(&mut self, c: &mut Col<f64>) {
+    /// x = B⁻¹b, in place.
+    fn solve(&self, x: &mut Col<f64>) {
+        let m = x.nrows();
+        let mut p = Col::<f64>::from_fn(m, |i| x[self.perm[i]]);
+        solve_unit_lower_triangular_in_place(self.lu.as_ref(), p.as_mat_mut(), Par::Seq);
+        solve_upper_triangular_in_place(self.lu.as_ref(), p.as_mat_mut(), Par::Seq);
+        x.copy_from(&p);
+    }
+
+    /// y = B⁻ᵀc, in place: B = Pᵀ L U, so Bᵀ y = c is Uᵀ Lᵀ (P y) = c.
+    fn solve_transpose(&self, c: &mut Col<f64>) {
         let m = c.nrows();
-        for (r, d) in self.etas.iter().rev() {
-            let mut dot = 0.0;
-            for i in 0..m {
-                if i != *r {
-                    dot += d[i] * c[i];
-                }
-            }
-            c[*r] = (c[*r] - dot) / d[*r];
-        }
-        // B = Pᵀ L U, so Bᵀ y = c is Uᵀ Lᵀ (P y) = c.
         solve_lower_triangular_in_place(self.lu.transpose(), c.as_mat_mut(), Par::Seq);
         solve_unit_upper_triangular_in_place(self.lu.transpose(), c.as_mat_mut(), Par::Seq);
+        let mut y = Col::<f64>::zeros(m);
         for i in 0..m {
-            self.tmp[self.perm[i]] = c[i];
+            y[self.perm[i]] = c[i];
         }
-        c.copy_from(&self.tmp);
+        c.copy_from(&y);
     }
 }
 
 fn finite(v: &Col<f64>) -> bool {
     (0..v.nrows()).all(|i| v[i].is_finite())
-}
-
-fn amax(v: &Col<f64>) -> f64 {
-    (0..v.nrows()).map(|i| v[i].abs()).fold(0.0, f64::max)
 }
 
 fn sign(v: f64) -> f64 {
@@ -144,139 +139,430 @@ fn sign(v: f64) -> f64 {
     }
 }
 
-/// Runs the simplex from `support` (m distinct columns). `None` when the start basis is singular
-/// or the pivot budget runs out without a certificate.
+/// Columns added to E per column-generation round (the most violated first).
+const GENERATE_MAX: usize = 32;
+/// Pivots between recomputations of the basic solution from scratch (the running update drifts).
+const REFRESH: usize = 16;
+
+/// Total order on f64 for the breakpoint heap (NaN never enters it).
+#[derive(PartialEq)]
+struct Key(f64);
+impl Eq for Key {}
+impl PartialOrd for Key {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Key {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&o.0)
+    }
+}
+
+/// The restricted LP min ||x||₁ s.t. [I T] x = θ₀ and its simplex basis: the identity with the
+/// columns of rows R replaced by the T columns C.
+struct Restricted {
+    m: usize,
+    /// T = B₀⁻¹A_E, column-major m x ke.
+    t: Vec<f64>,
+    ke: usize,
+    /// Identity rows whose column is non-basic, and each row's position in `r` (or usize::MAX).
+    r: Vec<usize>,
+    r_pos: Vec<usize>,
+    /// Basic T columns, each column's position in `c` (or usize::MAX), and T_{:,C} in that order.
+    c: Vec<usize>,
+    c_pos: Vec<usize>,
+    tc: Mat<f64>,
+    /// LU of T_{R,C}.
+    small: Option<Basis>,
+}
+
+impl Restricted {
+    fn tmat(&self) -> MatRef<'_, f64> {
+        MatRef::from_column_major_slice(&self.t, self.m, self.ke)
+    }
+
+    fn tcol(&self, e: usize) -> &[f64] {
+        &self.t[e * self.m..(e + 1) * self.m]
+    }
+
+    fn tc_ref(&self) -> MatRef<'_, f64> {
+        self.tc.as_ref().subcols(0, self.c.len())
+    }
+
+    fn refactor(&mut self) -> bool {
+        let q = self.r.len();
+        if q == 0 {
+            self.small = None;
+            return true;
+        }
+        let mat = Mat::<f64>::from_fn(q, q, |a, b| self.tc[(self.r[a], b)]);
+        self.small = Basis::from_matrix(mat);
+        self.small.is_some()
+    }
+
+    /// (xi, xc) = B_r⁻¹ b: xi over identity rows (zero on R), xc per entry of C.
+    fn ftran(&self, b: ColRef<'_, f64>, xi: &mut Col<f64>, xc: &mut Col<f64>) {
+        let q = self.c.len();
+        xc.resize_with(q, |_| 0.0);
+        for (p, &i) in self.r.iter().enumerate() {
+            xc[p] = b[i];
+        }
+        if let Some(lu) = &self.small {
+            lu.solve(xc);
+        }
+        xi.copy_from(b);
+        if q > 0 {
+            matmul(
+                xi.as_mut(),
+                Accum::Add,
+                self.tc_ref(),
+                xc.as_ref(),
+                -1.0,
+                Par::Seq,
+            );
+        }
+        for &i in &self.r {
+            xi[i] = 0.0;
+        }
+    }
+
+    /// y = B_r⁻ᵀ c_B for basic costs ci (identity rows; entries on R ignored) and cc (C).
+    fn btran(&self, ci: &Col<f64>, cc: &Col<f64>, y: &mut Col<f64>) {
+        y.copy_from(ci);
+        for &i in &self.r {
+            y[i] = 0.0;
+        }
+        if let Some(lu) = &self.small {
+            // T_{R,C}ᵀ y_R = cc - T_{:,C}ᵀ y (y still zero on R).
+            let mut rhs = cc.clone();
+            matmul(
+                rhs.as_mut(),
+                Accum::Add,
+                self.tc_ref().transpose(),
+                y.as_ref(),
+                -1.0,
+                Par::Seq,
+            );
+            lu.solve_transpose(&mut rhs);
+            for (p, &i) in self.r.iter().enumerate() {
+                y[i] = rhs[p];
+            }
+        }
+    }
+
+    fn push_column(&mut self, col: ColRef<'_, f64>) {
+        self.t.extend(col.iter().copied());
+        self.c_pos.push(usize::MAX);
+        self.ke += 1;
+    }
+}
+
+/// Times the restricted problem may be rebuilt around the simplex's current basis.
+const MAX_ANCHORS: usize = 3;
+
+/// How one restricted run ended.
+enum Outcome {
+    Certified(SimplexResult),
+    /// Optimal on K as far as the factorization of B₀ can tell, but the certificate failed (a
+    /// poorly conditioned start basis): rebuild around the current basis (its columns first,
+    /// then the rest of K).
+    Reanchor(Vec<usize>),
+}
+
+/// Runs the restricted simplex with column generation from `order` (all n columns, most likely
+/// basic first). `k0` columns beyond the first m start in E. `None` when the start basis is
+/// singular or the pivot budget runs out without a certificate.
 pub fn finish(
     dct: &mut Dct,
     idx: &[usize],
     h: &[f64],
-    mut support: Vec<usize>,
+    order: &[usize],
+    k0: usize,
     max_pivots: usize,
     tol: f64,
 ) -> Option<SimplexResult> {
-    let n = dct.len();
     let m = idx.len();
-    let hv = Col::<f64>::from_fn(m, |r| h[r]);
-    let scale = amax(&hv).max(1e-300);
-    let mut basis = Basis::factor(dct, idx, &support)?;
-    let mut theta_s = hv.clone();
-    basis.ftran(&mut theta_s);
-    let mut in_basis = vec![false; n];
-    for &k in &support {
-        in_basis[k] = true;
-    }
-    let mut w = vec![0.0; n];
-    let mut y = Col::<f64>::zeros(m);
-    let mut d = Col::<f64>::zeros(m);
-    let zero_tol = 1e-13 * scale;
-    // Whether the basis has been refactored since the last failed verification.
-    let mut fresh = true;
-    let mut breaks: Vec<(f64, usize)> = Vec::new();
+    let mut ranked = order[..(m + k0).min(order.len())].to_vec();
     let mut pivots = 0;
-    for _ in 0..=max_pivots + 2 {
-        for r in 0..m {
-            y[r] = sign(theta_s[r]);
-        }
-        basis.btran(&mut y);
-        if !finite(&y) {
-            return None;
-        }
-        dct.adjoint(idx, |r| y[r], &mut w);
-        // Dantzig pricing over the non-basic columns.
-        // (Measured: ranking the violators by ADMM's confidence instead took 3-10x more pivots.)
-        let (mut j, mut best) = (usize::MAX, 1.0 + tol);
-        for (k, &wk) in w.iter().enumerate() {
-            if !in_basis[k] && wk.abs() > best {
-                best = wk.abs();
-                j = k;
-            }
-        }
-        if j == usize::MAX {
-            // Candidate optimum: recompute θ_S from the factorization (not the running update)
-            // and verify; on a mismatch refactor once and carry on pivoting.
-            let mut exact = hv.clone();
-            basis.ftran(&mut exact);
-            let same_signs =
-                (0..m).all(|r| exact[r].abs() <= zero_tol || sign(exact[r]) == sign(theta_s[r]));
-            if same_signs {
-                if let Some(res) = verify(dct, idx, h, &support, &exact, &y, &w, pivots, tol) {
-                    return Some(res);
-                }
-            }
-            if fresh && same_signs {
-                return None;
-            }
-            basis = Basis::factor(dct, idx, &support)?;
-            theta_s.copy_from(&hv);
-            basis.ftran(&mut theta_s);
-            fresh = true;
-            continue;
-        }
-        if pivots == max_pivots {
-            return None;
-        }
-        let sj = sign(w[j]);
-        dct.basis_column(j, idx, d.as_mut().try_as_col_major_mut()?.as_slice_mut());
-        basis.ftran(&mut d);
-        // θ_S(t) = θ_S - t·sj·d for the entering θ_j = sj·t; f'(0+) = 1 - |w_j| on a non-degenerate basis.
-        let mut slope = 1.0;
-        breaks.clear();
-        let mut zero_basic: Option<usize> = None;
-        for r in 0..m {
-            let dir = sj * d[r];
-            if theta_s[r].abs() <= zero_tol {
-                // A zero basic variable only adds |dir| to the slope; it may leave at t = 0.
-                slope += dir.abs();
-                if zero_basic.is_none_or(|q| dir.abs() > d[q].abs()) && dir.abs() > 1e-12 {
-                    zero_basic = Some(r);
-                }
-            } else {
-                slope -= sign(theta_s[r]) * dir;
-                let t = theta_s[r] / dir;
-                if t > 0.0 {
-                    breaks.push((t, r));
-                }
-            }
-        }
-        let leave = if slope >= 0.0 {
-            // Degenerate: no descent along this edge; swap a zero basic variable out at t = 0.
-            zero_basic.map(|r| (0.0, r))
-        } else {
-            breaks.sort_unstable_by(|a, b| {
-                a.0.partial_cmp(&b.0).unwrap_or(std::cmp::Ordering::Equal)
-            });
-            let mut found = None;
-            for &(t, r) in &breaks {
-                slope += 2.0 * d[r].abs();
-                if slope >= 0.0 {
-                    found = Some((t, r));
-                    break;
-                }
-            }
-            found
-        };
-        let (t, r) = leave?;
-        if d[r].abs() < 1e-10 * amax(&d) {
-            return None;
-        }
-        for q in 0..m {
-            theta_s[q] -= t * sj * d[q];
-        }
-        theta_s[r] = sj * t;
-        in_basis[support[r]] = false;
-        in_basis[j] = true;
-        support[r] = j;
-        basis.etas.push((r, d.clone()));
-        pivots += 1;
-        fresh = false;
-        if basis.etas.len() >= MAX_ETAS {
-            basis = Basis::factor(dct, idx, &support)?;
-            theta_s.copy_from(&hv);
-            basis.ftran(&mut theta_s);
-            fresh = true;
+    for _ in 0..MAX_ANCHORS {
+        match run(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)? {
+            Outcome::Certified(r) => return Some(r),
+            Outcome::Reanchor(next) => ranked = next,
         }
     }
     None
+}
+
+/// One restricted simplex: S₀ = ranked[..m], E = ranked[m..], plus generated columns.
+fn run(
+    dct: &mut Dct,
+    idx: &[usize],
+    h: &[f64],
+    ranked: &[usize],
+    pivots: &mut usize,
+    max_pivots: usize,
+    tol: f64,
+) -> Option<Outcome> {
+    let n = dct.len();
+    let m = idx.len();
+    let s0: Vec<usize> = ranked[..m].to_vec();
+    let start_pivots = *pivots;
+    let basis = Basis::factor(dct, idx, &s0)?;
+    let mut theta0 = Col::<f64>::from_fn(m, |r| h[r]);
+    basis.solve(&mut theta0);
+    let mut in_k = vec![false; n];
+    for &k in &s0 {
+        in_k[k] = true;
+    }
+    let mut e_cols: Vec<usize> = Vec::new();
+    let mut lp = Restricted {
+        m,
+        t: Vec::new(),
+        ke: 0,
+        r: Vec::new(),
+        r_pos: vec![usize::MAX; m],
+        c: Vec::new(),
+        c_pos: Vec::new(),
+        tc: Mat::zeros(m, 0),
+        small: None,
+    };
+    let add_columns = |dct: &Dct,
+                       lp: &mut Restricted,
+                       e_cols: &mut Vec<usize>,
+                       in_k: &mut [bool],
+                       new: &[usize]| {
+        let mut a = Mat::<f64>::zeros(m, new.len());
+        for (c, &k) in new.iter().enumerate() {
+            if let Some(col) = a.col_mut(c).try_as_col_major_mut() {
+                dct.basis_column(k, idx, col.as_slice_mut());
+            }
+        }
+        basis.solve_mat(&mut a);
+        for (c, &k) in new.iter().enumerate() {
+            in_k[k] = true;
+            e_cols.push(k);
+            lp.push_column(a.col(c));
+        }
+    };
+    let first: Vec<usize> = ranked[m..].to_vec();
+    add_columns(dct, &mut lp, &mut e_cols, &mut in_k, &first);
+
+    let scale = (0..m)
+        .map(|r| theta0[r].abs())
+        .fold(0.0, f64::max)
+        .max(1e-300);
+    let zero_tol = 1e-13 * scale;
+    let mut since_refresh = 0;
+    let mut w_full = vec![0.0; n];
+    let (mut xi, mut xc) = (Col::<f64>::zeros(m), Col::<f64>::zeros(0));
+    let (mut di, mut dc) = (Col::<f64>::zeros(m), Col::<f64>::zeros(0));
+    let mut y = Col::<f64>::zeros(m);
+    let mut ci = Col::<f64>::zeros(m);
+    let mut w = Col::<f64>::zeros(0);
+    let mut unit = Col::<f64>::zeros(m);
+    let mut heap: BinaryHeap<(Reverse<Key>, usize)> = BinaryHeap::new();
+    lp.ftran(theta0.as_ref(), &mut xi, &mut xc);
+    loop {
+        if xi.iter().chain(xc.iter()).any(|v| !v.is_finite()) {
+            return None;
+        }
+        for i in 0..m {
+            ci[i] = sign(xi[i]);
+        }
+        let cc = Col::<f64>::from_fn(xc.nrows(), |p| sign(xc[p]));
+        lp.btran(&ci, &cc, &mut y);
+        // Dantzig pricing over the restricted problem's non-basic columns.
+        let (mut enter, mut best) = (None, 1.0 + tol);
+        for &i in &lp.r {
+            if y[i].abs() > best {
+                best = y[i].abs();
+                enter = Some((true, i, y[i]));
+            }
+        }
+        w.resize_with(lp.ke, |_| 0.0);
+        matmul(
+            w.as_mut(),
+            Accum::Replace,
+            lp.tmat().transpose(),
+            y.as_ref(),
+            1.0,
+            Par::Seq,
+        );
+        for e in 0..lp.ke {
+            if lp.c_pos[e] == usize::MAX && w[e].abs() > best {
+                best = w[e].abs();
+                enter = Some((false, e, w[e]));
+            }
+        }
+        let Some((is_id, j, wj)) = enter else {
+            if since_refresh > 0 {
+                // Candidate optimum: price again from an exact basic solution.
+                lp.ftran(theta0.as_ref(), &mut xi, &mut xc);
+                since_refresh = 0;
+                continue;
+            }
+            // Optimal on K: price every column with y = B₀⁻ᵀ ŷ.
+            let mut yf = y.clone();
+            basis.solve_transpose(&mut yf);
+            dct.adjoint(idx, |r| yf[r], &mut w_full);
+            let mut viol: Vec<(f64, usize)> = (0..n)
+                .filter(|&k| !in_k[k] && w_full[k].abs() > 1.0 + tol)
+                .map(|k| (w_full[k].abs(), k))
+                .collect();
+            if viol.is_empty() {
+                let mut support = Vec::with_capacity(m);
+                let mut theta_s = Col::<f64>::zeros(m);
+                for i in 0..m {
+                    if lp.r_pos[i] == usize::MAX {
+                        theta_s[support.len()] = xi[i];
+                        support.push(s0[i]);
+                    }
+                }
+                for (p, &c) in lp.c.iter().enumerate() {
+                    theta_s[support.len()] = xc[p];
+                    support.push(e_cols[c]);
+                }
+                if let Some(r) = verify(dct, idx, h, &support, &theta_s, &yf, &w_full, *pivots, tol)
+                {
+                    return Some(Outcome::Certified(r));
+                }
+                if *pivots == start_pivots {
+                    return None;
+                }
+                let mut basic = vec![false; n];
+                for &k in &support {
+                    basic[k] = true;
+                }
+                let mut next = support;
+                next.extend(s0.iter().chain(&e_cols).filter(|&&k| !basic[k]));
+                return Some(Outcome::Reanchor(next));
+            }
+            viol.sort_unstable_by(|a, b| {
+                b.0.partial_cmp(&a.0).unwrap_or(std::cmp::Ordering::Equal)
+            });
+            viol.truncate(GENERATE_MAX);
+            let new: Vec<usize> = viol.iter().map(|v| v.1).collect();
+            add_columns(dct, &mut lp, &mut e_cols, &mut in_k, &new);
+            continue;
+        };
+        if *pivots == max_pivots {
+            return None;
+        }
+        let sj = sign(wj);
+        if is_id {
+            unit.fill(0.0);
+            unit[j] = 1.0;
+            lp.ftran(unit.as_ref(), &mut di, &mut dc);
+        } else {
+            let col = ColRef::from_slice(lp.tcol(j));
+            lp.ftran(col, &mut di, &mut dc);
+        }
+        // Basic variables x_B(t) = x_B - t·sj·d_B as the entering variable grows to sj·t;
+        // f'(0+) = 1 - |w_j| on a non-degenerate basis, +2|d_b| at each breakpoint passed (long
+        // step). Basic variables: 0..m (identity rows outside R) and m+p (entry p of C).
+        let nc = lp.c.len();
+        let val = |b: usize| if b < m { xi[b] } else { xc[b - m] };
+        let dir = |b: usize| sj * if b < m { di[b] } else { dc[b - m] };
+        heap.clear();
+        let mut zero_basic: Option<(usize, f64)> = None;
+        let mut dmax = 0.0f64;
+        let mut slope = 1.0;
+        for b in (0..m)
+            .filter(|&i| lp.r_pos[i] == usize::MAX)
+            .chain(m..m + nc)
+        {
+            let (x, d) = (val(b), dir(b));
+            dmax = dmax.max(d.abs());
+            if x.abs() <= zero_tol {
+                slope += d.abs();
+                if zero_basic.is_none_or(|(_, q)| d.abs() > q) && d.abs() > 1e-12 {
+                    zero_basic = Some((b, d.abs()));
+                }
+            } else {
+                slope -= sign(x) * d;
+                let t = x / d;
+                if t > 0.0 {
+                    heap.push((Reverse(Key(t)), b));
+                }
+            }
+        }
+        let (b, t) = if slope >= 0.0 {
+            match zero_basic {
+                Some((b, _)) => (b, 0.0),
+                None => return None,
+            }
+        } else {
+            let mut found = None;
+            while let Some((Reverse(Key(t)), b)) = heap.pop() {
+                slope += 2.0 * dir(b).abs();
+                if slope >= 0.0 {
+                    found = Some((b, t));
+                    break;
+                }
+            }
+            found?
+        };
+        if dir(b).abs() < 1e-10 * dmax {
+            return None;
+        }
+        // x_B -= t·sj·d_B; the entering variable takes sj·t, the leaving one drops out.
+        for i in 0..m {
+            xi[i] -= t * sj * di[i];
+        }
+        for p in 0..nc {
+            xc[p] -= t * sj * dc[p];
+        }
+        if b < m {
+            xi[b] = 0.0;
+            lp.r_pos[b] = lp.r.len();
+            lp.r.push(b);
+        } else {
+            let p = b - m;
+            let last = nc - 1;
+            lp.c_pos[lp.c[p]] = usize::MAX;
+            lp.c.swap_remove(p);
+            let moved = xc[last];
+            xc[p] = moved;
+            xc.resize_with(last, |_| 0.0);
+            if p < last {
+                lp.c_pos[lp.c[p]] = p;
+                let (mut a, b2) = lp.tc.two_cols_mut(p, last);
+                a.copy_from(&b2);
+            }
+        }
+        if is_id {
+            let p = lp.r_pos[j];
+            lp.r.swap_remove(p);
+            lp.r_pos[j] = usize::MAX;
+            if p < lp.r.len() {
+                lp.r_pos[lp.r[p]] = p;
+            }
+            xi[j] = sj * t;
+        } else {
+            let q = lp.c.len();
+            lp.c_pos[j] = q;
+            lp.c.push(j);
+            if lp.tc.ncols() <= q {
+                lp.tc.resize_with(m, q + 1, |_, _| 0.0);
+            }
+            let src = lp.t[j * m..(j + 1) * m].to_vec();
+            for (i, v) in src.into_iter().enumerate() {
+                lp.tc[(i, q)] = v;
+            }
+            xc.resize_with(q + 1, |_| sj * t);
+            xc[q] = sj * t;
+        }
+        if !lp.refactor() {
+            return None;
+        }
+        *pivots += 1;
+        since_refresh += 1;
+        if since_refresh >= REFRESH {
+            lp.ftran(theta0.as_ref(), &mut xi, &mut xc);
+            since_refresh = 0;
+        }
+    }
 }
 
 /// Checks a candidate optimum against the transforms: θ (zero off the support) must reproduce the
@@ -334,8 +620,8 @@ fn verify(
 mod tests {
     use super::*;
 
-    /// The hand-rolled sequential LU solves match the basis: B·(B⁻¹b) = b and Bᵀ·(B⁻ᵀc) = c,
-    /// also through a few eta updates.
+    /// The sequential LU solves match the basis: B·(B⁻¹b) = b, Bᵀ·(B⁻ᵀc) = c, and the block solve
+    /// agrees with the single one.
     #[test]
     fn basis_solves_invert_the_sampled_dct() {
         let n = 97;
@@ -345,39 +631,33 @@ mod tests {
             .indices(n)
             .unwrap();
         // Low frequencies: a well-conditioned basis.
-        let mut support: Vec<usize> = (0..m).map(|c| (c * 7) % 41).collect();
-        let mut basis = Basis::factor(&dct, &idx, &support).expect("non-singular");
-        let dense =
-            |support: &[usize]| Mat::<f64>::from_fn(m, m, |r, c| dct.basis(idx[r], support[c]));
-        let check = |basis: &mut Basis, b: &Mat<f64>| {
-            let rhs = Col::<f64>::from_fn(m, |r| (r as f64 * 0.37).sin());
-            let mut x = rhs.clone();
-            basis.ftran(&mut x);
-            let ax = b * &x;
-            let mut y = rhs.clone();
-            basis.btran(&mut y);
-            let aty = b.transpose() * &y;
-            for r in 0..m {
-                assert!((ax[r] - rhs[r]).abs() < 1e-10, "ftran row {r}");
-                assert!((aty[r] - rhs[r]).abs() < 1e-10, "btran row {r}");
-            }
-        };
-        check(&mut basis, &dense(&support));
-        // Replace a few columns through the eta file.
-        let in_basis = |s: &[usize], k: usize| s.contains(&k);
-        for (r, k) in [(3usize, 41usize), (10, 42), (0, 43)] {
-            assert!(!in_basis(&support, k));
-            let mut d = Col::<f64>::from_fn(m, |q| dct.basis(idx[q], k));
-            basis.ftran(&mut d);
-            basis.etas.push((r, d));
-            support[r] = k;
-            check(&mut basis, &dense(&support));
+        let support: Vec<usize> = (0..m).map(|c| (c * 7) % 41).collect();
+        let basis = Basis::factor(&dct, &idx, &support).expect("non-singular");
+        let b = Mat::<f64>::from_fn(m, m, |r, c| dct.basis(idx[r], support[c]));
+        let rhs = Col::<f64>::from_fn(m, |r| (r as f64 * 0.37).sin());
+        let mut x = rhs.clone();
+        basis.solve(&mut x);
+        let ax = &b * &x;
+        let mut y = rhs.clone();
+        basis.solve_transpose(&mut y);
+        let aty = b.transpose() * &y;
+        let mut block = Mat::<f64>::from_fn(m, 2, |r, c| if c == 0 { rhs[r] } else { 1.0 });
+        basis.solve_mat(&mut block);
+        for r in 0..m {
+            assert!((ax[r] - rhs[r]).abs() < 1e-10, "solve row {r}");
+            assert!((aty[r] - rhs[r]).abs() < 1e-10, "transpose row {r}");
+            assert!((block[(r, 0)] - x[r]).abs() < 1e-12, "block row {r}");
         }
+        // A repeated column is singular and refused.
+        let mut twice = support.clone();
+        twice[1] = twice[0];
+        assert!(Basis::factor(&dct, &idx, &twice).is_none());
     }
 
-    /// From a poor start (the m lowest frequencies) the simplex reaches a certified optimum; the
-    /// optimal basis itself certifies with zero pivots; and the verification rejects a candidate
-    /// whose primal does not reproduce the samples.
+    /// From a poor ranking (the lowest frequencies first, few candidates, so column generation
+    /// has to find most of the optimal basis) the simplex reaches a certified optimum; ranked
+    /// first, the optimal basis certifies with zero pivots; and the verification rejects a
+    /// candidate whose primal does not reproduce the samples or whose dual is infeasible.
     #[test]
     fn finish_certifies_and_verification_rejects_bad_candidates() {
         use rand::{Rng, SeedableRng};
@@ -388,8 +668,8 @@ mod tests {
             .unwrap();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let h: Vec<f64> = (0..m).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let start: Vec<usize> = (0..m).collect();
-        let r = finish(&mut dct, &idx, &h, start, 1000, 1e-9).expect("certified");
+        let order: Vec<usize> = (0..n).collect();
+        let r = finish(&mut dct, &idx, &h, &order, 4, 1000, 1e-9).expect("certified");
         assert!(r.pivots > 0);
         assert!(r.dual_inf_norm <= 1.0 + 1e-9);
         let objective: f64 = r.theta.iter().map(|v| v.abs()).sum();
@@ -401,15 +681,17 @@ mod tests {
         }
         let optimal: Vec<usize> = (0..n).filter(|&k| r.theta[k] != 0.0).collect();
         assert_eq!(optimal.len(), m, "random data: a non-degenerate vertex");
-        let again = finish(&mut dct, &idx, &h, optimal.clone(), 1000, 1e-9).expect("certified");
+        let mut ranked = optimal.clone();
+        ranked.extend((0..n).filter(|k| !optimal.contains(k)));
+        let again = finish(&mut dct, &idx, &h, &ranked, 8, 1000, 1e-9).expect("certified");
         assert_eq!(again.pivots, 0);
         assert!((again.dual_objective - r.dual_objective).abs() < 1e-10 * objective);
 
         // The certificate's own y and w, with θ_S perturbed: primal residual, so rejected.
-        let mut basis = Basis::factor(&dct, &idx, &optimal).unwrap();
+        let basis = Basis::factor(&dct, &idx, &optimal).unwrap();
         let mut theta_s = Col::<f64>::from_fn(m, |c| r.theta[optimal[c]]);
         let mut y = Col::<f64>::from_fn(m, |c| sign(theta_s[c]));
-        basis.btran(&mut y);
+        basis.solve_transpose(&mut y);
         let mut w = vec![0.0; n];
         dct.adjoint(&idx, |c| y[c], &mut w);
         assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w, 0, 1e-9).is_some());
