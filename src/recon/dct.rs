@@ -166,13 +166,30 @@ impl Dct {
                 twiddle,
                 ..
             } => {
-                for j in 0..n.div_ceil(2) {
-                    v[j] = buf[2 * j];
+                if let RealPair::Rader(r) = fft {
+                    // Fused with Rader's permutations: v_j = g_(2j) or g_(2(n-1-j)+1) read in place.
+                    let src: &[f64] = buf;
+                    let h = n.div_ceil(2);
+                    let out = &mut *spec;
+                    r.forward_with(
+                        |j| {
+                            if j < h {
+                                src[2 * j]
+                            } else {
+                                src[2 * (n - 1 - j) + 1]
+                            }
+                        },
+                        |k, c| out[k] = c,
+                    );
+                } else {
+                    for j in 0..n.div_ceil(2) {
+                        v[j] = buf[2 * j];
+                    }
+                    for j in 0..n / 2 {
+                        v[n - 1 - j] = buf[2 * j + 1];
+                    }
+                    fft.forward(v, spec, scratch);
                 }
-                for j in 0..n / 2 {
-                    v[n - 1 - j] = buf[2 * j + 1];
-                }
-                fft.forward(v, spec, scratch);
                 buf[0] = s0 * spec[0].re;
                 for k in 1..n.div_ceil(2) {
                     let (c, s) = twiddle[k];
@@ -220,12 +237,27 @@ impl Dct {
                 if n % 2 == 0 {
                     spec[n / 2] = Complex::new(ak * buf[n / 2] * std::f64::consts::SQRT_2, 0.0);
                 }
-                fft.inverse(spec, v, scratch);
-                for j in 0..n.div_ceil(2) {
-                    buf[2 * j] = v[j];
-                }
-                for j in 0..n / 2 {
-                    buf[2 * j + 1] = v[n - 1 - j];
+                if let RealPair::Rader(r) = fft {
+                    let h = n.div_ceil(2);
+                    let spec: &[Complex<f64>] = spec;
+                    r.inverse_with(
+                        |k| spec[k],
+                        |j, x| {
+                            if j < h {
+                                buf[2 * j] = x;
+                            } else {
+                                buf[2 * (n - 1 - j) + 1] = x;
+                            }
+                        },
+                    );
+                } else {
+                    fft.inverse(spec, v, scratch);
+                    for j in 0..n.div_ceil(2) {
+                        buf[2 * j] = v[j];
+                    }
+                    for j in 0..n / 2 {
+                        buf[2 * j + 1] = v[n - 1 - j];
+                    }
                 }
             }
         }

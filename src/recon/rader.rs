@@ -161,33 +161,43 @@ impl<T: FftNum> RaderReal<T> {
 
     /// out[k] = Σ_j v_j e^(−2πijk/p), k ≤ (p − 1) / 2.
     pub fn forward(&mut self, v: &[T], out: &mut [Complex<T>]) {
+        self.forward_with(|j| v[j], |k, c| out[k] = c);
+    }
+
+    /// [`Self::forward`] with the input read through `v(j)` and each bin k ≤ (p − 1) / 2 handed
+    /// to `emit(k, V_k)`, so that a caller's permutations fuse with Rader's (one pass each way).
+    pub fn forward_with(
+        &mut self,
+        v: impl Fn(usize) -> T,
+        mut emit: impl FnMut(usize, Complex<T>),
+    ) {
         let (p, m) = (self.p, self.p - 1);
-        let v0 = v[0];
+        let v0 = v(0);
         let mut sum = v0;
         for (a, &j) in self.a.iter_mut().zip(&self.in_idx) {
-            *a = v[j];
-            sum = sum + v[j];
+            *a = v(j);
+            sum = sum + *a;
         }
         // V_{g^q} = v₀ + Σ_l a_l b_{q−l}: the cyclic convolution through the FFT.
         self.r2c
             .process_with_scratch(&mut self.a, &mut self.half, &mut self.scratch)
             .expect("buffer lengths fixed at planning");
-        for f in 0..m {
-            let s = if f <= m / 2 {
-                self.half[f]
-            } else {
-                self.half[m - f].conj()
-            };
-            self.work[f] = s * self.kernel_fwd[f];
+        let (lo, hi) = self.work.split_at_mut(m / 2 + 1);
+        for ((w, s), k) in lo.iter_mut().zip(&self.half).zip(&self.kernel_fwd) {
+            *w = *s * *k;
+        }
+        // Upper bins of a real sequence's spectrum: conjugates of the lower ones, mirrored.
+        for (f, (w, k)) in hi.iter_mut().zip(&self.kernel_fwd[m / 2 + 1..]).enumerate() {
+            *w = self.half[m / 2 - 1 - f].conj() * *k;
         }
         self.ifft
             .process_with_scratch(&mut self.work, &mut self.scratch);
-        out[0] = Complex::new(sum, T::zero());
+        emit(0, Complex::new(sum, T::zero()));
         let h = (p - 1) / 2;
         for (c, &k) in self.work.iter().zip(&self.out_idx) {
-            // V_{p−k} = conj(V_k): only the lower half is kept.
+            // V_{p−k} = conj(V_k): only the lower half is emitted.
             if k <= h {
-                out[k] = Complex::new(v0 + c.re, c.im);
+                emit(k, Complex::new(v0 + c.re, c.im));
             }
         }
     }
@@ -195,20 +205,31 @@ impl<T: FftNum> RaderReal<T> {
     /// out[j] = Σ_k V_k e^(2πijk/p) over all p bins of the Hermitian spectrum whose lower half
     /// is `spec` (unnormalized, as realfft's inverse).
     pub fn inverse(&mut self, spec: &[Complex<T>], out: &mut [T]) {
+        self.inverse_with(|k| spec[k], |j, x| out[j] = x);
+    }
+
+    /// [`Self::inverse`] with bin k ≤ (p − 1) / 2 read through `spec(k)` and each output handed to
+    /// `emit(j, v_j)`.
+    pub fn inverse_with(
+        &mut self,
+        spec: impl Fn(usize) -> Complex<T>,
+        mut emit: impl FnMut(usize, T),
+    ) {
         let (p, m) = (self.p, self.p - 1);
         let h = (p - 1) / 2;
-        let v0 = spec[0].re;
+        let v0 = spec(0).re;
         let mut sum = v0;
-        for s in &spec[1..=h] {
-            sum = sum + s.re + s.re;
-        }
         for (w, &k) in self.work.iter_mut().zip(&self.in_idx) {
-            *w = if k <= h { spec[k] } else { spec[p - k].conj() };
+            *w = if k <= h { spec(k) } else { spec(p - k).conj() };
+            // Each bin k ≥ 1 appears once in the lower half: Σ_{k≥1} V_k + conj = 2 Σ Re V_k.
+            if k <= h {
+                sum = sum + w.re + w.re;
+            }
         }
         self.fft
             .process_with_scratch(&mut self.work, &mut self.scratch);
-        for f in 0..=m / 2 {
-            self.half[f] = self.work[f] * self.kernel_inv[f];
+        for ((o, w), k) in self.half.iter_mut().zip(&self.work).zip(&self.kernel_inv) {
+            *o = *w * *k;
         }
         // The convolution is real, so its spectrum is Hermitian: the end bins are real up to
         // rounding, which realfft requires exactly.
@@ -217,9 +238,9 @@ impl<T: FftNum> RaderReal<T> {
         self.c2r
             .process_with_scratch(&mut self.half, &mut self.a, &mut self.scratch)
             .expect("buffer lengths fixed at planning");
-        out[0] = sum;
+        emit(0, sum);
         for (&c, &j) in self.a.iter().zip(&self.out_idx) {
-            out[j] = v0 + c;
+            emit(j, v0 + c);
         }
     }
 }
