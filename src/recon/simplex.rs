@@ -39,35 +39,62 @@ pub struct SimplexResult {
     pub dual_inf_norm: f64,
 }
 
+/// Scalar of a factorization: f64, or f32 for the anchor basis (half the memory traffic and
+/// twice the SIMD width; its rounding is removed by refinement against the f64 transforms).
+trait Real: faer::traits::RealField + Copy {
+    fn from64(v: f64) -> Self;
+    fn to64(self) -> f64;
+}
+impl Real for f64 {
+    fn from64(v: f64) -> Self {
+        v
+    }
+    fn to64(self) -> f64 {
+        self
+    }
+}
+impl Real for f32 {
+    fn from64(v: f64) -> Self {
+        v as f32
+    }
+    fn to64(self) -> f64 {
+        self as f64
+    }
+}
+
 /// A square matrix as one dense LU with partial pivoting.
 ///
 /// The factorization and the solves run single-threaded (`Par::Seq`): the solver is specified
 /// single-threaded, and on a loaded 2-core machine faer's default thread pool made each triangular
 /// solve about twice as slow (measured 290 µs against 120 µs at m = 600).
-struct Basis {
+struct Basis<T: Real = f64> {
     /// L (unit lower, below the diagonal) and U (upper) of P·B in one matrix.
-    lu: Mat<f64>,
+    lu: Mat<T>,
     /// Row i of P·B is row `perm[i]` of B.
     perm: Vec<usize>,
 }
 
-impl Basis {
+impl<T: Real> Basis<T> {
     /// LU of B = A_S, the sampled DCT columns `support`.
     fn factor(dct: &Dct, idx: &[usize], support: &[usize]) -> Option<Self> {
         let m = idx.len();
-        let mut lu = Mat::<f64>::zeros(m, m);
+        let mut lu = Mat::<T>::zeros(m, m);
+        let mut col = vec![0.0; m];
         for (c, &k) in support.iter().enumerate() {
-            dct.basis_column(k, idx, lu.col_mut(c).try_as_col_major_mut()?.as_slice_mut());
+            dct.basis_column(k, idx, &mut col);
+            for (r, v) in col.iter().enumerate() {
+                lu[(r, c)] = T::from64(*v);
+            }
         }
         Self::from_matrix(lu)
     }
 
     /// LU of a square matrix; `None` when (nearly) singular.
-    fn from_matrix(mut lu: Mat<f64>) -> Option<Self> {
+    fn from_matrix(mut lu: Mat<T>) -> Option<Self> {
         let m = lu.nrows();
         let mut perm = vec![0usize; m];
         let mut perm_inv = vec![0usize; m];
-        let mut buf = MemBuffer::new(lu_in_place_scratch::<usize, f64>(
+        let mut buf = MemBuffer::new(lu_in_place_scratch::<usize, T>(
             m,
             m,
             Par::Seq,
@@ -84,8 +111,9 @@ impl Basis {
         // Reject (near-)singular bases: a tiny pivot in U means a column nearly dependent.
         let (mut dmax, mut dmin) = (0.0f64, f64::INFINITY);
         for i in 0..m {
-            dmax = dmax.max(lu[(i, i)].abs());
-            dmin = dmin.min(lu[(i, i)].abs());
+            let d = lu[(i, i)].to64().abs();
+            dmax = dmax.max(d);
+            dmin = dmin.min(d);
         }
         if dmin.is_nan() || dmin <= 1e-12 * dmax {
             return None;
@@ -96,31 +124,36 @@ impl Basis {
     /// X = B⁻¹X for a block of right-hand sides.
     fn solve_mat(&self, x: &mut Mat<f64>) {
         let m = x.nrows();
-        let mut p = Mat::<f64>::from_fn(m, x.ncols(), |i, c| x[(self.perm[i], c)]);
+        let mut p = Mat::<T>::from_fn(m, x.ncols(), |i, c| T::from64(x[(self.perm[i], c)]));
         solve_unit_lower_triangular_in_place(self.lu.as_ref(), p.as_mut(), Par::Seq);
         solve_upper_triangular_in_place(self.lu.as_ref(), p.as_mut(), Par::Seq);
-        x.copy_from(&p);
+        for c in 0..x.ncols() {
+            for i in 0..m {
+                x[(i, c)] = p[(i, c)].to64();
+            }
+        }
     }
 
     /// x = B⁻¹b, in place.
     fn solve(&self, x: &mut Col<f64>) {
         let m = x.nrows();
-        let mut p = Col::<f64>::from_fn(m, |i| x[self.perm[i]]);
+        let mut p = Col::<T>::from_fn(m, |i| T::from64(x[self.perm[i]]));
         solve_unit_lower_triangular_in_place(self.lu.as_ref(), p.as_mat_mut(), Par::Seq);
         solve_upper_triangular_in_place(self.lu.as_ref(), p.as_mat_mut(), Par::Seq);
-        x.copy_from(&p);
+        for i in 0..m {
+            x[i] = p[i].to64();
+        }
     }
 
     /// y = B⁻ᵀc, in place: B = Pᵀ L U, so Bᵀ y = c is Uᵀ Lᵀ (P y) = c.
     fn solve_transpose(&self, c: &mut Col<f64>) {
         let m = c.nrows();
-        solve_lower_triangular_in_place(self.lu.transpose(), c.as_mat_mut(), Par::Seq);
-        solve_unit_upper_triangular_in_place(self.lu.transpose(), c.as_mat_mut(), Par::Seq);
-        let mut y = Col::<f64>::zeros(m);
+        let mut p = Col::<T>::from_fn(m, |i| T::from64(c[i]));
+        solve_lower_triangular_in_place(self.lu.transpose(), p.as_mat_mut(), Par::Seq);
+        solve_unit_upper_triangular_in_place(self.lu.transpose(), p.as_mat_mut(), Par::Seq);
         for i in 0..m {
-            y[self.perm[i]] = c[i];
+            c[self.perm[i]] = p[i].to64();
         }
-        c.copy_from(&y);
     }
 }
 
@@ -174,6 +207,9 @@ fn long_step(breaks: &mut [(f64, usize, f64)], mut slope: f64) -> Option<(usize,
 /// columns of rows R replaced by the T columns C.
 struct Restricted {
     m: usize,
+    /// DCT column of each T column, and whether a DCT column is in K = S₀ ∪ E.
+    e_cols: Vec<usize>,
+    in_k: Vec<bool>,
     /// T = B₀⁻¹A_E, column-major m x ke.
     t: Vec<f64>,
     ke: usize,
@@ -185,7 +221,7 @@ struct Restricted {
     c_pos: Vec<usize>,
     tc: Mat<f64>,
     /// LU of T_{R,C}.
-    small: Option<Basis>,
+    small: Option<Basis<f64>>,
 }
 
 impl Restricted {
@@ -269,6 +305,154 @@ impl Restricted {
     }
 }
 
+/// Dual slack below which off-K columns wait for the refined dual before they join (the f32
+/// anchor's dual is good to ~1e-5; a column joining needlessly costs one triangular solve pair).
+const LOOSE: f64 = 1e-4;
+
+/// Adds columns to E: T columns B₀⁻¹a_k by one block triangular solve.
+fn add_columns(dct: &Dct, idx: &[usize], basis: &Basis<f32>, lp: &mut Restricted, new: &[usize]) {
+    let m = lp.m;
+    let mut a = Mat::<f64>::zeros(m, new.len());
+    for (c, &k) in new.iter().enumerate() {
+        if let Some(col) = a.col_mut(c).try_as_col_major_mut() {
+            dct.basis_column(k, idx, col.as_slice_mut());
+        }
+    }
+    basis.solve_mat(&mut a);
+    for (c, &k) in new.iter().enumerate() {
+        lp.in_k[k] = true;
+        lp.e_cols.push(k);
+        lp.push_column(a.col(c));
+    }
+}
+
+/// Column generation: the columns outside K with |w| > 1 + slack join E, most violated first
+/// (at most [`GENERATE_MAX`]). Returns whether any joined.
+fn generate(
+    dct: &Dct,
+    idx: &[usize],
+    basis: &Basis<f32>,
+    lp: &mut Restricted,
+    w: &[f64],
+    slack: f64,
+) -> bool {
+    let mut viol: Vec<(f64, usize)> = (0..w.len())
+        .filter(|&k| !lp.in_k[k] && w[k].abs() > 1.0 + slack)
+        .map(|k| (w[k].abs(), k))
+        .collect();
+    if viol.is_empty() {
+        return false;
+    }
+    viol.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+    viol.truncate(GENERATE_MAX);
+    let new: Vec<usize> = viol.iter().map(|v| v.1).collect();
+    add_columns(dct, idx, basis, lp, &new);
+    true
+}
+
+/// Iterative refinement of a basis's primal and dual in f64: residuals through the transforms,
+/// corrections through the f32 anchor and the restricted basis (A_S = B₀·B_r).
+struct Refine<'a> {
+    basis: &'a Basis<f32>,
+    lp: &'a Restricted,
+}
+
+/// Refinement rounds (each gains ~4 digits at the anchor's κ·ε ≈ 1e-4).
+const REFINE_MAX: usize = 6;
+
+impl Refine<'_> {
+    /// θ_S with A_S θ_S = h to rounding: θ_S += B_r⁻¹B₀⁻¹(h − A_S θ_S).
+    fn primal(
+        &self,
+        dct: &mut Dct,
+        idx: &[usize],
+        h: &[f64],
+        support: &[usize],
+        theta_s: &mut Col<f64>,
+    ) {
+        let (n, m) = (dct.len(), idx.len());
+        let scale = h.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
+        let (mut di, mut dc) = (Col::<f64>::zeros(m), Col::<f64>::zeros(0));
+        let mut theta = vec![0.0; n];
+        for _ in 0..REFINE_MAX {
+            theta.fill(0.0);
+            for (c, &k) in support.iter().enumerate() {
+                theta[k] = theta_s[c];
+            }
+            let g = dct.sample(&mut theta, idx);
+            let mut r = Col::<f64>::from_fn(m, |i| h[i] - g[i]);
+            if (0..m).map(|i| r[i].abs()).fold(0.0, f64::max) <= 1e-14 * scale {
+                break;
+            }
+            self.basis.solve(&mut r);
+            self.lp.ftran(r.as_ref(), &mut di, &mut dc);
+            self.apply(support, &di, &dc, theta_s);
+        }
+    }
+
+    /// y with A_Sᵀ y = sign(θ_S) to rounding: y += B₀⁻ᵀB_r⁻ᵀ(sign − A_Sᵀy); `w` = Aᵀy on return.
+    fn dual(
+        &self,
+        dct: &mut Dct,
+        idx: &[usize],
+        support: &[usize],
+        theta_s: &Col<f64>,
+        y: &mut Col<f64>,
+        w: &mut [f64],
+    ) {
+        let m = idx.len();
+        let lp = self.lp;
+        for round in 0..=REFINE_MAX {
+            dct.adjoint(idx, |r| y[r], w);
+            if round == REFINE_MAX {
+                break;
+            }
+            // Residuals in the restricted basis's order: identity rows, then C.
+            let mut ci = Col::<f64>::zeros(m);
+            let mut cc = Col::<f64>::zeros(lp.c.len());
+            let mut worst = 0.0f64;
+            let mut q = 0;
+            for i in 0..m {
+                if lp.r_pos[i] == usize::MAX {
+                    ci[i] = sign(theta_s[q]) - w[support[q]];
+                    worst = worst.max(ci[i].abs());
+                    q += 1;
+                }
+            }
+            for p in 0..lp.c.len() {
+                cc[p] = sign(theta_s[q]) - w[support[q]];
+                worst = worst.max(cc[p].abs());
+                q += 1;
+            }
+            if worst <= 1e-14 {
+                break;
+            }
+            let mut d = Col::<f64>::zeros(m);
+            lp.btran(&ci, &cc, &mut d);
+            self.basis.solve_transpose(&mut d);
+            for i in 0..m {
+                y[i] += d[i];
+            }
+        }
+    }
+
+    /// θ_S += (di on identity rows outside R, dc on C), in `support`'s order.
+    fn apply(&self, support: &[usize], di: &Col<f64>, dc: &Col<f64>, theta_s: &mut Col<f64>) {
+        let mut q = 0;
+        for i in 0..self.lp.m {
+            if self.lp.r_pos[i] == usize::MAX {
+                theta_s[q] += di[i];
+                q += 1;
+            }
+        }
+        for p in 0..self.lp.c.len() {
+            theta_s[q] += dc[p];
+            q += 1;
+        }
+        debug_assert_eq!(q, support.len());
+    }
+}
+
 /// Times the restricted problem may be rebuilt around the simplex's current basis.
 const MAX_ANCHORS: usize = 3;
 
@@ -319,16 +503,17 @@ fn run(
     let m = idx.len();
     let s0: Vec<usize> = ranked[..m].to_vec();
     let start_pivots = *pivots;
-    let basis = Basis::factor(dct, idx, &s0)?;
+    let basis = Basis::<f32>::factor(dct, idx, &s0)?;
     let mut theta0 = Col::<f64>::from_fn(m, |r| h[r]);
     basis.solve(&mut theta0);
     let mut in_k = vec![false; n];
     for &k in &s0 {
         in_k[k] = true;
     }
-    let mut e_cols: Vec<usize> = Vec::new();
     let mut lp = Restricted {
         m,
+        e_cols: Vec::new(),
+        in_k,
         t: Vec::new(),
         ke: 0,
         r: Vec::new(),
@@ -338,26 +523,7 @@ fn run(
         tc: Mat::zeros(m, 0),
         small: None,
     };
-    let add_columns = |dct: &Dct,
-                       lp: &mut Restricted,
-                       e_cols: &mut Vec<usize>,
-                       in_k: &mut [bool],
-                       new: &[usize]| {
-        let mut a = Mat::<f64>::zeros(m, new.len());
-        for (c, &k) in new.iter().enumerate() {
-            if let Some(col) = a.col_mut(c).try_as_col_major_mut() {
-                dct.basis_column(k, idx, col.as_slice_mut());
-            }
-        }
-        basis.solve_mat(&mut a);
-        for (c, &k) in new.iter().enumerate() {
-            in_k[k] = true;
-            e_cols.push(k);
-            lp.push_column(a.col(c));
-        }
-    };
-    let first: Vec<usize> = ranked[m..].to_vec();
-    add_columns(dct, &mut lp, &mut e_cols, &mut in_k, &first);
+    add_columns(dct, idx, &basis, &mut lp, &ranked[m..]);
 
     let scale = (0..m)
         .map(|r| theta0[r].abs())
@@ -413,49 +579,49 @@ fn run(
                 since_refresh = 0;
                 continue;
             }
-            // Optimal on K: price every column with y = B₀⁻ᵀ ŷ.
+            // Optimal on K as far as the f32 anchor tells: price every column with y = B₀⁻ᵀŷ,
+            // with a margin for the anchor's rounding.
             let mut yf = y.clone();
             basis.solve_transpose(&mut yf);
             dct.adjoint(idx, |r| yf[r], &mut w_full);
-            let mut viol: Vec<(f64, usize)> = (0..n)
-                .filter(|&k| !in_k[k] && w_full[k].abs() > 1.0 + tol)
-                .map(|k| (w_full[k].abs(), k))
-                .collect();
-            if viol.is_empty() {
-                let mut support = Vec::with_capacity(m);
-                let mut theta_s = Col::<f64>::zeros(m);
-                for i in 0..m {
-                    if lp.r_pos[i] == usize::MAX {
-                        theta_s[support.len()] = xi[i];
-                        support.push(s0[i]);
-                    }
-                }
-                for (p, &c) in lp.c.iter().enumerate() {
-                    theta_s[support.len()] = xc[p];
-                    support.push(e_cols[c]);
-                }
-                if let Some(r) = verify(dct, idx, h, &support, &theta_s, &yf, &w_full, *pivots, tol)
-                {
-                    return Some(Outcome::Certified(r));
-                }
-                if *pivots == start_pivots {
-                    return None;
-                }
-                let mut basic = vec![false; n];
-                for &k in &support {
-                    basic[k] = true;
-                }
-                let mut next = support;
-                next.extend(s0.iter().chain(&e_cols).filter(|&&k| !basic[k]));
-                return Some(Outcome::Reanchor(next));
+            if generate(dct, idx, &basis, &mut lp, &w_full, LOOSE) {
+                continue;
             }
-            viol.sort_unstable_by(|a, b| {
-                b.0.partial_cmp(&a.0).unwrap_or(std::cmp::Ordering::Equal)
-            });
-            viol.truncate(GENERATE_MAX);
-            let new: Vec<usize> = viol.iter().map(|v| v.1).collect();
-            add_columns(dct, &mut lp, &mut e_cols, &mut in_k, &new);
-            continue;
+            // The basis's exact primal and dual, refined against the f64 transforms.
+            let mut support = Vec::with_capacity(m);
+            let mut theta_s = Col::<f64>::zeros(m);
+            for i in 0..m {
+                if lp.r_pos[i] == usize::MAX {
+                    theta_s[support.len()] = xi[i];
+                    support.push(s0[i]);
+                }
+            }
+            for (p, &c) in lp.c.iter().enumerate() {
+                theta_s[support.len()] = xc[p];
+                support.push(lp.e_cols[c]);
+            }
+            let refine = Refine {
+                basis: &basis,
+                lp: &lp,
+            };
+            refine.primal(dct, idx, h, &support, &mut theta_s);
+            refine.dual(dct, idx, &support, &theta_s, &mut yf, &mut w_full);
+            if generate(dct, idx, &basis, &mut lp, &w_full, tol) {
+                continue;
+            }
+            if let Some(r) = verify(dct, idx, h, &support, &theta_s, &yf, &w_full, *pivots, tol) {
+                return Some(Outcome::Certified(r));
+            }
+            if *pivots == start_pivots {
+                return None;
+            }
+            let mut basic = vec![false; n];
+            for &k in &support {
+                basic[k] = true;
+            }
+            let mut next = support;
+            next.extend(s0.iter().chain(&lp.e_cols).filter(|&&k| !basic[k]));
+            return Some(Outcome::Reanchor(next));
         };
         if *pivots == max_pivots {
             return None;
@@ -635,7 +801,7 @@ mod tests {
             .unwrap();
         // Low frequencies: a well-conditioned basis.
         let support: Vec<usize> = (0..m).map(|c| (c * 7) % 41).collect();
-        let basis = Basis::factor(&dct, &idx, &support).expect("non-singular");
+        let basis = Basis::<f64>::factor(&dct, &idx, &support).expect("non-singular");
         let b = Mat::<f64>::from_fn(m, m, |r, c| dct.basis(idx[r], support[c]));
         let rhs = Col::<f64>::from_fn(m, |r| (r as f64 * 0.37).sin());
         let mut x = rhs.clone();
@@ -651,10 +817,20 @@ mod tests {
             assert!((aty[r] - rhs[r]).abs() < 1e-10, "transpose row {r}");
             assert!((block[(r, 0)] - x[r]).abs() < 1e-12, "block row {r}");
         }
+        // The f32 anchor solves the same system to its precision (refinement removes the rest).
+        let single = Basis::<f32>::factor(&dct, &idx, &support).expect("non-singular");
+        let mut xs = rhs.clone();
+        single.solve(&mut xs);
+        let mut ys = rhs.clone();
+        single.solve_transpose(&mut ys);
+        for r in 0..m {
+            assert!((xs[r] - x[r]).abs() < 1e-4 * (1.0 + x[r].abs()), "f32 solve row {r}");
+            assert!((ys[r] - y[r]).abs() < 1e-4 * (1.0 + y[r].abs()), "f32 transpose row {r}");
+        }
         // A repeated column is singular and refused.
         let mut twice = support.clone();
         twice[1] = twice[0];
-        assert!(Basis::factor(&dct, &idx, &twice).is_none());
+        assert!(Basis::<f64>::factor(&dct, &idx, &twice).is_none());
     }
 
     /// From a poor ranking (the lowest frequencies first, few candidates, so column generation
@@ -691,7 +867,7 @@ mod tests {
         assert!((again.dual_objective - r.dual_objective).abs() < 1e-10 * objective);
 
         // The certificate's own y and w, with θ_S perturbed: primal residual, so rejected.
-        let basis = Basis::factor(&dct, &idx, &optimal).unwrap();
+        let basis = Basis::<f64>::factor(&dct, &idx, &optimal).unwrap();
         let mut theta_s = Col::<f64>::from_fn(m, |c| r.theta[optimal[c]]);
         let mut y = Col::<f64>::from_fn(m, |c| sign(theta_s[c]));
         basis.solve_transpose(&mut y);
