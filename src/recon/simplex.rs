@@ -42,10 +42,13 @@ pub struct SimplexResult {
 /// Scalar of a factorization: f64, or f32 for the anchor basis (half the memory traffic and
 /// twice the SIMD width; its rounding is removed by refinement against the f64 transforms).
 trait Real: faer::traits::RealField + Copy {
+    /// Whether the factorization is f64 (a failed certificate is then final).
+    const DOUBLE: bool;
     fn from64(v: f64) -> Self;
     fn to64(self) -> f64;
 }
 impl Real for f64 {
+    const DOUBLE: bool = true;
     fn from64(v: f64) -> Self {
         v
     }
@@ -54,6 +57,7 @@ impl Real for f64 {
     }
 }
 impl Real for f32 {
+    const DOUBLE: bool = false;
     fn from64(v: f64) -> Self {
         v as f32
     }
@@ -310,7 +314,13 @@ impl Restricted {
 const LOOSE: f64 = 1e-4;
 
 /// Adds columns to E: T columns B₀⁻¹a_k by one block triangular solve.
-fn add_columns(dct: &Dct, idx: &[usize], basis: &Basis<f32>, lp: &mut Restricted, new: &[usize]) {
+fn add_columns<T: Real>(
+    dct: &Dct,
+    idx: &[usize],
+    basis: &Basis<T>,
+    lp: &mut Restricted,
+    new: &[usize],
+) {
     let m = lp.m;
     let mut a = Mat::<f64>::zeros(m, new.len());
     for (c, &k) in new.iter().enumerate() {
@@ -328,10 +338,10 @@ fn add_columns(dct: &Dct, idx: &[usize], basis: &Basis<f32>, lp: &mut Restricted
 
 /// Column generation: the columns outside K with |w| > 1 + slack join E, most violated first
 /// (at most [`GENERATE_MAX`]). Returns whether any joined.
-fn generate(
+fn generate<T: Real>(
     dct: &Dct,
     idx: &[usize],
-    basis: &Basis<f32>,
+    basis: &Basis<T>,
     lp: &mut Restricted,
     w: &[f64],
     slack: f64,
@@ -352,15 +362,15 @@ fn generate(
 
 /// Iterative refinement of a basis's primal and dual in f64: residuals through the transforms,
 /// corrections through the f32 anchor and the restricted basis (A_S = B₀·B_r).
-struct Refine<'a> {
-    basis: &'a Basis<f32>,
+struct Refine<'a, T: Real> {
+    basis: &'a Basis<T>,
     lp: &'a Restricted,
 }
 
 /// Refinement rounds (each gains ~4 digits at the anchor's κ·ε ≈ 1e-4).
 const REFINE_MAX: usize = 6;
 
-impl Refine<'_> {
+impl<T: Real> Refine<'_, T> {
     /// θ_S with A_S θ_S = h to rounding: θ_S += B_r⁻¹B₀⁻¹(h − A_S θ_S).
     fn primal(
         &self,
@@ -480,8 +490,17 @@ pub fn finish(
     let m = idx.len();
     let mut ranked = order[..(m + k0).min(order.len())].to_vec();
     let mut pivots = 0;
+    let mut single = true;
     for _ in 0..MAX_ANCHORS {
-        match run(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)? {
+        // The first run anchors in f32; a basis whose certificate that precision could not
+        // settle (reduced costs within its rounding of 1) is re-anchored in f64.
+        let outcome = if single {
+            run::<f32>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
+        } else {
+            run::<f64>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
+        };
+        single = false;
+        match outcome {
             Outcome::Certified(r) => return Some(r),
             Outcome::Reanchor(next) => ranked = next,
         }
@@ -490,7 +509,7 @@ pub fn finish(
 }
 
 /// One restricted simplex: S₀ = ranked[..m], E = ranked[m..], plus generated columns.
-fn run(
+fn run<T: Real>(
     dct: &mut Dct,
     idx: &[usize],
     h: &[f64],
@@ -503,7 +522,7 @@ fn run(
     let m = idx.len();
     let s0: Vec<usize> = ranked[..m].to_vec();
     let start_pivots = *pivots;
-    let basis = Basis::<f32>::factor(dct, idx, &s0)?;
+    let basis = Basis::<T>::factor(dct, idx, &s0)?;
     let mut theta0 = Col::<f64>::from_fn(m, |r| h[r]);
     basis.solve(&mut theta0);
     let mut in_k = vec![false; n];
@@ -612,7 +631,7 @@ fn run(
             if let Some(r) = verify(dct, idx, h, &support, &theta_s, &yf, &w_full, *pivots, tol) {
                 return Some(Outcome::Certified(r));
             }
-            if *pivots == start_pivots {
+            if T::DOUBLE && *pivots == start_pivots {
                 return None;
             }
             let mut basic = vec![false; n];
@@ -824,8 +843,14 @@ mod tests {
         let mut ys = rhs.clone();
         single.solve_transpose(&mut ys);
         for r in 0..m {
-            assert!((xs[r] - x[r]).abs() < 1e-4 * (1.0 + x[r].abs()), "f32 solve row {r}");
-            assert!((ys[r] - y[r]).abs() < 1e-4 * (1.0 + y[r].abs()), "f32 transpose row {r}");
+            assert!(
+                (xs[r] - x[r]).abs() < 1e-4 * (1.0 + x[r].abs()),
+                "f32 solve row {r}"
+            );
+            assert!(
+                (ys[r] - y[r]).abs() < 1e-4 * (1.0 + y[r].abs()),
+                "f32 transpose row {r}"
+            );
         }
         // A repeated column is singular and refused.
         let mut twice = support.clone();
