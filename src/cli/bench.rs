@@ -40,7 +40,7 @@ enum What {
         clarabel_m: Option<usize>,
     },
     /// One orthonormal DCT pair (inverse + forward), µs: the real-FFT (Makhoul) path against
-    /// rustdct, at the sizes the solvers meet.
+    /// rustdct, and the same path in f32, at the sizes the solvers meet.
     Dct {
         #[arg(long, default_value_t = 11)]
         repeat: usize,
@@ -172,27 +172,51 @@ fn dct_pairs(repeat: usize) -> serde_json::Value {
     use crate::recon::dct::Dct;
     use std::time::Instant;
     let mut rows = Vec::new();
+    // Each sample times a batch long enough (~20 ms) for the clock.
+    let time_pairs = |n: usize, pair: &mut dyn FnMut()| {
+        let batch = (2_000_000 / n).max(1);
+        let mut times = Vec::new();
+        for _ in 0..=repeat {
+            let t = Instant::now();
+            for _ in 0..batch {
+                pair();
+            }
+            times.push(t.elapsed().as_secs_f64() * 1e6 / batch as f64);
+        }
+        times.remove(0); // warm-up
+        median(&mut times)
+    };
     for n in [1900usize, 1901, 2048, 65_536] {
+        // The real FFT under Makhoul's path: Rader's algorithm at primes ≥ 64, realfft otherwise.
+        let real_fft = if n >= 64 && crate::recon::rader::is_prime(n) {
+            "rader"
+        } else {
+            "realfft"
+        };
         for makhoul in [false, true] {
             let mut d = Dct::with_backend(n, makhoul);
             let mut v: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).sin()).collect();
-            // Each sample times a batch long enough (~20 ms) for the clock.
-            let batch = (2_000_000 / n).max(1);
-            let mut times = Vec::new();
-            for _ in 0..=repeat {
-                let t = Instant::now();
-                for _ in 0..batch {
-                    d.inverse(&mut v);
-                    d.forward(&mut v);
-                }
-                times.push(t.elapsed().as_secs_f64() * 1e6 / batch as f64);
-            }
-            times.remove(0); // warm-up
+            let us = time_pairs(n, &mut || {
+                d.inverse(&mut v);
+                d.forward(&mut v);
+            });
             rows.push(json!({
                 "n": n, "backend": if makhoul { "makhoul_realfft" } else { "rustdct" },
-                "median_pair_us": median(&mut times), "repeat": repeat,
+                "real_fft": makhoul.then_some(real_fft),
+                "median_pair_us": us, "repeat": repeat,
             }));
         }
+        // The same path in f32 (BP's ranking iterations).
+        let mut d = Dct::new(n);
+        let mut v: Vec<f32> = (0..n).map(|i| (i as f32 * 0.37).sin()).collect();
+        let us = time_pairs(n, &mut || {
+            d.single().inverse(&mut v);
+            d.single().forward(&mut v);
+        });
+        rows.push(json!({
+            "n": n, "backend": "makhoul_f32", "real_fft": real_fft,
+            "median_pair_us": us, "repeat": repeat,
+        }));
     }
     json!({"benchmark": "dct", "threads": 1, "rows": rows})
 }
