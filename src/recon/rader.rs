@@ -70,9 +70,17 @@ fn primitive_root(p: usize) -> usize {
 /// length p ≥ 3, with realfft's conventions: p real values ⇄ (p + 1) / 2 complex bins.
 pub struct RaderReal<T: FftNum> {
     p: usize,
-    /// in_idx[l] = g^(−l) mod p and out_idx[q] = g^q mod p, l, q < p − 1.
-    in_idx: Vec<usize>,
-    out_idx: Vec<usize>,
+    /// Tables composed with the caller's permutation `perm` (v_j = src[perm[j]]; the inverse
+    /// writes v_j to dst[perm[j]]), so that each pass is a plain gather or scatter:
+    /// gather[l] = perm[g^(−l)], scatter[q] = perm[g^q] (l, q < p − 1), first = perm[0].
+    gather: Vec<usize>,
+    scatter: Vec<usize>,
+    first: usize,
+    /// Forward output: convolution entry q < (p − 1)/2 is bin k = g^q or its mirror p − k,
+    /// whichever is ≤ (p − 1)/2: (bin, ±1 on the imaginary part).
+    bins_out: Vec<(usize, i8)>,
+    /// Inverse input: a_l = V_(g^(−l)) read from the lower half (bin, ±1 on the imaginary part).
+    bins_in: Vec<(usize, i8)>,
     r2c: Arc<dyn RealToComplex<T>>,
     c2r: Arc<dyn ComplexToReal<T>>,
     fft: Arc<dyn Fft<T>>,
@@ -90,7 +98,13 @@ pub struct RaderReal<T: FftNum> {
 impl<T: FftNum> RaderReal<T> {
     /// `None` unless p is an odd prime.
     pub fn new(p: usize) -> Option<Self> {
-        if p < 3 || !is_prime(p) {
+        let id: Vec<usize> = (0..p).collect();
+        Self::with_permutation(p, &id)
+    }
+
+    /// The transform of v_j = src[perm[j]] (and, inverse, v_j written to dst[perm[j]]).
+    pub fn with_permutation(p: usize, perm: &[usize]) -> Option<Self> {
+        if p < 3 || !is_prime(p) || perm.len() != p {
             return None;
         }
         let m = p - 1;
@@ -125,6 +139,12 @@ impl<T: FftNum> RaderReal<T> {
             k
         };
         let (kernel_fwd, kernel_inv) = (kernel(-1.0), kernel(1.0));
+        let h = (p - 1) / 2;
+        let half_bin = |k: usize| if k <= h { (k, 1i8) } else { (p - k, -1i8) };
+        let bins_out = out_idx[..m / 2].iter().map(|&k| half_bin(k)).collect();
+        let bins_in = in_idx.iter().map(|&k| half_bin(k)).collect();
+        let gather = in_idx.iter().map(|&j| perm[j]).collect();
+        let scatter = out_idx.iter().map(|&j| perm[j]).collect();
         let scratch_len = [
             r2c.get_scratch_len(),
             c2r.get_scratch_len(),
@@ -136,8 +156,11 @@ impl<T: FftNum> RaderReal<T> {
         .unwrap_or(0);
         Some(Self {
             p,
-            in_idx,
-            out_idx,
+            gather,
+            scatter,
+            first: perm[0],
+            bins_out,
+            bins_in,
             r2c,
             c2r,
             fft,
@@ -159,23 +182,13 @@ impl<T: FftNum> RaderReal<T> {
         false
     }
 
-    /// out[k] = Σ_j v_j e^(−2πijk/p), k ≤ (p − 1) / 2.
-    pub fn forward(&mut self, v: &[T], out: &mut [Complex<T>]) {
-        self.forward_with(|j| v[j], |k, c| out[k] = c);
-    }
-
-    /// [`Self::forward`] with the input read through `v(j)` and each bin k ≤ (p − 1) / 2 handed
-    /// to `emit(k, V_k)`, so that a caller's permutations fuse with Rader's (one pass each way).
-    pub fn forward_with(
-        &mut self,
-        v: impl Fn(usize) -> T,
-        mut emit: impl FnMut(usize, Complex<T>),
-    ) {
-        let (p, m) = (self.p, self.p - 1);
-        let v0 = v(0);
+    /// out[k] = Σ_j v_j e^(−2πijk/p), k ≤ (p − 1) / 2, for v_j = src[perm[j]].
+    pub fn forward(&mut self, src: &[T], out: &mut [Complex<T>]) {
+        let m = self.p - 1;
+        let v0 = src[self.first];
         let mut sum = v0;
-        for (a, &j) in self.a.iter_mut().zip(&self.in_idx) {
-            *a = v(j);
+        for (a, &j) in self.a.iter_mut().zip(&self.gather) {
+            *a = src[j];
             sum = sum + *a;
         }
         // V_{g^q} = v₀ + Σ_l a_l b_{q−l}: the cyclic convolution through the FFT.
@@ -192,39 +205,28 @@ impl<T: FftNum> RaderReal<T> {
         }
         self.ifft
             .process_with_scratch(&mut self.work, &mut self.scratch);
-        emit(0, Complex::new(sum, T::zero()));
-        let h = (p - 1) / 2;
-        for (c, &k) in self.work.iter().zip(&self.out_idx) {
-            // V_{p−k} = conj(V_k): only the lower half is emitted.
-            if k <= h {
-                emit(k, Complex::new(v0 + c.re, c.im));
-            }
+        out[0] = Complex::new(sum, T::zero());
+        // g^(q + (p−1)/2) = −g^q: entries q and q + (p−1)/2 are conjugate bins, so the first
+        // half of the convolution fills the lower half-spectrum exactly once.
+        for (c, &(k, sg)) in self.work.iter().zip(&self.bins_out) {
+            let im = if sg > 0 { c.im } else { T::zero() - c.im };
+            out[k] = Complex::new(v0 + c.re, im);
         }
     }
 
-    /// out[j] = Σ_k V_k e^(2πijk/p) over all p bins of the Hermitian spectrum whose lower half
-    /// is `spec` (unnormalized, as realfft's inverse).
-    pub fn inverse(&mut self, spec: &[Complex<T>], out: &mut [T]) {
-        self.inverse_with(|k| spec[k], |j, x| out[j] = x);
-    }
-
-    /// [`Self::inverse`] with bin k ≤ (p − 1) / 2 read through `spec(k)` and each output handed to
-    /// `emit(j, v_j)`.
-    pub fn inverse_with(
-        &mut self,
-        spec: impl Fn(usize) -> Complex<T>,
-        mut emit: impl FnMut(usize, T),
-    ) {
+    /// dst[perm[j]] = Σ_k V_k e^(2πijk/p) over all p bins of the Hermitian spectrum whose lower
+    /// half is `spec` (unnormalized, as realfft's inverse).
+    pub fn inverse(&mut self, spec: &[Complex<T>], dst: &mut [T]) {
         let (p, m) = (self.p, self.p - 1);
         let h = (p - 1) / 2;
-        let v0 = spec(0).re;
-        let mut sum = v0;
-        for (w, &k) in self.work.iter_mut().zip(&self.in_idx) {
-            *w = if k <= h { spec(k) } else { spec(p - k).conj() };
-            // Each bin k ≥ 1 appears once in the lower half: Σ_{k≥1} V_k + conj = 2 Σ Re V_k.
-            if k <= h {
-                sum = sum + w.re + w.re;
-            }
+        let v0 = spec[0].re;
+        let mut re_sum = T::zero();
+        for s in &spec[1..=h] {
+            re_sum = re_sum + s.re;
+        }
+        for (w, &(k, sg)) in self.work.iter_mut().zip(&self.bins_in) {
+            let s = spec[k];
+            *w = Complex::new(s.re, if sg > 0 { s.im } else { T::zero() - s.im });
         }
         self.fft
             .process_with_scratch(&mut self.work, &mut self.scratch);
@@ -238,9 +240,9 @@ impl<T: FftNum> RaderReal<T> {
         self.c2r
             .process_with_scratch(&mut self.half, &mut self.a, &mut self.scratch)
             .expect("buffer lengths fixed at planning");
-        emit(0, sum);
-        for (&c, &j) in self.a.iter().zip(&self.out_idx) {
-            emit(j, v0 + c);
+        dst[self.first] = v0 + re_sum + re_sum;
+        for (&c, &j) in self.a.iter().zip(&self.scatter) {
+            dst[j] = v0 + c;
         }
     }
 }
