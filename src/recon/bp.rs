@@ -107,6 +107,20 @@ pub struct BpSolution {
     pub solve_ms: f64,
 }
 
+impl BpSolution {
+    /// A certified optimum: ||θ||₁ = hᵀy = `dual_objective`.
+    fn optimal(theta: Vec<f64>, dual_objective: f64, iterations: usize, t0: Instant) -> Self {
+        Self {
+            objective: theta.iter().map(|v| v.abs()).sum(),
+            theta,
+            status: SolveStatus::Optimal,
+            iterations,
+            dual_objective,
+            solve_ms: t0.elapsed().as_secs_f64() * 1e3,
+        }
+    }
+}
+
 fn soft(v: f64, t: f64) -> f64 {
     if v > t {
         v - t
@@ -162,14 +176,7 @@ pub fn solve_fast(
     let project = |dct: &mut Dct, v: &mut [f64]| project(dct, idx, h, problem, v);
     if h.iter().all(|&v| v == 0.0) {
         // θ = 0 is feasible with ||θ||₁ = 0, and y = 0 certifies it for BP and BPDN alike.
-        return BpSolution {
-            theta: vec![0.0; n],
-            status: SolveStatus::Optimal,
-            iterations: 0,
-            objective: 0.0,
-            dual_objective: 0.0,
-            solve_ms: t0.elapsed().as_secs_f64() * 1e3,
-        };
+        return BpSolution::optimal(vec![0.0; n], 0.0, 0, t0);
     }
 
     // Warm start at the minimum-energy solution x0 = Aᵀh.
@@ -210,14 +217,7 @@ pub fn solve_fast(
         // below take over and retry it at twice the budget.
         let (zs, us, its) = admm_single(dct, idx, h, &z, rho, alpha, next_finish, next_stable);
         if let Some((theta, dual, pivots)) = exact_finish(dct, idx, h, &zs, &us, rho, s, false) {
-            return BpSolution {
-                objective: theta.iter().map(|v| v.abs()).sum(),
-                theta,
-                status: SolveStatus::Optimal,
-                iterations: its + pivots,
-                dual_objective: dual,
-                solve_ms: t0.elapsed().as_secs_f64() * 1e3,
-            };
+            return BpSolution::optimal(theta, dual, its + pivots, t0);
         }
         simplex_failed = true;
         next_stable *= 2;
@@ -276,14 +276,7 @@ pub fn solve_fast(
                 if let Some((theta, dual, pivots)) =
                     exact_finish(dct, idx, h, &z, &u, rho, s, simplex_failed)
                 {
-                    return BpSolution {
-                        objective: theta.iter().map(|v| v.abs()).sum(),
-                        theta,
-                        status: SolveStatus::Optimal,
-                        iterations: it + pivots,
-                        dual_objective: dual,
-                        solve_ms: t0.elapsed().as_secs_f64() * 1e3,
-                    };
+                    return BpSolution::optimal(theta, dual, it + pivots, t0);
                 }
                 simplex_failed = true;
                 next_stable *= 2;
