@@ -302,6 +302,14 @@ impl Restricted {
         }
     }
 
+    /// The basic variables in basis order: identity rows outside R (index i), then the entries
+    /// of C (index m + p). θ_S, the support list and the refinement residuals use this order.
+    fn basics(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.m)
+            .filter(|&i| self.r_pos[i] == usize::MAX)
+            .chain(self.m..self.m + self.c.len())
+    }
+
     fn push_column(&mut self, col: ColRef<'_, f64>) {
         self.t.extend(col.iter().copied());
         self.c_pos.push(usize::MAX);
@@ -361,7 +369,7 @@ fn generate<T: Real>(
 }
 
 /// Iterative refinement of a basis's primal and dual in f64: residuals through the transforms,
-/// corrections through the f32 anchor and the restricted basis (A_S = B₀·B_r).
+/// corrections through the anchor B₀ (f32 or f64) and the restricted basis (A_S = B₀·B_r).
 struct Refine<'a, T: Real> {
     basis: &'a Basis<T>,
     lp: &'a Restricted,
@@ -396,7 +404,7 @@ impl<T: Real> Refine<'_, T> {
             }
             self.basis.solve(&mut r);
             self.lp.ftran(r.as_ref(), &mut di, &mut dc);
-            self.apply(support, &di, &dc, theta_s);
+            self.apply(&di, &dc, theta_s);
         }
     }
 
@@ -417,22 +425,18 @@ impl<T: Real> Refine<'_, T> {
             if round == REFINE_MAX {
                 break;
             }
-            // Residuals in the restricted basis's order: identity rows, then C.
+            // Residuals on the basic variables, in the restricted basis's layout.
             let mut ci = Col::<f64>::zeros(m);
             let mut cc = Col::<f64>::zeros(lp.c.len());
             let mut worst = 0.0f64;
-            let mut q = 0;
-            for i in 0..m {
-                if lp.r_pos[i] == usize::MAX {
-                    ci[i] = sign(theta_s[q]) - w[support[q]];
-                    worst = worst.max(ci[i].abs());
-                    q += 1;
+            for (q, b) in lp.basics().enumerate() {
+                let r = sign(theta_s[q]) - w[support[q]];
+                if b < m {
+                    ci[b] = r;
+                } else {
+                    cc[b - m] = r;
                 }
-            }
-            for p in 0..lp.c.len() {
-                cc[p] = sign(theta_s[q]) - w[support[q]];
-                worst = worst.max(cc[p].abs());
-                q += 1;
+                worst = worst.max(r.abs());
             }
             if worst <= 1e-14 {
                 break;
@@ -446,20 +450,12 @@ impl<T: Real> Refine<'_, T> {
         }
     }
 
-    /// θ_S += (di on identity rows outside R, dc on C), in `support`'s order.
-    fn apply(&self, support: &[usize], di: &Col<f64>, dc: &Col<f64>, theta_s: &mut Col<f64>) {
-        let mut q = 0;
-        for i in 0..self.lp.m {
-            if self.lp.r_pos[i] == usize::MAX {
-                theta_s[q] += di[i];
-                q += 1;
-            }
+    /// θ_S += the correction (di on identity rows, dc on C), in basis order.
+    fn apply(&self, di: &Col<f64>, dc: &Col<f64>, theta_s: &mut Col<f64>) {
+        let m = self.lp.m;
+        for (q, b) in self.lp.basics().enumerate() {
+            theta_s[q] += if b < m { di[b] } else { dc[b - m] };
         }
-        for p in 0..self.lp.c.len() {
-            theta_s[q] += dc[p];
-            q += 1;
-        }
-        debug_assert_eq!(q, support.len());
     }
 }
 
@@ -469,9 +465,9 @@ const MAX_ANCHORS: usize = 3;
 /// How one restricted run ended.
 enum Outcome {
     Certified(SimplexResult),
-    /// Optimal on K as far as the factorization of B₀ can tell, but the certificate failed (a
-    /// poorly conditioned start basis): rebuild around the current basis (its columns first,
-    /// then the rest of K).
+    /// Optimal on K as far as the factorization of B₀ can tell, but the certificate failed (its
+    /// precision, or a poorly conditioned start basis): rebuild around the current basis (its
+    /// columns first, then the rest of K).
     Reanchor(Vec<usize>),
 }
 
@@ -490,16 +486,14 @@ pub fn finish(
     let m = idx.len();
     let mut ranked = order[..(m + k0).min(order.len())].to_vec();
     let mut pivots = 0;
-    let mut single = true;
-    for _ in 0..MAX_ANCHORS {
+    for anchor in 0..MAX_ANCHORS {
         // The first run anchors in f32; a basis whose certificate that precision could not
         // settle (reduced costs within its rounding of 1) is re-anchored in f64.
-        let outcome = if single {
+        let outcome = if anchor == 0 {
             run::<f32>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
         } else {
             run::<f64>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
         };
-        single = false;
         match outcome {
             Outcome::Certified(r) => return Some(r),
             Outcome::Reanchor(next) => ranked = next,
@@ -598,8 +592,8 @@ fn run<T: Real>(
                 since_refresh = 0;
                 continue;
             }
-            // Optimal on K as far as the f32 anchor tells: price every column with y = B₀⁻ᵀŷ,
-            // with a margin for the anchor's rounding.
+            // Optimal on K as far as the anchor tells: price every column with y = B₀⁻ᵀŷ, with a
+            // margin for the anchor's rounding.
             let mut yf = y.clone();
             basis.solve_transpose(&mut yf);
             dct.adjoint(idx, |r| yf[r], &mut w_full);
@@ -609,15 +603,14 @@ fn run<T: Real>(
             // The basis's exact primal and dual, refined against the f64 transforms.
             let mut support = Vec::with_capacity(m);
             let mut theta_s = Col::<f64>::zeros(m);
-            for i in 0..m {
-                if lp.r_pos[i] == usize::MAX {
-                    theta_s[support.len()] = xi[i];
-                    support.push(s0[i]);
+            for (q, b) in lp.basics().enumerate() {
+                if b < m {
+                    theta_s[q] = xi[b];
+                    support.push(s0[b]);
+                } else {
+                    theta_s[q] = xc[b - m];
+                    support.push(lp.e_cols[lp.c[b - m]]);
                 }
-            }
-            for (p, &c) in lp.c.iter().enumerate() {
-                theta_s[support.len()] = xc[p];
-                support.push(lp.e_cols[c]);
             }
             let refine = Refine {
                 basis: &basis,
@@ -656,7 +649,7 @@ fn run<T: Real>(
         }
         // Basic variables x_B(t) = x_B - t·sj·d_B as the entering variable grows to sj·t;
         // f'(0+) = 1 - |w_j| on a non-degenerate basis, +2|d_b| at each breakpoint passed (long
-        // step). Basic variables: 0..m (identity rows outside R) and m+p (entry p of C).
+        // step). Basic variables as in `Restricted::basics`.
         let nc = lp.c.len();
         let val = |b: usize| if b < m { xi[b] } else { xc[b - m] };
         let dir = |b: usize| sj * if b < m { di[b] } else { dc[b - m] };
@@ -664,10 +657,7 @@ fn run<T: Real>(
         let mut zero_basic: Option<(usize, f64)> = None;
         let mut dmax = 0.0f64;
         let mut slope = 1.0;
-        for b in (0..m)
-            .filter(|&i| lp.r_pos[i] == usize::MAX)
-            .chain(m..m + nc)
-        {
+        for b in lp.basics() {
             let (x, d) = (val(b), dir(b));
             dmax = dmax.max(d.abs());
             if x.abs() <= zero_tol {
