@@ -306,15 +306,15 @@ impl Dct {
             out.fill(self.s0);
             return;
         }
-        let p = 4 * self.n as u64;
+        let (p, k) = (4 * self.n as u64, k as u64);
         for (o, &i) in out.iter_mut().zip(rows) {
-            let a = k as u64 * (2 * i as u64 + 1);
-            // q undershoots a / p by at most 2, so at most two corrections.
+            let a = k * (2 * i as u64 + 1);
+            // q undershoots a / p by at most 2: two corrections, branch-free (a loop here
+            // mispredicted on every other entry, ~1/3 of the cost of building a basis).
             let q = ((a as u128 * self.barrett as u128) >> 64) as u64;
             let mut j = a - q * p;
-            while j >= p {
-                j -= p;
-            }
+            j -= if j >= p { p } else { 0 };
+            j -= if j >= p { p } else { 0 };
             *o = self.sk * self.cos_table[j as usize];
         }
     }

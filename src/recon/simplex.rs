@@ -86,8 +86,10 @@ impl<T: Real> Basis<T> {
         let mut col = vec![0.0; m];
         for (c, &k) in support.iter().enumerate() {
             dct.basis_column(k, idx, &mut col);
-            for (r, v) in col.iter().enumerate() {
-                lu[(r, c)] = T::from64(*v);
+            if let Some(dst) = lu.col_mut(c).try_as_col_major_mut() {
+                for (d, v) in dst.as_slice_mut().iter_mut().zip(&col) {
+                    *d = T::from64(*v);
+                }
             }
         }
         Self::from_matrix(lu)
