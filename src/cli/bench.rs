@@ -188,7 +188,7 @@ fn dct_pairs(repeat: usize) -> serde_json::Value {
     };
     for n in [1900usize, 1901, 2048, 65_536] {
         // The real FFT under Makhoul's path: Rader's algorithm at primes ≥ 64, realfft otherwise.
-        let real_fft = if n >= 64 && crate::recon::rader::is_prime(n) {
+        let real_fft = if crate::recon::rader::pays_off(n) {
             "rader"
         } else {
             "realfft"

@@ -16,6 +16,8 @@ use std::time::Instant;
 
 use nalgebra::{DMatrix, DVector};
 
+use rustfft::num_traits::Float;
+
 use super::dct::Dct;
 
 /// Which problem to solve.
@@ -121,14 +123,67 @@ impl BpSolution {
     }
 }
 
-fn soft(v: f64, t: f64) -> f64 {
+fn soft<F: Float>(v: F, t: F) -> F {
     if v > t {
         v - t
     } else if v < -t {
         v + t
     } else {
-        0.0
+        F::zero()
     }
+}
+
+/// What one ADMM update reports: whether the support changed, its size and, when asked for,
+/// ||x − z||², ||z − z_prev||² and ||z||².
+struct Step<F> {
+    changed: bool,
+    nnz: usize,
+    r2: F,
+    s2: F,
+    z2: F,
+}
+
+/// One relaxed ADMM update after the projection `x`: z = soft(x̂ + u, 1/ρ) with
+/// x̂ = αx + (1 − α)z, u += x̂ − z, and v = z − u, the next projection's input. Shared by the f64
+/// iterations and the f32 ranking run; `NORMS` adds the residual norms only the former reads.
+#[inline(always)]
+fn admm_update<F: Float, const NORMS: bool>(
+    x: &[F],
+    z: &mut [F],
+    u: &mut [F],
+    v: &mut [F],
+    alpha: F,
+    inv: F,
+) -> Step<F> {
+    let zero = F::zero();
+    let mut st = Step {
+        changed: false,
+        nnz: 0,
+        r2: zero,
+        s2: zero,
+        z2: zero,
+    };
+    let beta = F::one() - alpha;
+    for (((&xi, zi), ui), vi) in x
+        .iter()
+        .zip(z.iter_mut())
+        .zip(u.iter_mut())
+        .zip(v.iter_mut())
+    {
+        let xh = alpha * xi + beta * *zi;
+        let zn = soft(xh + *ui, inv);
+        st.changed |= (zn != zero) != (*zi != zero);
+        st.nnz += usize::from(zn != zero);
+        if NORMS {
+            st.s2 = st.s2 + (zn - *zi) * (zn - *zi);
+            st.r2 = st.r2 + (xi - zn) * (xi - zn);
+            st.z2 = st.z2 + zn * zn;
+        }
+        *zi = zn;
+        *ui = *ui + (xh - zn);
+        *vi = zn - *ui;
+    }
+    st
 }
 
 /// Projection of coefficients `v` (in place) onto the constraint set of `problem`, done on the
@@ -230,23 +285,14 @@ pub fn solve_fast(
         iterations = it;
         project(dct, &mut v);
         std::mem::swap(&mut x, &mut v);
-        let (mut r2, mut s2, mut z2) = (0.0, 0.0, 0.0);
-        let (mut changed, mut nnz) = (false, 0usize);
-        let inv = 1.0 / rho;
-        for i in 0..n {
-            let xh = alpha * x[i] + (1.0 - alpha) * z[i];
-            let zi = soft(xh + u[i], inv);
-            s2 += (zi - z[i]).powi(2);
-            changed |= (zi != 0.0) != (z[i] != 0.0);
-            nnz += usize::from(zi != 0.0);
-            z[i] = zi;
-            let ri = xh - zi;
-            r2 += (x[i] - zi).powi(2);
-            u[i] += ri;
-            z2 += zi * zi;
-            // The next projection's input, in the buffer that held the previous x.
-            v[i] = zi - u[i];
-        }
+        // The next projection's input goes to v, the buffer that held the previous x.
+        let Step {
+            changed,
+            nnz,
+            r2,
+            s2,
+            z2,
+        } = admm_update::<f64, true>(&x, &mut z, &mut u, &mut v, alpha, 1.0 / rho);
         let zn = z2.sqrt().max(1e-300);
         let (r, sd) = (r2.sqrt() / zn, rho * s2.sqrt() / zn);
         if bp && m > s.exact_max_m {
@@ -342,15 +388,6 @@ fn admm_single(
     let n = t.len();
     let hs: Vec<f32> = h.iter().map(|&v| v as f32).collect();
     let (inv, a) = ((1.0 / rho) as f32, alpha as f32);
-    let soft = |v: f32| {
-        if v > inv {
-            v - inv
-        } else if v < -inv {
-            v + inv
-        } else {
-            0.0
-        }
-    };
     let mut z: Vec<f32> = z0.iter().map(|&v| v as f32).collect();
     let mut u = vec![0.0f32; n];
     let mut v = z.clone();
@@ -364,16 +401,8 @@ fn admm_single(
         }
         t.forward(&mut v);
         std::mem::swap(&mut x, &mut v);
-        let (mut changed, mut nnz) = (false, 0usize);
-        for i in 0..n {
-            let xh = a * x[i] + (1.0 - a) * z[i];
-            let zi = soft(xh + u[i]);
-            changed |= (zi != 0.0) != (z[i] != 0.0);
-            nnz += usize::from(zi != 0.0);
-            z[i] = zi;
-            u[i] += xh - zi;
-            v[i] = zi - u[i];
-        }
+        let Step { changed, nnz, .. } =
+            admm_update::<f32, false>(&x, &mut z, &mut u, &mut v, a, inv);
         stable = if changed || nnz != prev_nnz {
             0
         } else {

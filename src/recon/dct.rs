@@ -29,9 +29,9 @@ enum RealPair<T: FftNum> {
 
 impl<T: FftNum> RealPair<T> {
     fn new(n: usize) -> Self {
-        // Rader pays off once n is not tiny (measured at 1901: DCT pair 48 → 34 µs). Its tables
-        // absorb Makhoul's permutation v_j = g_(2j) (j < ⌈n/2⌉), g_(2(n−1−j)+1) (the rest).
-        if n >= 64 {
+        // Rader's tables absorb Makhoul's permutation v_j = g_(2j) (j < ⌈n/2⌉),
+        // g_(2(n−1−j)+1) (the rest).
+        if super::rader::pays_off(n) {
             let h = n.div_ceil(2);
             let perm: Vec<usize> = (0..n)
                 .map(|j| if j < h { 2 * j } else { 2 * (n - 1 - j) + 1 })
@@ -199,7 +199,7 @@ impl Dct {
     pub fn new(n: usize) -> Self {
         Self::with_backend(
             n,
-            (n.is_multiple_of(2) && n >= 2) || (n >= 64 && super::rader::is_prime(n)),
+            (n.is_multiple_of(2) && n >= 2) || super::rader::pays_off(n),
         )
     }
 
