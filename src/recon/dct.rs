@@ -300,6 +300,40 @@ impl Dct {
         self.forward(w);
     }
 
+    /// Columns `cols` (distinct) of Ψ at `rows` in single precision, column c into `out[c]`
+    /// (each at least rows.len() long), for single-precision factors. The
+    /// Chebyshev recurrence cos((k+1)φ) = 2 cos φ cos kφ − cos((k−1)φ) runs over k ≤ max(cols)
+    /// for blocks of 16 rows held in registers, instead of a table lookup per entry (a Barrett
+    /// reduction and a gather: 0.82 → ~0.15 ms for a 600 x 600 basis at n = 1901). Its rounding
+    /// grows as ~k²ε (≤ 2e-10 at n = 1901), far below f32's.
+    pub fn basis_block_f32(&self, rows: &[usize], cols: &[usize], out: &mut [&mut [f32]]) {
+        let Some(&kmax) = cols.iter().max() else {
+            return;
+        };
+        assert!(out.len() == cols.len() && out.iter().all(|c| c.len() >= rows.len()));
+        let mut at = vec![u32::MAX; kmax + 1];
+        for (c, &k) in cols.iter().enumerate() {
+            at[k] = c as u32;
+        }
+        let nf = self.n as f64;
+        let (w0, wk) = (self.s0, self.sk);
+        for r0 in (0..rows.len()).step_by(CHEB_ROWS) {
+            let len = CHEB_ROWS.min(rows.len() - r0);
+            let mut x2 = [0.0; CHEB_ROWS];
+            for (x, &i) in x2.iter_mut().zip(&rows[r0..r0 + len]) {
+                *x = 2.0 * (std::f64::consts::PI * (2 * i + 1) as f64 / (2.0 * nf)).cos();
+            }
+            #[cfg(target_arch = "x86_64")]
+            if len == CHEB_ROWS && super::simd::has_avx2_fma() {
+                // SAFETY: AVX2 and FMA are present (checked), and every column of `out` holds
+                // rows r0..r0 + 16 (asserted above).
+                unsafe { chebyshev_rows_avx2(&x2, &at, (w0, wk), out, r0) };
+                continue;
+            }
+            chebyshev_rows(&x2, &at, (w0, wk), out, r0, len);
+        }
+    }
+
     /// Column k of Ψ at the given rows: out[r] = Ψ[rows[r], k].
     pub fn basis_column(&self, k: usize, rows: &[usize], out: &mut [f64]) {
         if k == 0 {
@@ -316,6 +350,88 @@ impl Dct {
             j -= if j >= p { p } else { 0 };
             j -= if j >= p { p } else { 0 };
             *o = self.sk * self.cos_table[j as usize];
+        }
+    }
+}
+
+/// Rows per register block of [`Dct::basis_block_f32`].
+const CHEB_ROWS: usize = 16;
+
+/// [`chebyshev_rows`] for a full block, in AVX2 registers (the compiler's own vectorisation of
+/// it spilled the block to the stack at every step).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn chebyshev_rows_avx2(
+    x2: &[f64; CHEB_ROWS],
+    at: &[u32],
+    (w0, wk): (f64, f64),
+    out: &mut [&mut [f32]],
+    r0: usize,
+) {
+    use std::arch::x86_64::*;
+    let xp = x2.as_ptr();
+    let x = [
+        _mm256_loadu_pd(xp),
+        _mm256_loadu_pd(xp.add(4)),
+        _mm256_loadu_pd(xp.add(8)),
+        _mm256_loadu_pd(xp.add(12)),
+    ];
+    let half = _mm256_set1_pd(0.5);
+    let mut prev = [_mm256_set1_pd(1.0); 4];
+    let mut cur = [
+        _mm256_mul_pd(half, x[0]),
+        _mm256_mul_pd(half, x[1]),
+        _mm256_mul_pd(half, x[2]),
+        _mm256_mul_pd(half, x[3]),
+    ];
+    for (k, &col) in at.iter().enumerate() {
+        if col != u32::MAX {
+            let (src, w) = if k == 0 { (prev, w0) } else { (cur, wk) };
+            let w = _mm256_set1_pd(w);
+            let dst = out[col as usize].as_mut_ptr().add(r0);
+            for (q, v) in src.iter().enumerate() {
+                _mm_storeu_ps(dst.add(4 * q), _mm256_cvtpd_ps(_mm256_mul_pd(w, *v)));
+            }
+        }
+        if k >= 1 {
+            for q in 0..4 {
+                let t = _mm256_fmsub_pd(x[q], cur[q], prev[q]);
+                prev[q] = cur[q];
+                cur[q] = t;
+            }
+        }
+    }
+}
+
+/// The recurrence for one block of rows (x2 = 2 cos φ per row), writing column `at[k]` of `out`
+/// at each k that has one.
+fn chebyshev_rows(
+    x2: &[f64; CHEB_ROWS],
+    at: &[u32],
+    (w0, wk): (f64, f64),
+    out: &mut [&mut [f32]],
+    r0: usize,
+    len: usize,
+) {
+    let mut prev = [1.0; CHEB_ROWS];
+    let mut cur = [0.0; CHEB_ROWS];
+    for (c, x) in cur.iter_mut().zip(x2) {
+        *c = 0.5 * x;
+    }
+    for (k, &col) in at.iter().enumerate() {
+        if col != u32::MAX {
+            let (src, w) = if k == 0 { (&prev, w0) } else { (&cur, wk) };
+            let dst = &mut out[col as usize][r0..r0 + len];
+            for (d, v) in dst.iter_mut().zip(src) {
+                *d = (w * v) as f32;
+            }
+        }
+        if k >= 1 {
+            for j in 0..CHEB_ROWS {
+                let t = x2[j] * cur[j] - prev[j];
+                prev[j] = cur[j];
+                cur[j] = t;
+            }
         }
     }
 }
@@ -415,6 +531,32 @@ mod tests {
                         .cos();
                 assert!((c - d.basis(i, k)).abs() < 1e-15, "i={i} k={k}");
                 assert!((c - exact).abs() < 1e-12, "i={i} k={k}");
+            }
+        }
+    }
+
+    /// The single-precision block (Chebyshev recurrence, AVX2 blocks of 16 rows and the portable
+    /// tail) equals the exact columns to f32 rounding, in the caller's column order, at the
+    /// paper's n with a row count that is not a multiple of 16 and k from 0 to n − 1.
+    #[test]
+    fn basis_block_f32_matches_the_columns() {
+        let n = 1901;
+        let d = Dct::new(n);
+        let rows: Vec<usize> = (0..n).filter(|i| i % 7 == 3 || *i == 0 || *i == n - 1).collect();
+        assert!(rows.len() % 16 != 0);
+        let cols = [n - 1, 0, 1, 950, 17, 1900 - 64, 2, 1234];
+        let mut block = vec![vec![f32::NAN; rows.len()]; cols.len()];
+        let mut out: Vec<&mut [f32]> = block.iter_mut().map(|c| c.as_mut_slice()).collect();
+        d.basis_block_f32(&rows, &cols, &mut out);
+        let mut col = vec![0.0; rows.len()];
+        for (c, &k) in cols.iter().enumerate() {
+            d.basis_column(k, &rows, &mut col);
+            for (r, (&got, &want)) in block[c].iter().zip(&col).enumerate() {
+                assert!(
+                    (f64::from(got) - want).abs() < 1e-8,
+                    "k={k} row {}: {got} vs {want}",
+                    rows[r]
+                );
             }
         }
     }

@@ -9,6 +9,7 @@ pub mod dct;
 pub mod interp;
 pub mod physics;
 pub mod rader;
+pub(crate) mod simd;
 pub mod simplex;
 
 use std::str::FromStr;
