@@ -542,8 +542,10 @@ mod tests {
     fn basis_block_f32_matches_the_columns() {
         let n = 1901;
         let d = Dct::new(n);
-        let rows: Vec<usize> = (0..n).filter(|i| i % 7 == 3 || *i == 0 || *i == n - 1).collect();
-        assert!(rows.len() % 16 != 0);
+        let rows: Vec<usize> = (0..n)
+            .filter(|i| i % 7 == 3 || *i == 0 || *i == n - 1)
+            .collect();
+        assert!(!rows.len().is_multiple_of(16));
         let cols = [n - 1, 0, 1, 950, 17, 1900 - 64, 2, 1234];
         let mut block = vec![vec![f32::NAN; rows.len()]; cols.len()];
         let mut out: Vec<&mut [f32]> = block.iter_mut().map(|c| c.as_mut_slice()).collect();

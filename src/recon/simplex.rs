@@ -666,36 +666,47 @@ fn run<T: Real>(
         }
         // Basic variables x_B(t) = x_B - t·sj·d_B as the entering variable grows to sj·t;
         // f'(0+) = 1 - |w_j| on a non-degenerate basis, +2|d_b| at each breakpoint passed (long
-        // step). Basic variables as in `Restricted::basics`.
+        // step). One branch-free pass over the identity rows and C (rows of R hold x = d = 0 and
+        // count for nothing) gives the slope, the largest |d| and the first breakpoint, which
+        // usually turns the slope non-negative; only otherwise are all breakpoints collected.
+        // Measured at m = 600: collecting them at every pivot, branching on the random signs of
+        // x and t, was ~7 µs of a ~22 µs pivot; now ~3.6.
         let nc = lp.c.len();
-        let val = |b: usize| if b < m { xi[b] } else { xc[b - m] };
         let dir = |b: usize| sj * if b < m { di[b] } else { dc[b - m] };
-        breaks.clear();
-        let mut zero_basic: Option<(usize, f64)> = None;
+        let basics = || {
+            (0..m)
+                .map(|i| (i, xi[i], sj * di[i]))
+                .chain((0..nc).map(|p| (m + p, xc[p], sj * dc[p])))
+        };
         let mut dmax = 0.0f64;
         let mut slope = 1.0;
-        for b in lp.basics() {
-            let (x, d) = (val(b), dir(b));
-            dmax = dmax.max(d.abs());
-            if x.abs() <= zero_tol {
-                slope += d.abs();
-                if zero_basic.is_none_or(|(_, q)| d.abs() > q) && d.abs() > 1e-12 {
-                    zero_basic = Some((b, d.abs()));
-                }
-            } else {
-                slope -= sign(x) * d;
-                let t = x / d;
-                if t > 0.0 {
-                    breaks.push((t, b, 2.0 * d.abs()));
-                }
-            }
+        let mut first = (f64::INFINITY, usize::MAX, 0.0);
+        for (b, x, d) in basics() {
+            let ad = d.abs();
+            dmax = dmax.max(ad);
+            let live = x.abs() > zero_tol;
+            slope += if live { -(1f64.copysign(x) * d) } else { ad };
+            let t = x / d;
+            let better = live & (t > 0.0) & (t < first.0);
+            first = if better { (t, b, 2.0 * ad) } else { first };
         }
         let (b, t) = if slope >= 0.0 {
-            match zero_basic {
-                Some((b, _)) => (b, 0.0),
+            // Degenerate step: the degenerate basic with the largest |d| leaves at t = 0.
+            let zero = basics()
+                .filter(|&(_, x, d)| x.abs() <= zero_tol && d.abs() > 1e-12)
+                .max_by(|a, b| a.2.abs().total_cmp(&b.2.abs()));
+            match zero {
+                Some((b, _, _)) => (b, 0.0),
                 None => return None,
             }
+        } else if slope + first.2 >= 0.0 {
+            (first.1, first.0)
         } else {
+            breaks.clear();
+            breaks.extend(basics().filter_map(|(b, x, d)| {
+                let t = x / d;
+                (x.abs() > zero_tol && t > 0.0).then_some((t, b, 2.0 * d.abs()))
+            }));
             long_step(&mut breaks, slope)?
         };
         if dir(b).abs() < 1e-10 * dmax {
