@@ -268,7 +268,7 @@ pub fn solve_fast(
 
     if bp && m <= s.exact_max_m {
         // The ADMM run before the exact finish only ranks columns, so it runs in f32 (the
-        // transforms' cost ~1.4x lower at n = 1901); if the finish fails, the f64 iterations
+        // transforms' cost ~1.5x lower at n = 1901); if the finish fails, the f64 iterations
         // below take over and retry it at twice the budget.
         let (zs, us, its) = admm_single(dct, idx, h, &z, rho, alpha, next_finish, next_stable);
         if let Some((theta, dual, pivots)) = exact_finish(dct, idx, h, &zs, &us, rho, s, false) {

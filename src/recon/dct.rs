@@ -6,7 +6,7 @@
 //! Even lengths use Makhoul's algorithm on a real FFT of length n (realfft: one complex FFT of
 //! n/2 on rustfft's SIMD kernels), 1.7-1.8x faster than rustdct at 1900, 2048 and 65 536
 //! (`cargo run --release -- bench dct`, BENCHMARKS.md). Prime lengths ≥ 64 (the paper's n = 1901)
-//! take the same path with the real FFT done by Rader's algorithm ([`super::rader`]), 1.4x faster
+//! take the same path with the real FFT done by Rader's algorithm ([`super::rader`]), 2.2x faster
 //! than rustdct at 1901; other odd lengths go through rustdct (there the real FFT is a full
 //! complex one and the two paths tie).
 use std::sync::Arc;
@@ -204,7 +204,7 @@ impl Dct {
     }
 
     /// `makhoul`: the real-FFT path (any n ≥ 2; [`Dct::new`] takes it for even n, where it is
-    /// 1.7-1.8x faster, and for primes ≥ 64 through Rader, 1.4x); otherwise rustdct.
+    /// 1.7-1.8x faster, and for primes ≥ 64 through Rader, 2.2x); otherwise rustdct.
     pub fn with_backend(n: usize, makhoul: bool) -> Self {
         let backend = if makhoul && n >= 2 {
             Backend::Makhoul(Box::new(Makhoul::new(n)))

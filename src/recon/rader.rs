@@ -111,9 +111,12 @@ enum Form {
     Padded,
 }
 
-/// The folded convolution: `convolve` takes re ← re ⊛ c (cyclic) and im ← im ⊛ d (negacyclic),
-/// both of length H = (p − 1)/2 (c, d: the kernel's cosine and sine parts), and returns Σ re of
-/// the input (a DC bin it computes anyway: the sums Rader's transforms need come free).
+/// The convolution folded in half: with H = (p − 1)/2, g^H = −1 for any odd prime, so the
+/// kernel's cosine part c_s = cos(2π g^s / p) is H-periodic and its sine part d_s is
+/// H-antiperiodic, and the length-(p − 1) complex convolution of real data becomes a real cyclic
+/// one of length H with c and a real negacyclic one of length H with d. `convolve` takes
+/// re ← re ⊛ c and im ← im ⊛ d, and returns Σ re of the input (a DC bin it computes anyway: the
+/// sums Rader's transforms need come free).
 trait Fold<T>: Send + Sync {
     fn bufs(&mut self) -> (&mut [T], &mut [T]);
     fn convolve(&mut self) -> T;
@@ -154,11 +157,7 @@ struct Full<T: FftNum> {
     scratch: Vec<Complex<T>>,
 }
 
-/// The convolution folded in half, for f32 ([`Halved`] for f64): with H = (p − 1)/2, g^H = −1
-/// for any odd prime, so the
-/// kernel's cosine part c_s = cos(2π g^s / p) is H-periodic and its sine part d_s is
-/// H-antiperiodic. The length-(p − 1) complex convolution becomes a real cyclic one of length H
-/// with c and a real negacyclic one of length H with d. Both are computed as one complex linear
+/// The folded convolution for f32 ([`Halved`] for f64): both halves as one complex linear
 /// convolution zero-padded to a power of two L ≥ 2H − 1: z = x + iy, Z = FFT(z),
 /// W_q = Z_q·P_q + conj(Z_(L−q))·Q_q with P = (Ĉ + D̂)/2L, Q = (Ĉ − D̂)/2L the spectra of the
 /// kernels extended cyclically (c) and anti-cyclically (d) over negative lags, w = IFFT(W):
@@ -180,13 +179,10 @@ struct Padded<T: FftNum> {
     scratch: Vec<Complex<T>>,
 }
 
-/// The convolution folded in half for p ≡ 1 (mod 4), f64 ([`Padded`] for f32): with H = (p − 1)/2,
-/// g^H = −1, so the kernel's cosine part c_s = cos(2π g^s / p) is H-periodic and its sine part
-/// d_s is H-antiperiodic. The length-(p − 1) complex convolution becomes a real cyclic one of
-/// length H with c and a real negacyclic one of length H with d; with H even the latter is a
-/// complex cyclic convolution of length H/2 after the right-angle twist w^l, w = e^(iπ/H)
-/// (t^H + 1 = (t^(H/2) − i)(t^(H/2) + i), and real data need only one factor). At 1901: FFTs of
-/// 950 (real) and 475 (complex) instead of 1900 (real) and 1900 (complex).
+/// The folded convolution for f64 ([`Padded`] for f32), H even (p ≡ 1 mod 4): the negacyclic
+/// half is a complex cyclic convolution of length H/2 after the right-angle twist w^l,
+/// w = e^(iπ/H) (t^H + 1 = (t^(H/2) − i)(t^(H/2) + i), and real data need only one factor). At
+/// 1901: FFTs of 950 (real) and 475 (complex) instead of 1900 (real) and 1900 (complex).
 struct Halved<T: FftNum> {
     h: usize,
     r2c: Arc<dyn RealToComplex<T>>,
