@@ -122,24 +122,6 @@ trait Fold<T>: Send + Sync {
     fn convolve(&mut self) -> T;
 }
 
-impl<T: FftNum> Fold<T> for Padded<T> {
-    fn bufs(&mut self) -> (&mut [T], &mut [T]) {
-        (&mut self.re, &mut self.im)
-    }
-    fn convolve(&mut self) -> T {
-        Padded::convolve(self)
-    }
-}
-
-impl<T: FftNum> Fold<T> for Halved<T> {
-    fn bufs(&mut self) -> (&mut [T], &mut [T]) {
-        (&mut self.re, &mut self.im)
-    }
-    fn convolve(&mut self) -> T {
-        Halved::convolve(self)
-    }
-}
-
 /// The convolution as it stands (the reference form): one real and one complex FFT of length
 /// p − 1 per direction.
 struct Full<T: FftNum> {
@@ -259,9 +241,13 @@ impl<T: FftNum> Padded<T> {
             scratch: vec![cx(0.0, 0.0); scratch_len],
         }
     }
+}
 
-    /// re ← re ⊛ c (cyclic), im ← im ⊛ d (negacyclic), both of length H; returns Σ re of the
-    /// input (the DC bin's real part: the sums Rader's transforms need come free).
+impl<T: FftNum> Fold<T> for Padded<T> {
+    fn bufs(&mut self) -> (&mut [T], &mut [T]) {
+        (&mut self.re, &mut self.im)
+    }
+
     fn convolve(&mut self) -> T {
         let (h, l) = (self.h, self.z.len());
         for ((z, &r), &i) in self.z.iter_mut().zip(&self.re).zip(&self.im) {
@@ -271,6 +257,8 @@ impl<T: FftNum> Padded<T> {
         self.fft
             .process_with_scratch(&mut self.z, &mut self.scratch);
         let dc = self.z[0].re;
+        // Bin 0 apart: the loop over Z_(L−q) without a wrapped index vectorises (a masked index
+        // in one loop made the f32 DCT pair 21 → 30 µs).
         self.w[0] = self.z[0] * self.p[0] + self.z[0].conj() * self.q[0];
         for k in 1..l {
             self.w[k] = self.z[k] * self.p[k] + self.z[l - k].conj() * self.q[k];
@@ -344,9 +332,13 @@ impl<T: FftNum> Halved<T> {
             scratch,
         }
     }
+}
 
-    /// re ← re ⊛ c (cyclic), im ← im ⊛ d (negacyclic), both of length H; returns Σ re of the
-    /// input (its spectrum's DC bin).
+impl<T: FftNum> Fold<T> for Halved<T> {
+    fn bufs(&mut self) -> (&mut [T], &mut [T]) {
+        (&mut self.re, &mut self.im)
+    }
+
     fn convolve(&mut self) -> T {
         let (h, k) = (self.h, self.h / 2);
         for (l, z) in self.z.iter_mut().enumerate() {

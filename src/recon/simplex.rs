@@ -578,8 +578,7 @@ fn run<T: Real>(
         }
         let cc = Col::<f64>::from_fn(xc.nrows(), |p| sign(xc[p]));
         lp.btran(&ci, &cc, &mut y);
-        // Dantzig pricing over the restricted problem's non-basic columns (unless the refined
-        // dual has already named the entering column).
+        // Dantzig pricing over the restricted problem's non-basic columns.
         let (mut enter, mut best) = (None, 1.0 + tol);
         for &i in &lp.r {
             if y[i].abs() > best {
