@@ -372,7 +372,8 @@ pub fn solve_fast(
 
 /// BP's ADMM in f32 from the thresholded minimum-energy point `z0`, for at most `iters`
 /// iterations or until the support has not changed for `stable_iter`: returns (z, u, iterations)
-/// for [`rank_columns`].
+/// for [`rank_columns`]. At the prime lengths that take Rader's transform it runs on vectors kept
+/// in Rader's order ([`super::fused`]).
 #[allow(clippy::too_many_arguments)]
 fn admm_single(
     dct: &mut Dct,
@@ -384,6 +385,9 @@ fn admm_single(
     iters: usize,
     stable_iter: usize,
 ) -> (Vec<f64>, Vec<f64>, usize) {
+    if let Some(f) = dct.rader_admm() {
+        return f.admm(idx, h, z0, rho, alpha, iters, stable_iter);
+    }
     let t = dct.single();
     let n = t.len();
     let hs: Vec<f32> = h.iter().map(|&v| v as f32).collect();

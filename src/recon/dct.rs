@@ -16,6 +16,7 @@ use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustdct::{DctPlanner, TransformType2And3};
 use rustfft::FftNum;
 
+use super::fused::RaderAdmm;
 use super::rader::RaderReal;
 
 /// A real FFT pair of length n: realfft's plans, or Rader's algorithm for a prime n.
@@ -186,6 +187,8 @@ pub struct Dct {
     backend: Backend,
     /// The same transform in f32, planned on first use ([`Dct::single`]).
     single: Option<Box<Makhoul<f32>>>,
+    /// BP's f32 ADMM in Rader's order, planned on first use ([`Dct::rader_admm`]).
+    fused: Option<Box<RaderAdmm>>,
     s0: f64,
     sk: f64,
     /// cos(π j / 2n), j < 4n: basis entries are table lookups (dense bases are built often).
@@ -221,6 +224,7 @@ impl Dct {
             n,
             backend,
             single: None,
+            fused: None,
             s0: (1.0 / nf).sqrt(),
             sk: (2.0 / nf).sqrt(),
             cos_table,
@@ -234,6 +238,15 @@ impl Dct {
 
     pub fn is_empty(&self) -> bool {
         self.n == 0
+    }
+
+    /// The f32 ranking ADMM in Rader's order, for the prime lengths that take Rader's transform
+    /// (`None` otherwise).
+    pub fn rader_admm(&mut self) -> Option<&mut RaderAdmm> {
+        if self.fused.is_none() && super::rader::pays_off(self.n) {
+            self.fused = RaderAdmm::new(self.n).map(Box::new);
+        }
+        self.fused.as_deref_mut()
     }
 
     /// The transform in single precision (n ≥ 2): for iterations whose result is only a ranking.

@@ -6,6 +6,7 @@
 //! reports that cross-validated error as the estimate of the reconstruction error.
 pub mod bp;
 pub mod dct;
+pub mod fused;
 pub mod interp;
 pub mod physics;
 pub mod rader;
@@ -19,7 +20,7 @@ use serde::Serialize;
 
 use crate::grid::Grid;
 use crate::samples::GridSamples;
-use bp::{BpSolution, FastSettings, Problem, SolveStatus};
+use bp::{FastSettings, Problem, SolveStatus};
 use dct::Dct;
 use physics::PhysicsParams;
 
@@ -195,7 +196,16 @@ pub fn reconstruct(
                     epsilon: s.noise_um * (m as f64).sqrt(),
                 }
             };
-            let sol = solve_bp(grid, samples, problem, s);
+            // One transform plan serves the solve and the curve's synthesis.
+            let mut dct = Dct::new(n);
+            let sol = match s.solver {
+                Solver::Fast => {
+                    bp::solve_fast(&mut dct, &samples.idx, &samples.values, problem, &s.fast)
+                }
+                Solver::Clarabel => {
+                    bp::solve_clarabel(&dct, &samples.idx, &samples.values, problem)
+                }
+            };
             out.solver = match s.solver {
                 Solver::Fast => "fast".into(),
                 Solver::Clarabel => "clarabel".into(),
@@ -208,7 +218,7 @@ pub fn reconstruct(
                 .map(|d| ((sol.objective - d) / sol.objective.max(1e-300)).max(0.0));
             out.status = Some(sol.status);
             let mut g = sol.theta;
-            Dct::new(n).inverse(&mut g);
+            dct.inverse(&mut g);
             out.values = g;
         }
         Method::Linear | Method::Pchip => {
@@ -251,14 +261,6 @@ pub fn reconstruct(
     }
     out.solve_ms = t0.elapsed().as_secs_f64() * 1e3;
     Ok(out)
-}
-
-fn solve_bp(grid: &Grid, samples: &GridSamples, problem: Problem, s: &ReconSettings) -> BpSolution {
-    let mut dct = Dct::new(grid.n);
-    match s.solver {
-        Solver::Fast => bp::solve_fast(&mut dct, &samples.idx, &samples.values, problem, &s.fast),
-        Solver::Clarabel => bp::solve_clarabel(&dct, &samples.idx, &samples.values, problem),
-    }
 }
 
 fn interpolate(method: Method, grid: &Grid, idx: &[usize], y: &[f64]) -> Vec<f64> {

@@ -37,7 +37,7 @@ pub fn pays_off(n: usize) -> bool {
     n >= 64 && is_prime(n)
 }
 
-fn pow_mod(mut b: u64, mut e: u64, p: u64) -> u64 {
+pub(super) fn pow_mod(mut b: u64, mut e: u64, p: u64) -> u64 {
     let mut r = 1;
     b %= p;
     while e > 0 {
@@ -51,7 +51,7 @@ fn pow_mod(mut b: u64, mut e: u64, p: u64) -> u64 {
 }
 
 /// The smallest primitive root modulo the prime p.
-fn primitive_root(p: usize) -> usize {
+pub(super) fn primitive_root(p: usize) -> usize {
     let m = p - 1;
     let mut factors = Vec::new();
     let (mut r, mut d) = (m, 2);
@@ -147,18 +147,18 @@ struct Full<T: FftNum> {
 /// SIMD) per direction instead of FFTs of 950 and 475, whose factor 19 runs on a scalar
 /// butterfly (39 % of a DCT pair). Measured at 1901 (`bench dct`): f32 pair 25.3 → 21.7 µs, but
 /// f64 31.9 → 37.9 µs (f64 FFTs of 2048 are the slower part there).
-struct Padded<T: FftNum> {
-    h: usize,
-    fft: Arc<dyn Fft<T>>,
-    ifft: Arc<dyn Fft<T>>,
-    p: Vec<Complex<T>>,
-    q: Vec<Complex<T>>,
+pub(super) struct Padded<T: FftNum> {
+    pub(super) h: usize,
+    pub(super) fft: Arc<dyn Fft<T>>,
+    pub(super) ifft: Arc<dyn Fft<T>>,
+    pub(super) p: Vec<Complex<T>>,
+    pub(super) q: Vec<Complex<T>>,
     /// The cyclic part's input and output (H reals), the negacyclic part's (H reals).
-    re: Vec<T>,
-    im: Vec<T>,
-    z: Vec<Complex<T>>,
-    w: Vec<Complex<T>>,
-    scratch: Vec<Complex<T>>,
+    pub(super) re: Vec<T>,
+    pub(super) im: Vec<T>,
+    pub(super) z: Vec<Complex<T>>,
+    pub(super) w: Vec<Complex<T>>,
+    pub(super) scratch: Vec<Complex<T>>,
 }
 
 /// The folded convolution for f64 ([`Padded`] for f32), H even (p ≡ 1 mod 4): the negacyclic
@@ -194,7 +194,7 @@ fn cx<T: FftNum>(re: f64, im: f64) -> Complex<T> {
 
 impl<T: FftNum> Padded<T> {
     /// `phase[s]` = 2π g^s / p for s < H.
-    fn new(phase: &[f64]) -> Self {
+    pub(super) fn new(phase: &[f64]) -> Self {
         let h = phase.len();
         let l = (2 * h - 1).next_power_of_two();
         // The kernels over lags −(H−1)..H−1, negative lags wrapped to the top of the buffer.
