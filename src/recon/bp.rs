@@ -385,28 +385,48 @@ fn admm_single(
     iters: usize,
     stable_iter: usize,
 ) -> (Vec<f64>, Vec<f64>, usize) {
-    if let Some(f) = dct.rader_admm() {
-        return f.admm(idx, h, z0, rho, alpha, iters, stable_iter);
-    }
-    let t = dct.single();
-    let n = t.len();
     let hs: Vec<f32> = h.iter().map(|&v| v as f32).collect();
     let (inv, a) = ((1.0 / rho) as f32, alpha as f32);
-    let mut z: Vec<f32> = z0.iter().map(|&v| v as f32).collect();
+    if let Some(f) = dct.rader_admm() {
+        let samples = f.samples(idx);
+        let z = f.to_layout(z0);
+        let (z, u, done) = ranking_loop(z, a, inv, iters, stable_iter, |v, x| {
+            f.project(v, &samples, &hs, x)
+        });
+        return (f.to_natural(&z), f.to_natural(&u), done);
+    }
+    let t = dct.single();
+    let z = z0.iter().map(|&v| v as f32).collect();
+    let (z, u, done) = ranking_loop(z, a, inv, iters, stable_iter, |v, x| {
+        x.copy_from_slice(v);
+        t.inverse(x);
+        for (k, &i) in idx.iter().enumerate() {
+            x[i] = hs[k];
+        }
+        t.forward(x);
+    });
+    let wide = |w: Vec<f32>| w.into_iter().map(f64::from).collect();
+    (wide(z), wide(u), done)
+}
+
+/// The f32 ADMM iterations from z (u = 0) with the projection `project(v, x)`: x = P(v).
+fn ranking_loop(
+    mut z: Vec<f32>,
+    alpha: f32,
+    inv: f32,
+    iters: usize,
+    stable_iter: usize,
+    mut project: impl FnMut(&[f32], &mut [f32]),
+) -> (Vec<f32>, Vec<f32>, usize) {
+    let n = z.len();
     let mut u = vec![0.0f32; n];
     let mut v = z.clone();
     let mut x = vec![0.0f32; n];
     let (mut stable, mut prev_nnz, mut done) = (0, 0, 0);
     for it in 1..=iters {
         done = it;
-        t.inverse(&mut v);
-        for (k, &i) in idx.iter().enumerate() {
-            v[i] = hs[k];
-        }
-        t.forward(&mut v);
-        std::mem::swap(&mut x, &mut v);
-        let Step { changed, nnz, .. } =
-            admm_update::<f32, false>(&x, &mut z, &mut u, &mut v, a, inv);
+        project(&v, &mut x);
+        let Step { changed, nnz, .. } = update_single(&x, &mut z, &mut u, &mut v, alpha, inv);
         stable = if changed || nnz != prev_nnz {
             0
         } else {
@@ -417,8 +437,35 @@ fn admm_single(
             break;
         }
     }
-    let wide = |w: Vec<f32>| w.into_iter().map(f64::from).collect();
-    (wide(z), wide(u), done)
+    (z, u, done)
+}
+
+/// [`admm_update`] in f32, compiled for AVX2 when the CPU has it (the crate's baseline is SSE2).
+fn update_single(
+    x: &[f32],
+    z: &mut [f32],
+    u: &mut [f32],
+    v: &mut [f32],
+    alpha: f32,
+    inv: f32,
+) -> Step<f32> {
+    #[cfg(target_arch = "x86_64")]
+    if super::simd::has_avx2_fma() {
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn avx2(
+            x: &[f32],
+            z: &mut [f32],
+            u: &mut [f32],
+            v: &mut [f32],
+            a: f32,
+            i: f32,
+        ) -> Step<f32> {
+            admm_update::<f32, false>(x, z, u, v, a, i)
+        }
+        // SAFETY: AVX2 and FMA are present (checked).
+        return unsafe { avx2(x, z, u, v, alpha, inv) };
+    }
+    admm_update::<f32, false>(x, z, u, v, alpha, inv)
 }
 
 /// Exact BP finish from ADMM's state: for a sparse optimum (far fewer non-zeros than samples,

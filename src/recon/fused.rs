@@ -3,14 +3,14 @@
 //! Each ADMM iteration projects onto {Aθ = h} with one DCT pair. Through [`super::dct::Makhoul`]
 //! and [`super::rader::RaderReal`] that pair spends more time permuting than transforming: the
 //! Makhoul and Rader index maps gather and scatter every entry four times, around four FFTs of
-//! 2048 (measured at n = 1901: a 23 µs pair, 10 µs of it FFTs). The ADMM update is elementwise, so
+//! 2048 (measured at n = 1901: a 21 µs pair, 10 µs of it FFTs). The ADMM update is elementwise, so
 //! it does not care in which order the coefficients are stored. Here they are stored in the order
 //! the forward transform's folded convolution produces them (a coefficient pair k, n − k per
 //! convolution output), and the signal is never formed at all: the forward convolution's input is
 //! the inverse convolution's output, read backwards (a Rader input index is the negative of an
 //! output index), plus the sample corrections h − g at the m sampled points. Every pass is then
 //! sequential; only the m sample corrections are scattered. Measured at n = 1901 (`bench dct`): a
-//! projection 16.3 µs against 21.1 µs for the f32 transform pair alone, and ~1 ms less per BP
+//! projection 16-17 µs against 21 µs for the f32 transform pair alone, and ~0.9 ms less per BP
 //! solve at m = 600 (100 ranking iterations).
 //!
 //! Layout of a coefficient vector X (length n = 2H + 1): X[0] = θ₀, X[1 + l] = θ_(k_l),
@@ -39,7 +39,8 @@ struct SamplePos {
 /// The sampled grid points of a problem, located for [`RaderAdmm::project`].
 pub struct Samples(Vec<SamplePos>);
 
-/// The projection v ↦ v + Aᵀ(h − Av) and the ADMM update, in f32, in Rader's order.
+/// The projection v ↦ v + Aᵀ(h − Av) in f32, in Rader's order (the ADMM loop around it is
+/// `bp::ranking_loop`).
 pub struct RaderAdmm {
     n: usize,
     h: usize,
@@ -292,113 +293,6 @@ impl RaderAdmm {
             *q = u[2] * a + u[3] * wl.im;
         }
     }
-
-    /// BP's ranking ADMM from the natural-order z0 (u = 0): at most `iters` iterations, or until
-    /// the support has not changed for `stable_iter`. Returns (z, u, iterations) in natural
-    /// order, as [`super::bp`]'s f32 loop does.
-    #[allow(clippy::too_many_arguments)]
-    pub fn admm(
-        &mut self,
-        idx: &[usize],
-        h: &[f64],
-        z0: &[f64],
-        rho: f64,
-        alpha: f64,
-        iters: usize,
-        stable_iter: usize,
-    ) -> (Vec<f64>, Vec<f64>, usize) {
-        let n = self.n;
-        let samples = self.samples(idx);
-        let hs: Vec<f32> = h.iter().map(|&v| v as f32).collect();
-        let (inv, a) = ((1.0 / rho) as f32, alpha as f32);
-        let mut z = self.to_layout(z0);
-        let mut u = vec![0.0f32; n];
-        let mut v = z.clone();
-        let mut x = vec![0.0f32; n];
-        let (mut stable, mut prev_nnz, mut done) = (0, 0, 0);
-        for it in 1..=iters {
-            done = it;
-            self.project(&v, &samples, &hs, &mut x);
-            let (changed, nnz) = update(&x, &mut z, &mut u, &mut v, a, inv);
-            stable = if changed || nnz != prev_nnz {
-                0
-            } else {
-                stable + 1
-            };
-            prev_nnz = nnz;
-            if stable >= stable_iter {
-                break;
-            }
-        }
-        (self.to_natural(&z), self.to_natural(&u), done)
-    }
-}
-
-/// The relaxed ADMM update (see `bp::admm_update`): z = soft(x̂ + u, 1/ρ), x̂ = αx + (1 − α)z,
-/// u += x̂ − z, v = z − u. Returns whether the support changed, and its size.
-fn update(
-    x: &[f32],
-    z: &mut [f32],
-    u: &mut [f32],
-    v: &mut [f32],
-    alpha: f32,
-    inv: f32,
-) -> (bool, usize) {
-    #[cfg(target_arch = "x86_64")]
-    if super::simd::has_avx2_fma() {
-        // SAFETY: AVX2 and FMA are present (checked).
-        return unsafe { update_avx2(x, z, u, v, alpha, inv) };
-    }
-    update_impl(x, z, u, v, alpha, inv)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn update_avx2(
-    x: &[f32],
-    z: &mut [f32],
-    u: &mut [f32],
-    v: &mut [f32],
-    alpha: f32,
-    inv: f32,
-) -> (bool, usize) {
-    update_impl(x, z, u, v, alpha, inv)
-}
-
-#[inline(always)]
-fn update_impl(
-    x: &[f32],
-    z: &mut [f32],
-    u: &mut [f32],
-    v: &mut [f32],
-    alpha: f32,
-    inv: f32,
-) -> (bool, usize) {
-    let beta = 1.0 - alpha;
-    let mut changed = 0u32;
-    let mut nnz = 0usize;
-    for (((&xi, zi), ui), vi) in x
-        .iter()
-        .zip(z.iter_mut())
-        .zip(u.iter_mut())
-        .zip(v.iter_mut())
-    {
-        let xh = alpha * xi + beta * *zi;
-        let t = xh + *ui;
-        let zn = if t > inv {
-            t - inv
-        } else if t < -inv {
-            t + inv
-        } else {
-            0.0
-        };
-        changed |= u32::from((zn != 0.0) != (*zi != 0.0));
-        nnz += usize::from(zn != 0.0);
-        *zi = zn;
-        *ui += xh - zn;
-        *vi = zn - *ui;
-    }
-    (changed != 0, nnz)
 }
 
 #[cfg(test)]
