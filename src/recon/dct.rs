@@ -28,16 +28,21 @@ enum RealPair<T: FftNum> {
     Rader(Box<RaderReal<T>>),
 }
 
+/// Makhoul's input order: v_j = x_(order[j]), the even indices ascending, then the odd ones
+/// descending.
+pub(super) fn makhoul_order(n: usize) -> Vec<usize> {
+    let h = n.div_ceil(2);
+    (0..n)
+        .map(|j| if j < h { 2 * j } else { 2 * (n - 1 - j) + 1 })
+        .collect()
+}
+
 impl<T: FftNum> RealPair<T> {
     fn new(n: usize) -> Self {
         // Rader's tables absorb Makhoul's permutation v_j = g_(2j) (j < ⌈n/2⌉),
         // g_(2(n−1−j)+1) (the rest).
         if super::rader::pays_off(n) {
-            let h = n.div_ceil(2);
-            let perm: Vec<usize> = (0..n)
-                .map(|j| if j < h { 2 * j } else { 2 * (n - 1 - j) + 1 })
-                .collect();
-            if let Some(r) = RaderReal::with_permutation(n, &perm) {
+            if let Some(r) = RaderReal::with_permutation(n, &makhoul_order(n)) {
                 return RealPair::Rader(Box::new(r));
             }
         }

@@ -20,7 +20,8 @@ use std::sync::Arc;
 use realfft::num_complex::Complex;
 use rustfft::Fft;
 
-use super::rader::{is_prime, pow_mod, primitive_root, Padded};
+use super::dct::makhoul_order;
+use super::rader::{generator_orders, is_prime, kernel_phases, Padded};
 
 type C32 = Complex<f32>;
 
@@ -75,24 +76,10 @@ impl RaderAdmm {
         }
         let p = n;
         let h = (p - 1) / 2;
-        let g = primitive_root(p);
-        let ginv = pow_mod(g as u64, (p - 2) as u64, p as u64) as usize;
-        let (mut in_idx, mut out_idx) = (Vec::with_capacity(p - 1), Vec::with_capacity(p - 1));
-        let (mut gi, mut go) = (1usize, 1usize);
-        for _ in 0..p - 1 {
-            in_idx.push(gi);
-            out_idx.push(go);
-            gi = gi * ginv % p;
-            go = go * g % p;
-        }
-        // Makhoul's input order: v_j = x_(perm j), evens ascending then odds descending.
-        let half = n.div_ceil(2);
-        let perm = |j: usize| if j < half { 2 * j } else { 2 * (n - 1 - j) + 1 };
+        let (in_idx, out_idx) = generator_orders(p);
+        let perm = makhoul_order(n);
         let half_bin = |k: usize| if k <= h { (k, 1.0f64) } else { (p - k, -1.0) };
-        let phase: Vec<f64> = out_idx[..h]
-            .iter()
-            .map(|&e| 2.0 * std::f64::consts::PI * e as f64 / p as f64)
-            .collect();
+        let phase = kernel_phases(p, &out_idx);
         let conv = Padded::<f32>::new(&phase);
         let nf = n as f64;
         let (s0, sk) = ((1.0 / nf).sqrt(), (2.0 / nf).sqrt());
@@ -135,13 +122,13 @@ impl RaderAdmm {
             // Forward input l = S0[−l] ± S1[−l]: for l = 0 re = S0 + S1, im = S0 − S1; otherwise
             // the roles swap (Rader's input index −l is output index l + H).
             let (f0, f1) = if l == 0 { (1.0, -1.0) } else { (-1.0, 1.0) };
-            sig[perm(out_idx[j])] = SamplePos {
+            sig[perm[out_idx[j]]] = SamplePos {
                 j,
                 g_im: -2.0,
                 l,
                 f_im: f0,
             };
-            sig[perm(out_idx[j + h])] = SamplePos {
+            sig[perm[out_idx[j + h]]] = SamplePos {
                 j,
                 g_im: 2.0,
                 l,
@@ -166,14 +153,6 @@ impl RaderAdmm {
             coef,
             sig,
         })
-    }
-
-    pub fn len(&self) -> usize {
-        self.n
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.n == 0
     }
 
     /// Natural vector → layout.
@@ -221,7 +200,6 @@ impl RaderAdmm {
         self.fft
             .process_with_scratch(&mut self.z, &mut self.scratch);
         let (z, w) = (&self.z, &mut self.w);
-        let l = z.len();
         let dc = z[0].re;
         w[0] = z[0] * self.p[0] + z[0].conj() * self.q[0];
         for ((((wk, &zk), &zr), &pk), &qk) in w[1..]
@@ -233,7 +211,6 @@ impl RaderAdmm {
         {
             *wk = zk * pk + zr.conj() * qk;
         }
-        debug_assert_eq!(w.len(), l);
         self.ifft
             .process_with_scratch(&mut self.w, &mut self.scratch);
         dc

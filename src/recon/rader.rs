@@ -37,7 +37,7 @@ pub fn pays_off(n: usize) -> bool {
     n >= 64 && is_prime(n)
 }
 
-pub(super) fn pow_mod(mut b: u64, mut e: u64, p: u64) -> u64 {
+fn pow_mod(mut b: u64, mut e: u64, p: u64) -> u64 {
     let mut r = 1;
     b %= p;
     while e > 0 {
@@ -51,7 +51,7 @@ pub(super) fn pow_mod(mut b: u64, mut e: u64, p: u64) -> u64 {
 }
 
 /// The smallest primitive root modulo the prime p.
-pub(super) fn primitive_root(p: usize) -> usize {
+fn primitive_root(p: usize) -> usize {
     let m = p - 1;
     let mut factors = Vec::new();
     let (mut r, mut d) = (m, 2);
@@ -74,6 +74,30 @@ pub(super) fn primitive_root(p: usize) -> usize {
                 .all(|&q| pow_mod(g as u64, (m / q) as u64, p as u64) != 1)
         })
         .unwrap_or(1)
+}
+
+/// Rader's index orders for the prime p with its smallest primitive root g: (g^(−l), g^l) mod p
+/// for l < p − 1 (input order, output order).
+pub(super) fn generator_orders(p: usize) -> (Vec<usize>, Vec<usize>) {
+    let g = primitive_root(p);
+    let ginv = pow_mod(g as u64, (p - 2) as u64, p as u64) as usize;
+    let (mut in_idx, mut out_idx) = (Vec::with_capacity(p - 1), Vec::with_capacity(p - 1));
+    let (mut gi, mut go) = (1usize, 1usize);
+    for _ in 0..p - 1 {
+        in_idx.push(gi);
+        out_idx.push(go);
+        gi = gi * ginv % p;
+        go = go * g % p;
+    }
+    (in_idx, out_idx)
+}
+
+/// The folded kernel's phases 2π g^s / p, s < (p − 1)/2, from the output order.
+pub(super) fn kernel_phases(p: usize, out_idx: &[usize]) -> Vec<f64> {
+    out_idx[..(p - 1) / 2]
+        .iter()
+        .map(|&e| 2.0 * std::f64::consts::PI * e as f64 / p as f64)
+        .collect()
 }
 
 /// Forward (real → half spectrum) and inverse (half spectrum → real, unnormalized) DFT of prime
@@ -436,17 +460,7 @@ impl<T: FftNum> RaderReal<T> {
         if p < 3 || !is_prime(p) || perm.len() != p {
             return None;
         }
-        let m = p - 1;
-        let g = primitive_root(p);
-        let ginv = pow_mod(g as u64, (p - 2) as u64, p as u64) as usize;
-        let (mut in_idx, mut out_idx) = (Vec::with_capacity(m), Vec::with_capacity(m));
-        let (mut gi, mut go) = (1usize, 1usize);
-        for _ in 0..m {
-            in_idx.push(gi);
-            out_idx.push(go);
-            gi = gi * ginv % p;
-            go = go * g % p;
-        }
+        let (in_idx, out_idx) = generator_orders(p);
         let h = (p - 1) / 2;
         // Measured at 1901: the padded form is the faster in f32, the halved one in f64.
         let form = form.unwrap_or(if std::mem::size_of::<T>() == 4 || !h.is_multiple_of(2) {
@@ -454,10 +468,7 @@ impl<T: FftNum> RaderReal<T> {
         } else {
             Form::Halved
         });
-        let phase: Vec<f64> = out_idx[..h]
-            .iter()
-            .map(|&e| 2.0 * std::f64::consts::PI * e as f64 / p as f64)
-            .collect();
+        let phase = kernel_phases(p, &out_idx);
         let conv = match form {
             Form::Full => Conv::Full(Box::new(Full::new(p, &out_idx))),
             Form::Padded => Conv::Folded(Box::new(Padded::new(&phase)) as Box<dyn Fold<T>>),
