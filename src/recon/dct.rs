@@ -203,7 +203,38 @@ pub struct Dct {
     barrett: u64,
 }
 
+/// Plans kept per thread by [`Dct::with_cached`]: a campaign reconstructs its axes and directions
+/// on the same grid, and `bench speed` repeats one n, so a plan outlives one solve.
+const PLAN_CACHE: usize = 4;
+
+thread_local! {
+    static PLANS: std::cell::RefCell<Vec<Dct>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
 impl Dct {
+    /// Runs `f` with this thread's plan for length n, planned on first use and kept for the
+    /// next call (the [`PLAN_CACHE`] most recently used lengths). Planning costs ~0.5 ms at
+    /// n = 1901, 7 % of a basis pursuit solve at m = 600.
+    pub fn with_cached<R>(n: usize, f: impl FnOnce(&mut Dct) -> R) -> R {
+        // Taken out of the cache while in use, so that a nested call plans its own.
+        let cached = PLANS.with(|p| {
+            let mut p = p.borrow_mut();
+            p.iter().position(|d| d.n == n).map(|i| p.remove(i))
+        });
+        let mut dct = cached.unwrap_or_else(|| Dct::new(n));
+        let out = f(&mut dct);
+        PLANS.with(|p| {
+            let mut p = p.borrow_mut();
+            // One plan per length (a nested call may have put one back meanwhile).
+            p.retain(|d| d.n != n);
+            if p.len() >= PLAN_CACHE {
+                p.remove(0);
+            }
+            p.push(dct);
+        });
+        out
+    }
+
     pub fn new(n: usize) -> Self {
         Self::with_backend(
             n,
@@ -457,6 +488,26 @@ fn chebyshev_rows(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A length's plan (with what it planned lazily) serves the next call on the thread, and a
+    /// long-running service holds at most [`PLAN_CACHE`] lengths.
+    #[test]
+    fn plans_are_reused_and_the_cache_is_bounded() {
+        Dct::with_cached(97, |d| {
+            d.single();
+        });
+        Dct::with_cached(97, |d| assert!(d.single.is_some(), "plan reused"));
+        // A nested call for the same length cannot share the plan in use: it plans its own.
+        Dct::with_cached(97, |_| {
+            Dct::with_cached(97, |d| assert!(d.single.is_none()))
+        });
+        PLANS.with(|p| assert_eq!(p.borrow().iter().filter(|d| d.n == 97).count(), 1));
+        for n in 98..98 + PLAN_CACHE {
+            Dct::with_cached(n, |_| ());
+        }
+        PLANS.with(|p| assert_eq!(p.borrow().len(), PLAN_CACHE));
+        Dct::with_cached(97, |d| assert!(d.single.is_none(), "oldest length evicted"));
+    }
 
     #[test]
     fn transform_pair_is_orthonormal_and_matches_the_basis() {

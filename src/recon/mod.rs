@@ -196,16 +196,21 @@ pub fn reconstruct(
                     epsilon: s.noise_um * (m as f64).sqrt(),
                 }
             };
-            // One transform plan serves the solve and the curve's synthesis.
-            let mut dct = Dct::new(n);
-            let sol = match s.solver {
-                Solver::Fast => {
-                    bp::solve_fast(&mut dct, &samples.idx, &samples.values, problem, &s.fast)
-                }
-                Solver::Clarabel => {
-                    bp::solve_clarabel(&dct, &samples.idx, &samples.values, problem)
-                }
-            };
+            // One transform plan serves the solve and the curve's synthesis (and later solves
+            // on this thread with the same n).
+            let (sol, g) = Dct::with_cached(n, |dct| {
+                let sol = match s.solver {
+                    Solver::Fast => {
+                        bp::solve_fast(dct, &samples.idx, &samples.values, problem, &s.fast)
+                    }
+                    Solver::Clarabel => {
+                        bp::solve_clarabel(dct, &samples.idx, &samples.values, problem)
+                    }
+                };
+                let mut g = sol.theta.clone();
+                dct.inverse(&mut g);
+                (sol, g)
+            });
             out.solver = match s.solver {
                 Solver::Fast => "fast".into(),
                 Solver::Clarabel => "clarabel".into(),
@@ -217,8 +222,6 @@ pub fn reconstruct(
                 .dual_objective
                 .map(|d| ((sol.objective - d) / sol.objective.max(1e-300)).max(0.0));
             out.status = Some(sol.status);
-            let mut g = sol.theta;
-            dct.inverse(&mut g);
             out.values = g;
         }
         Method::Linear | Method::Pchip => {
