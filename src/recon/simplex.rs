@@ -25,7 +25,7 @@ use faer::linalg::triangular_solve::{
     solve_lower_triangular_in_place, solve_unit_lower_triangular_in_place,
     solve_unit_upper_triangular_in_place, solve_upper_triangular_in_place,
 };
-use faer::{Accum, Col, ColRef, Mat, MatRef, Par};
+use faer::{Accum, Col, ColMut, ColRef, Mat, MatRef, Par};
 
 use super::dct::Dct;
 
@@ -239,10 +239,6 @@ struct Restricted {
 }
 
 impl Restricted {
-    fn tmat(&self) -> MatRef<'_, f64> {
-        MatRef::from_column_major_slice(&self.t, self.m, self.ke)
-    }
-
     fn tcol(&self, e: usize) -> &[f64] {
         &self.t[e * self.m..(e + 1) * self.m]
     }
@@ -324,6 +320,93 @@ impl Restricted {
         self.t.extend(col.iter().copied());
         self.c_pos.push(usize::MAX);
         self.ke += 1;
+    }
+}
+
+/// The simplex's dual during pivots, y = ĉ + (y_R on the rows R), where ĉ holds the identity
+/// rows' basic costs sign(x_i) with R zeroed. Keeping s = Tᵀĉ across pivots turns btran's
+/// T_{:,C}ᵀĉ into s_C and pricing's Tᵀy into s + T_{R,:}ᵀy_R: a pivot changes ĉ on a few rows
+/// (the leaving and entering ones, signs flipped by a long step), so two m x ke products per
+/// pivot become a few row updates (measured at m = 600: ~8 µs of a ~26 µs pivot).
+struct Pricer {
+    chat: Vec<f64>,
+    s: Vec<f64>,
+}
+
+/// Changed rows of ĉ beyond which s is recomputed rather than updated.
+const PRICER_ROWS: usize = 24;
+
+impl Pricer {
+    /// ĉ for the current basic solution and R; s to match (in full when `full`, which bounds
+    /// the drift of the updates, or when many rows changed).
+    fn update(&mut self, lp: &Restricted, xi: &Col<f64>, full: bool) {
+        let m = lp.m;
+        let mut changed = Vec::new();
+        for i in 0..m {
+            let c = if lp.r_pos[i] == usize::MAX {
+                sign(xi[i])
+            } else {
+                0.0
+            };
+            if c != self.chat[i] {
+                changed.push((i, c - self.chat[i]));
+                self.chat[i] = c;
+            }
+        }
+        let old = if full || changed.len() > PRICER_ROWS {
+            0
+        } else {
+            self.s.len().min(lp.ke)
+        };
+        for (e, se) in self.s[..old].iter_mut().enumerate() {
+            let col = lp.tcol(e);
+            for &(i, d) in &changed {
+                *se += d * col[i];
+            }
+        }
+        // Columns generated since the last update (all of them after a reset), by one product.
+        if old < lp.ke {
+            self.s.resize(lp.ke, 0.0);
+            let t = MatRef::from_column_major_slice(&lp.t[old * m..], m, lp.ke - old);
+            matmul(
+                ColMut::from_slice_mut(&mut self.s[old..]).as_mat_mut(),
+                Accum::Replace,
+                t.transpose(),
+                ColRef::from_slice(&self.chat).as_mat(),
+                1.0,
+                Par::Seq,
+            );
+        }
+    }
+
+    /// Tᵀy on the non-basic T columns for y = ĉ + y_R (basic columns' entries are left stale).
+    fn price(&self, lp: &Restricted, yr: &[f64], w: &mut Vec<f64>) {
+        w.clear();
+        w.extend_from_slice(&self.s);
+        // Row by row: the entries of w accumulate independently (no serial sum per column).
+        for (&i, &v) in lp.r.iter().zip(yr) {
+            for (e, we) in w.iter_mut().enumerate() {
+                *we += lp.t[e * lp.m + i] * v;
+            }
+        }
+    }
+
+    /// y = B_r⁻ᵀc_B for the basic costs sign(x) (as [`Restricted::btran`]); returns y_R.
+    fn dual(&self, lp: &Restricted, xc: &Col<f64>, y: &mut Col<f64>) -> Vec<f64> {
+        for (i, &c) in self.chat.iter().enumerate() {
+            y[i] = c;
+        }
+        let mut rhs = Col::<f64>::from_fn(lp.c.len(), |p| sign(xc[p]) - self.s[lp.c[p]]);
+        if let Some(lu) = &lp.small {
+            lu.solve_transpose(&mut rhs);
+        }
+        lp.r.iter()
+            .enumerate()
+            .map(|(p, &i)| {
+                y[i] = rhs[p];
+                rhs[p]
+            })
+            .collect()
     }
 }
 
@@ -469,6 +552,14 @@ impl<T: Real> Refine<'_, T> {
     }
 }
 
+/// Dual infeasibility (|Aᵀy| − 1) of an f32 anchor's refined dual beyond which the anchor is
+/// dropped for an f64 one. Its own view is good to ~1e-5 and a second f32 anchor settles
+/// infeasibilities up to ~1e-2; far beyond (measured: 1.7 to 51 on an ill-conditioned start
+/// basis, set 300 curve 17 of the 20-curve bench) neither column generation nor a second f32
+/// anchor helps: generation added 32 columns per round for 36 rounds (58 ms), and the f64 anchor
+/// then started from a K of 1822 columns.
+const LOST: f64 = 0.1;
+
 /// Times the restricted problem may be rebuilt around the simplex's current basis.
 const MAX_ANCHORS: usize = 3;
 /// Anchors factored in f32 before the f64 ones. A failed certificate is re-anchored around the
@@ -483,8 +574,11 @@ enum Outcome {
     Certified(SimplexResult),
     /// Optimal on K as far as the factorization of B₀ can tell, but the certificate failed (its
     /// precision, or a poorly conditioned start basis): rebuild around the current basis (its
-    /// columns first, then the rest of K).
-    Reanchor(Vec<usize>),
+    /// columns first, then the rest of K), in f64 when `double` (the f32 anchor was far off).
+    Reanchor {
+        ranked: Vec<usize>,
+        double: bool,
+    },
 }
 
 /// Runs the restricted simplex with column generation from `order` (all n columns, most likely
@@ -502,17 +596,24 @@ pub fn finish(
     let m = idx.len();
     let mut ranked = order[..(m + k0).min(order.len())].to_vec();
     let mut pivots = 0;
+    let mut double = false;
     for anchor in 0..MAX_ANCHORS {
         // The first runs anchor in f32 (the second around the basis where the first stopped);
         // a basis whose certificate that precision could not settle is re-anchored in f64.
-        let outcome = if anchor < F32_ANCHORS {
+        let outcome = if anchor < F32_ANCHORS && !double {
             run::<f32>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
         } else {
             run::<f64>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
         };
         match outcome {
             Outcome::Certified(r) => return Some(r),
-            Outcome::Reanchor(next) => ranked = next,
+            Outcome::Reanchor {
+                ranked: next,
+                double: d,
+            } => {
+                ranked = next;
+                double |= d;
+            }
         }
     }
     None
@@ -564,8 +665,11 @@ fn run<T: Real>(
     let (mut xi, mut xc) = (Col::<f64>::zeros(m), Col::<f64>::zeros(0));
     let (mut di, mut dc) = (Col::<f64>::zeros(m), Col::<f64>::zeros(0));
     let mut y = Col::<f64>::zeros(m);
-    let mut ci = Col::<f64>::zeros(m);
-    let mut w = Col::<f64>::zeros(0);
+    let mut pricer = Pricer {
+        chat: vec![0.0; m],
+        s: Vec::new(),
+    };
+    let mut w = Vec::new();
     let mut unit = Col::<f64>::zeros(m);
     let mut breaks: Vec<(f64, usize, f64)> = Vec::new();
     lp.ftran(theta0.as_ref(), &mut xi, &mut xc);
@@ -573,11 +677,8 @@ fn run<T: Real>(
         if xi.iter().chain(xc.iter()).any(|v| !v.is_finite()) {
             return None;
         }
-        for i in 0..m {
-            ci[i] = sign(xi[i]);
-        }
-        let cc = Col::<f64>::from_fn(xc.nrows(), |p| sign(xc[p]));
-        lp.btran(&ci, &cc, &mut y);
+        pricer.update(&lp, &xi, since_refresh == 0);
+        let yr = pricer.dual(&lp, &xc, &mut y);
         // Dantzig pricing over the restricted problem's non-basic columns.
         let (mut enter, mut best) = (None, 1.0 + tol);
         for &i in &lp.r {
@@ -586,19 +687,11 @@ fn run<T: Real>(
                 enter = Some((true, i, y[i]));
             }
         }
-        w.resize_with(lp.ke, |_| 0.0);
-        matmul(
-            w.as_mut(),
-            Accum::Replace,
-            lp.tmat().transpose(),
-            y.as_ref(),
-            1.0,
-            Par::Seq,
-        );
-        for e in 0..lp.ke {
-            if lp.c_pos[e] == usize::MAX && w[e].abs() > best {
-                best = w[e].abs();
-                enter = Some((false, e, w[e]));
+        pricer.price(&lp, &yr, &mut w);
+        for (e, &we) in w.iter().enumerate() {
+            if lp.c_pos[e] == usize::MAX && we.abs() > best {
+                best = we.abs();
+                enter = Some((false, e, we));
             }
         }
         let Some((is_id, j, wj)) = enter else {
@@ -634,7 +727,8 @@ fn run<T: Real>(
             };
             refine.primal(dct, idx, h, &support, &mut theta_s);
             refine.dual(dct, idx, &support, &theta_s, &mut yf, &mut w_full);
-            if generate(dct, idx, &basis, &mut lp, &w_full, tol) {
+            let lost = !T::DOUBLE && w_full.iter().any(|v| v.abs() > 1.0 + LOST);
+            if !lost && generate(dct, idx, &basis, &mut lp, &w_full, tol) {
                 continue;
             }
             if let Some(r) = verify(dct, idx, h, &support, &theta_s, &yf, &w_full, *pivots, tol) {
@@ -649,7 +743,10 @@ fn run<T: Real>(
             }
             let mut next = support;
             next.extend(s0.iter().chain(&lp.e_cols).filter(|&&k| !basic[k]));
-            return Some(Outcome::Reanchor(next));
+            return Some(Outcome::Reanchor {
+                ranked: next,
+                double: lost,
+            });
         };
         if *pivots == max_pivots {
             return None;
