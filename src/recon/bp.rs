@@ -234,7 +234,8 @@ pub fn solve_fast(
         return BpSolution::optimal(vec![0.0; n], 0.0, 0, t0);
     }
 
-    // Warm start at the minimum-energy solution x0 = Aᵀh.
+    // The minimum-energy solution x0 = Aᵀh sets ρ's scale, and starts ADMM unless the exact
+    // finish follows (then [`interpolated_start`]).
     let mut x = vec![0.0; n];
     project(dct, &mut x);
     let scale = x.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
@@ -255,6 +256,9 @@ pub fn solve_fast(
     });
     let mut rho = 1.0 / (fraction * scale);
     let alpha = if bp { s.relaxation } else { 1.0 };
+    if bp && m <= s.exact_max_m && 8 * m >= n {
+        x = interpolated_start(dct, idx, h);
+    }
     let mut z: Vec<f64> = x.iter().map(|&v| soft(v, 1.0 / rho)).collect();
     let mut u = vec![0.0; n];
     let mut v = vec![0.0; n];
@@ -370,7 +374,23 @@ pub fn solve_fast(
     }
 }
 
-/// BP's ADMM in f32 from the thresholded minimum-energy point `z0`, for at most `iters`
+/// The DCT of the samples' linear interpolation (ends held): the ranking ADMM's start before the
+/// exact finish. Like the minimum-energy point Aᵀh it reproduces every sample, but it already
+/// holds the curve's smooth part where Aᵀh holds the samples as spikes. Measured at n = 1901
+/// (8 sets of 20 bench curves at m = 600, 4 sets at 300): median solve 6.71 → 6.45 ms at
+/// m = 600 and 4.73 → 3.27 ms at 300, with ~10 and ~90 fewer ADMM iterations plus pivots per
+/// curve. Used from m ≥ n/8: at m = 100 the gaps are too long for a useful curve (median equal,
+/// mean 1.93 → 2.06 ms). PCHIP's curve did no better; ρ keeps its scale from Aᵀh, for which the
+/// threshold fraction was fitted.
+fn interpolated_start(dct: &mut Dct, idx: &[usize], h: &[f64]) -> Vec<f64> {
+    let xs: Vec<f64> = idx.iter().map(|&i| i as f64).collect();
+    let at: Vec<f64> = (0..dct.len()).map(|i| i as f64).collect();
+    let mut x = super::interp::linear(&xs, h, &at);
+    dct.forward(&mut x);
+    x
+}
+
+/// BP's ADMM in f32 from the thresholded start `z0`, for at most `iters`
 /// iterations or until the support has not changed for `stable_iter`: returns (z, u, iterations)
 /// for [`rank_columns`]. At the prime lengths that take Rader's transform it runs on vectors kept
 /// in Rader's order ([`super::fused`]).
