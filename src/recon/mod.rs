@@ -199,7 +199,7 @@ pub fn reconstruct(
             // One transform plan serves the solve and the curve's synthesis (and later solves
             // on this thread with the same n).
             let (sol, g) = Dct::with_cached(n, |dct| {
-                let sol = match s.solver {
+                let mut sol = match s.solver {
                     Solver::Fast => {
                         bp::solve_fast(dct, &samples.idx, &samples.values, problem, &s.fast)
                     }
@@ -207,7 +207,8 @@ pub fn reconstruct(
                         bp::solve_clarabel(dct, &samples.idx, &samples.values, problem)
                     }
                 };
-                let mut g = sol.theta.clone();
+                // The coefficients become the curve: `out` keeps the curve only.
+                let mut g = std::mem::take(&mut sol.theta);
                 dct.inverse(&mut g);
                 (sol, g)
             });

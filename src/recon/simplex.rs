@@ -290,7 +290,7 @@ impl Restricted {
         for &i in &self.r {
             y[i] = 0.0;
         }
-        if let Some(lu) = &self.small {
+        if self.small.is_some() {
             // T_{R,C}ᵀ y_R = cc - T_{:,C}ᵀ y (y still zero on R).
             let mut rhs = cc.clone();
             matmul(
@@ -301,11 +301,19 @@ impl Restricted {
                 -1.0,
                 Par::Seq,
             );
-            lu.solve_transpose(&mut rhs);
-            for (p, &i) in self.r.iter().enumerate() {
-                y[i] = rhs[p];
-            }
+            self.dual_rows(rhs, y);
         }
+    }
+
+    /// y_R from T_{R,C}ᵀ y_R = rhs (rhs indexed by C), written into y on the rows R; returns y_R.
+    fn dual_rows(&self, mut rhs: Col<f64>, y: &mut Col<f64>) -> Col<f64> {
+        if let Some(lu) = &self.small {
+            lu.solve_transpose(&mut rhs);
+        }
+        for (p, &i) in self.r.iter().enumerate() {
+            y[i] = rhs[p];
+        }
+        rhs
     }
 
     /// The basic variables in basis order: identity rows outside R (index i), then the entries
@@ -380,33 +388,25 @@ impl Pricer {
     }
 
     /// Tᵀy on the non-basic T columns for y = ĉ + y_R (basic columns' entries are left stale).
-    fn price(&self, lp: &Restricted, yr: &[f64], w: &mut Vec<f64>) {
+    fn price(&self, lp: &Restricted, yr: &Col<f64>, w: &mut Vec<f64>) {
         w.clear();
         w.extend_from_slice(&self.s);
         // Row by row: the entries of w accumulate independently (no serial sum per column).
-        for (&i, &v) in lp.r.iter().zip(yr) {
+        for (&i, &v) in lp.r.iter().zip(yr.iter()) {
             for (e, we) in w.iter_mut().enumerate() {
                 *we += lp.t[e * lp.m + i] * v;
             }
         }
     }
 
-    /// y = B_r⁻ᵀc_B for the basic costs sign(x) (as [`Restricted::btran`]); returns y_R.
-    fn dual(&self, lp: &Restricted, xc: &Col<f64>, y: &mut Col<f64>) -> Vec<f64> {
+    /// y = B_r⁻ᵀc_B for the basic costs sign(x) ([`Restricted::btran`] with T_{:,C}ᵀĉ = s_C);
+    /// returns y_R.
+    fn dual(&self, lp: &Restricted, xc: &Col<f64>, y: &mut Col<f64>) -> Col<f64> {
         for (i, &c) in self.chat.iter().enumerate() {
             y[i] = c;
         }
-        let mut rhs = Col::<f64>::from_fn(lp.c.len(), |p| sign(xc[p]) - self.s[lp.c[p]]);
-        if let Some(lu) = &lp.small {
-            lu.solve_transpose(&mut rhs);
-        }
-        lp.r.iter()
-            .enumerate()
-            .map(|(p, &i)| {
-                y[i] = rhs[p];
-                rhs[p]
-            })
-            .collect()
+        let rhs = Col::<f64>::from_fn(lp.c.len(), |p| sign(xc[p]) - self.s[lp.c[p]]);
+        lp.dual_rows(rhs, y)
     }
 }
 
@@ -555,7 +555,7 @@ impl<T: Real> Refine<'_, T> {
 /// Dual infeasibility (|Aᵀy| − 1) of an f32 anchor's refined dual beyond which the anchor is
 /// dropped for an f64 one. Its own view is good to ~1e-5 and a second f32 anchor settles
 /// infeasibilities up to ~1e-2; far beyond (measured: 1.7 to 51 on an ill-conditioned start
-/// basis, set 300 curve 17 of the 20-curve bench) neither column generation nor a second f32
+/// basis, `bench speed`'s curve of seed 317 at m = 600) neither column generation nor a second f32
 /// anchor helps: generation added 32 columns per round for 36 rounds (58 ms), and the f64 anchor
 /// then started from a K of 1822 columns.
 const LOST: f64 = 0.1;
@@ -599,7 +599,8 @@ pub fn finish(
     let mut double = false;
     for anchor in 0..MAX_ANCHORS {
         // The first runs anchor in f32 (the second around the basis where the first stopped);
-        // a basis whose certificate that precision could not settle is re-anchored in f64.
+        // a basis whose certificate that precision could not settle is re-anchored in f64 (at
+        // once when the f32 anchor was far off).
         let outcome = if anchor < F32_ANCHORS && !double {
             run::<f32>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
         } else {
