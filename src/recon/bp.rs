@@ -58,6 +58,11 @@ pub struct FastSettings {
     /// BP: largest m for the exact finish (its dense m x m factorization grows as m³: ~1.5 ms
     /// in f32 at 600, ~2 s at 6554). Above it ADMM stops at a certified relative duality gap.
     pub exact_max_m: usize,
+    /// BP: from this many samples the simplex's first anchor is the f64 Cholesky of B₀ᵀB₀ instead
+    /// of the f32 LU of B₀ (measured at n = 1901, 40 curves each, median / mean ms: m = 300 3.35 /
+    /// 3.57 against 3.23 / 3.33; m = 400 3.83 / 3.89 against 3.84 / 4.17; m = 500 4.63 / 4.71
+    /// against 5.12 / 5.71).
+    pub gram_min_m: usize,
     /// BP without the exact finish: stop once (||θ||₁ - hᵀy) / ||θ||₁ ≤ this for a feasible θ
     /// and a dual-feasible y (both checked against the transforms).
     pub gap_tol: f64,
@@ -76,6 +81,7 @@ impl Default for FastSettings {
             candidates: None,
             max_pivots: 5000,
             exact_max_m: 2000,
+            gram_min_m: 400,
             gap_tol: 1e-3,
         }
     }
@@ -513,8 +519,17 @@ fn exact_finish(
     }
     let order = rank_columns(z, u, rho);
     let k0 = s.candidates.unwrap_or((m / 12).max(8));
-    super::simplex::finish(dct, idx, h, &order, k0, s.max_pivots, s.certificate_tol)
-        .map(|r| (r.theta, r.dual_objective, r.pivots))
+    super::simplex::finish(
+        dct,
+        idx,
+        h,
+        &order,
+        k0,
+        s.max_pivots,
+        s.certificate_tol,
+        s.gram_min_m,
+    )
+    .map(|r| (r.theta, r.dual_objective, r.pivots))
 }
 
 /// ADMM iterations between duality-gap checks (a check costs two DCT pairs).
@@ -789,44 +804,52 @@ mod tests {
     /// recovered curve within 1e-6 µm.
     #[test]
     fn fast_solver_agrees_with_clarabel() {
-        // 381 = 3·127 takes rustdct, the prime 383 Rader's transform and the f32 ranking.
+        // 381 = 3·127 takes rustdct, the prime 383 Rader's transform and the f32 ranking. Each
+        // problem is solved from both first anchors (the f32 LU, and the Gram matrix's Cholesky
+        // that serves from `gram_min_m` samples).
+        let gram = FastSettings {
+            gram_min_m: 0,
+            ..Default::default()
+        };
         for (n, seed, m) in [(381, 1u64, 60usize), (381, 2, 120), (383, 3, 120)] {
             let (idx, h) = paper_problem(n, 25.0, m, seed);
             let mut dct = Dct::new(n);
-            let fast = bp_default(&mut dct, &idx, &h);
             let refr = solve_clarabel(&dct, &idx, &h, Problem::BasisPursuit);
-            assert_eq!(fast.status, SolveStatus::Optimal);
             assert_eq!(refr.status, SolveStatus::Optimal);
-            let rel = (fast.objective - refr.objective).abs() / refr.objective;
-            assert!(
-                rel < 1e-6,
-                "seed {seed}: objective {} vs {} (rel {rel:e})",
-                fast.objective,
-                refr.objective
-            );
-            assert!(
-                (fast.dual_objective - fast.objective).abs() < 1e-9 * fast.objective,
-                "certificate gap"
-            );
-            let (mut g1, mut g2) = (fast.theta.clone(), refr.theta.clone());
-            dct.inverse(&mut g1);
-            dct.inverse(&mut g2);
-            let d = g1
-                .iter()
-                .zip(&g2)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
-            assert!(d < 1e-6, "seed {seed}: max curve difference {d:e} µm");
-            for (k, &i) in idx.iter().enumerate() {
+            let lu = bp_default(&mut dct, &idx, &h);
+            let gr = solve_fast(&mut dct, &idx, &h, Problem::BasisPursuit, &gram);
+            for fast in [lu, gr] {
+                assert_eq!(fast.status, SolveStatus::Optimal);
+                let rel = (fast.objective - refr.objective).abs() / refr.objective;
                 assert!(
-                    (g1[i] - h[k]).abs() < 1e-9,
-                    "fast BP must interpolate the samples"
+                    rel < 1e-6,
+                    "seed {seed}: objective {} vs {} (rel {rel:e})",
+                    fast.objective,
+                    refr.objective
                 );
+                assert!(
+                    (fast.dual_objective - fast.objective).abs() < 1e-9 * fast.objective,
+                    "certificate gap"
+                );
+                let (mut g1, mut g2) = (fast.theta.clone(), refr.theta.clone());
+                dct.inverse(&mut g1);
+                dct.inverse(&mut g2);
+                let d = g1
+                    .iter()
+                    .zip(&g2)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                assert!(d < 1e-6, "seed {seed}: max curve difference {d:e} µm");
+                for (k, &i) in idx.iter().enumerate() {
+                    assert!(
+                        (g1[i] - h[k]).abs() < 1e-9,
+                        "fast BP must interpolate the samples"
+                    );
+                }
             }
         }
     }
 
-    /// A perfectly compensated axis (all errors zero) is solved at once: θ = 0, certified.
     #[test]
     fn zero_samples_give_the_zero_curve() {
         let mut dct = Dct::new(1901);

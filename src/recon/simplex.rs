@@ -15,17 +15,26 @@
 //! y = B₀⁻ᵀŷ and one DCT prices every column outside K; violators join E and the simplex carries
 //! on from its basis.
 //!
+//! The anchor B₀ is factored in one of three ways. Up to `gram_min_m` samples, as an f32 LU (half
+//! the memory traffic of f64, twice the SIMD width; refinement against the f64 transforms removes
+//! its ~1e-4 rounding, and a second f32 anchor or an f64 one takes over when it cannot). From
+//! there on, through its Gram matrix ([`Gram`]): one DCT gives B₀ᵀB₀ without forming B₀, and its
+//! f64 Cholesky costs about what the f32 LU does (m³/3 flops at half the rate) with ~1e-9 error,
+//! so the anchors that f32 could not certify (1-3 curves in 20 at m = 600, 10-16 ms each) do not
+//! occur. Last, an f64 LU.
+//!
 //! Optimality is never taken from the factorizations alone: the final θ and y are checked against
 //! the transforms (primal residual by one inverse DCT, |Aᵀy| ≤ 1 + tol by one forward DCT, and
 //! ||θ||₁ = hᵀy), so rounding can cost a failed finish but never a wrong "optimal".
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::lu::partial_pivoting::factor::{lu_in_place, lu_in_place_scratch};
 use faer::linalg::matmul::matmul;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::linalg::triangular_solve::{
     solve_lower_triangular_in_place, solve_unit_lower_triangular_in_place,
     solve_unit_upper_triangular_in_place, solve_upper_triangular_in_place,
 };
-use faer::{Accum, Col, ColMut, ColRef, Mat, MatRef, Par};
+use faer::{Accum, Col, ColMut, ColRef, Mat, MatMut, MatRef, Par};
 
 use super::dct::Dct;
 
@@ -168,6 +177,320 @@ impl<T: Real> Basis<T> {
         for i in 0..m {
             c[self.perm[i]] = p[i].to64();
         }
+    }
+}
+
+/// The anchor basis B₀ = A_S₀ as the restricted simplex uses it: solves with B₀ and B₀ᵀ, and the
+/// columns B₀⁻¹A_k of the candidates.
+trait Anchor: Sized {
+    /// Whether its dual can be far off (f32: then [`LOST`] applies).
+    const LOSSY: bool;
+    /// Whether a failed certificate without a pivot is final (f64 LU: nothing more precise).
+    const FINAL: bool;
+    fn factor(dct: &mut Dct, idx: &[usize], support: &[usize]) -> Option<Self>;
+    /// x = B₀⁻¹x.
+    fn solve(&self, dct: &mut Dct, idx: &[usize], x: &mut Col<f64>);
+    /// c = B₀⁻ᵀc.
+    fn solve_transpose(&self, dct: &mut Dct, idx: &[usize], c: &mut Col<f64>);
+    /// B₀⁻¹A_ks, one column per entry of `ks`.
+    fn columns(&self, dct: &Dct, idx: &[usize], ks: &[usize]) -> Mat<f64>;
+    /// (B₀⁻¹h, B₀⁻¹A_ks): the restricted problem's right-hand side and first candidates.
+    fn start(&self, dct: &mut Dct, idx: &[usize], h: &[f64], ks: &[usize]) -> (Col<f64>, Mat<f64>) {
+        let mut theta0 = Col::<f64>::from_fn(idx.len(), |r| h[r]);
+        self.solve(dct, idx, &mut theta0);
+        (theta0, self.columns(dct, idx, ks))
+    }
+}
+
+impl<T: Real> Anchor for Basis<T> {
+    const LOSSY: bool = !T::DOUBLE;
+    const FINAL: bool = T::DOUBLE;
+    fn factor(dct: &mut Dct, idx: &[usize], support: &[usize]) -> Option<Self> {
+        Basis::factor(dct, idx, support)
+    }
+    fn solve(&self, _: &mut Dct, _: &[usize], x: &mut Col<f64>) {
+        Basis::solve(self, x);
+    }
+    fn solve_transpose(&self, _: &mut Dct, _: &[usize], c: &mut Col<f64>) {
+        Basis::solve_transpose(self, c);
+    }
+    fn columns(&self, dct: &Dct, idx: &[usize], ks: &[usize]) -> Mat<f64> {
+        let m = idx.len();
+        let mut a = Mat::<f64>::zeros(m, ks.len());
+        for (c, &k) in ks.iter().enumerate() {
+            if let Some(col) = a.col_mut(c).try_as_col_major_mut() {
+                dct.basis_column(k, idx, col.as_slice_mut());
+            }
+        }
+        self.solve_mat(&mut a);
+        a
+    }
+}
+
+/// The anchor through its Gram matrix G = B₀ᵀB₀, Cholesky-factored in f64.
+///
+/// Sampled DCT columns have inner products Σ_i cos(ja_i)cos(ka_i) = ½[g(j − k) + g(j + k)] with
+/// g(d) = Σ_i cos(d·a_i), a_i = π(2x_i + 1)/2n: one DCT of the samples' indicator gives every
+/// entry of G (and of B₀ᵀA_k), so B₀ itself is never formed. B₀⁻¹x = G⁻¹B₀ᵀx and B₀⁻ᵀc = B₀G⁻¹c,
+/// with the products by B₀ and B₀ᵀ through the transforms. κ(G) = κ(B₀)² (~4e6 at m = 600,
+/// n = 1901) leaves ~1e-9 relative error in f64, against ~1e-4 for the f32 LU of B₀.
+///
+/// G is held with its columns in increasing frequency (`sorted`), so that j − k ≥ 0 below the
+/// diagonal; `order` maps back to the caller's support order.
+struct Gram {
+    /// L (column-major m x m, lower triangle) with G = LLᵀ.
+    l: Vec<f64>,
+    sorted: Vec<usize>,
+    /// sorted[j] = support[order[j]], and pos[order[j]] = j.
+    order: Vec<usize>,
+    pos: Vec<usize>,
+    /// c_k²·½g(d) for d < 2n (c_k = √(2/n), the DCT weight of k > 0).
+    half_g: Vec<f64>,
+    /// c_0 / c_k: frequency 0's weight relative to the others.
+    w0: f64,
+}
+
+impl Gram {
+    /// Column k of B₀ᵀA (B₀'s columns in sorted order) into `out`.
+    fn cross(&self, k: usize, out: &mut [f64]) {
+        let hg = &self.half_g;
+        for (o, &j) in out.iter_mut().zip(&self.sorted) {
+            *o = hg[j.abs_diff(k)] + hg[j + k];
+        }
+        if k == 0 {
+            out.iter_mut().for_each(|v| *v *= self.w0);
+        }
+        if self.sorted[0] == 0 {
+            out[0] *= self.w0;
+        }
+    }
+
+    /// G⁻¹[B₀ᵀA_ks, (w_S)] with rows in the caller's support order; w (= B₀ᵀ of something, on
+    /// all n frequencies) adds a last column.
+    fn block(&self, ks: &[usize], w: Option<&[f64]>) -> Mat<f64> {
+        let m = self.sorted.len();
+        let k = ks.len();
+        let mut a = Mat::<f64>::zeros(m, k + usize::from(w.is_some()));
+        for (c, &kc) in ks.iter().enumerate() {
+            if let Some(col) = a.col_mut(c).try_as_col_major_mut() {
+                self.cross(kc, col.as_slice_mut());
+            }
+        }
+        if let Some(w) = w {
+            for (j, &f) in self.sorted.iter().enumerate() {
+                a[(j, k)] = w[f];
+            }
+        }
+        self.solve_gram(a.as_mut());
+        Mat::<f64>::from_fn(m, a.ncols(), |r, c| a[(self.pos[r], c)])
+    }
+
+    /// v = G⁻¹v (rows in sorted order).
+    fn solve_gram(&self, mut v: MatMut<'_, f64>) {
+        let m = self.sorted.len();
+        let l = MatRef::from_column_major_slice(&self.l, m, m);
+        solve_lower_triangular_in_place(l, v.as_mut(), Par::Seq);
+        solve_upper_triangular_in_place(l.transpose(), v, Par::Seq);
+    }
+}
+
+/// The lower triangle of G (sorted frequencies s, `hg` = c²·½g) into the column-major `g`
+/// (leading dimension `ld`): G_ab = hg[s_a − s_b] + hg[s_a + s_b] for a ≥ b (frequency 0's
+/// weight is the caller's).
+fn gram_lower(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if super::simd::has_avx2_fma() && hg.len() < i32::MAX as usize {
+        // SAFETY: AVX2 is present (checked); indices stay below hg.len() (s_a ± s_b < 2n).
+        unsafe { gram_lower_avx2(hg, s, g, ld) };
+        return;
+    }
+    let m = s.len();
+    for b in 0..m {
+        let kb = s[b] as usize;
+        for a in b..m {
+            let ka = s[a] as usize;
+            g[b * ld + a] = hg[ka - kb] + hg[ka + kb];
+        }
+    }
+}
+
+/// [`gram_lower`] with AVX2 gathers (the scalar loop was 0.48 ms at m = 600: 180 000 entries
+/// each two dependent table loads).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn gram_lower_avx2(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
+    use std::arch::x86_64::*;
+    let m = s.len();
+    let base = hg.as_ptr();
+    for b in 0..m {
+        let kb = s[b] as usize;
+        let vk = _mm_set1_epi32(kb as i32);
+        let col = &mut g[b * ld..b * ld + m];
+        let mut a = b;
+        while a + 4 <= m {
+            let vs = _mm_loadu_si128(s.as_ptr().add(a) as *const __m128i);
+            let lo = _mm256_i32gather_pd::<8>(base, _mm_sub_epi32(vs, vk));
+            let hi = _mm256_i32gather_pd::<8>(base, _mm_add_epi32(vs, vk));
+            _mm256_storeu_pd(col.as_mut_ptr().add(a), _mm256_add_pd(lo, hi));
+            a += 4;
+        }
+        for a in a..m {
+            let ka = s[a] as usize;
+            col[a] = hg[ka - kb] + hg[ka + kb];
+        }
+    }
+}
+
+/// Columns below which [`cholesky_lower`] factors directly.
+const CHOL_LEAF: usize = 16;
+
+/// A = LLᵀ in place on the lower triangle (the upper one is not read); false when A is not
+/// numerically positive definite. Recursive halving (Gustavson's recursive Cholesky), so that
+/// nearly all the work is one triangular solve and one symmetric product per level through
+/// faer's kernels. At 600 x 600: 1.43 ms against 1.60 ms for faer's `cholesky_in_place` on a
+/// random SPD matrix, 1.56 against 1.65 ms inside the BP solve.
+fn cholesky_lower(a: MatMut<'_, f64>) -> bool {
+    let n = a.nrows();
+    if n <= CHOL_LEAF {
+        let mut a = a;
+        for j in 0..n {
+            let d = a[(j, j)];
+            if d.is_nan() || d <= 0.0 {
+                return false;
+            }
+            let d = d.sqrt();
+            a[(j, j)] = d;
+            for i in j + 1..n {
+                a[(i, j)] /= d;
+            }
+            for k in j + 1..n {
+                let f = a[(k, j)];
+                for i in k..n {
+                    let v = a[(i, j)];
+                    a[(i, k)] -= v * f;
+                }
+            }
+        }
+        return true;
+    }
+    let n1 = (n / 2).next_multiple_of(8).min(n - 1);
+    let (mut a11, _, mut a21, mut a22) = a.split_at_mut(n1, n1);
+    if !cholesky_lower(a11.as_mut()) {
+        return false;
+    }
+    // A21 ← A21·L11⁻ᵀ, i.e. L11·A21ᵀ = A21ᵀ.
+    solve_lower_triangular_in_place(a11.as_ref(), a21.as_mut().transpose_mut(), Par::Seq);
+    triangular::matmul(
+        a22.as_mut(),
+        BlockStructure::TriangularLower,
+        Accum::Add,
+        a21.as_ref(),
+        BlockStructure::Rectangular,
+        a21.as_ref().transpose(),
+        BlockStructure::Rectangular,
+        -1.0,
+        Par::Seq,
+    );
+    cholesky_lower(a22)
+}
+
+impl Anchor for Gram {
+    const LOSSY: bool = false;
+    const FINAL: bool = false;
+    fn factor(dct: &mut Dct, idx: &[usize], support: &[usize]) -> Option<Self> {
+        let n = dct.len();
+        let m = support.len();
+        let (w0, wk) = (dct.basis(0, 0), (2.0 / n as f64).sqrt());
+        let mut ind = vec![0.0; n];
+        for &i in idx {
+            ind[i] = 1.0;
+        }
+        dct.forward(&mut ind);
+        // The orthonormal DCT of the indicator is c_d·g(d); g(n) = 0 and g(2n − d) = −g(d).
+        let mut half_g = vec![0.0; 2 * n];
+        half_g[0] = 0.5 * ind[0] / w0 * wk * wk;
+        for d in 1..n {
+            let v = 0.5 * ind[d] * wk;
+            half_g[d] = v;
+            half_g[2 * n - d] = -v;
+        }
+        let mut order: Vec<usize> = (0..m).collect();
+        order.sort_unstable_by_key(|&a| support[a]);
+        let sorted: Vec<usize> = order.iter().map(|&a| support[a]).collect();
+        let s32: Vec<u32> = sorted.iter().map(|&k| k as u32).collect();
+        let mut l = vec![0.0; m * m];
+        gram_lower(&half_g, &s32, &mut l, m);
+        let r0 = w0 / wk;
+        if sorted[0] == 0 {
+            // Frequency 0 has its own weight: scale its column (the lower triangle's row 0 is
+            // the diagonal entry alone).
+            l[..m].iter_mut().for_each(|v| *v *= r0);
+            l[0] *= r0;
+        }
+        let mut g = MatMut::from_column_major_slice_mut(&mut l, m, m);
+        if !cholesky_lower(g.as_mut()) {
+            return None;
+        }
+        let (mut dmax, mut dmin) = (0.0f64, f64::INFINITY);
+        for i in 0..m {
+            let d = l[i * m + i].abs();
+            dmax = dmax.max(d);
+            dmin = dmin.min(d);
+        }
+        // κ(G) ≥ (dmax/dmin)²: beyond ~1e12 f64 has no digits left for the simplex.
+        if dmin.is_nan() || dmin <= 1e-6 * dmax {
+            return None;
+        }
+        let mut pos = vec![0; m];
+        for (j, &a) in order.iter().enumerate() {
+            pos[a] = j;
+        }
+        Some(Self {
+            l,
+            sorted,
+            order,
+            pos,
+            half_g,
+            w0: r0,
+        })
+    }
+
+    fn solve(&self, dct: &mut Dct, idx: &[usize], x: &mut Col<f64>) {
+        let mut w = vec![0.0; dct.len()];
+        dct.adjoint(idx, |r| x[r], &mut w);
+        let mut v = Col::<f64>::from_fn(self.sorted.len(), |j| w[self.sorted[j]]);
+        self.solve_gram(v.as_mat_mut());
+        for (j, &a) in self.order.iter().enumerate() {
+            x[a] = v[j];
+        }
+    }
+
+    fn solve_transpose(&self, dct: &mut Dct, idx: &[usize], c: &mut Col<f64>) {
+        let mut v = Col::<f64>::from_fn(self.order.len(), |j| c[self.order[j]]);
+        self.solve_gram(v.as_mat_mut());
+        let mut theta = vec![0.0; dct.len()];
+        for (j, &k) in self.sorted.iter().enumerate() {
+            theta[k] = v[j];
+        }
+        let y = dct.sample(&mut theta, idx);
+        for (r, v) in y.into_iter().enumerate() {
+            c[r] = v;
+        }
+    }
+
+    fn columns(&self, _: &Dct, _: &[usize], ks: &[usize]) -> Mat<f64> {
+        self.block(ks, None)
+    }
+
+    /// One block solve for both: B₀ᵀh joins B₀ᵀA_ks as a last column.
+    fn start(&self, dct: &mut Dct, idx: &[usize], h: &[f64], ks: &[usize]) -> (Col<f64>, Mat<f64>) {
+        let mut w = vec![0.0; dct.len()];
+        dct.adjoint(idx, |r| h[r], &mut w);
+        let mut all = self.block(ks, Some(&w));
+        let k = ks.len();
+        let theta0 = all.col(k).to_owned();
+        all.resize_with(self.sorted.len(), k, |_, _| 0.0);
+        (theta0, all)
     }
 }
 
@@ -415,21 +738,12 @@ impl Pricer {
 const LOOSE: f64 = 1e-4;
 
 /// Adds columns to E: T columns B₀⁻¹a_k by one block triangular solve.
-fn add_columns<T: Real>(
-    dct: &Dct,
-    idx: &[usize],
-    basis: &Basis<T>,
-    lp: &mut Restricted,
-    new: &[usize],
-) {
-    let m = lp.m;
-    let mut a = Mat::<f64>::zeros(m, new.len());
-    for (c, &k) in new.iter().enumerate() {
-        if let Some(col) = a.col_mut(c).try_as_col_major_mut() {
-            dct.basis_column(k, idx, col.as_slice_mut());
-        }
-    }
-    basis.solve_mat(&mut a);
+fn add_columns<B: Anchor>(dct: &Dct, idx: &[usize], basis: &B, lp: &mut Restricted, new: &[usize]) {
+    push_columns(lp, new, basis.columns(dct, idx, new));
+}
+
+/// Adds columns `new` to E with their T columns `a` = B₀⁻¹A_new.
+fn push_columns(lp: &mut Restricted, new: &[usize], a: Mat<f64>) {
     for (c, &k) in new.iter().enumerate() {
         lp.in_k[k] = true;
         lp.e_cols.push(k);
@@ -439,10 +753,10 @@ fn add_columns<T: Real>(
 
 /// Column generation: the columns outside K with |w| > 1 + slack join E, most violated first
 /// (at most [`GENERATE_MAX`]). Returns whether any joined.
-fn generate<T: Real>(
+fn generate<B: Anchor>(
     dct: &Dct,
     idx: &[usize],
-    basis: &Basis<T>,
+    basis: &B,
     lp: &mut Restricted,
     w: &[f64],
     slack: f64,
@@ -463,15 +777,15 @@ fn generate<T: Real>(
 
 /// Iterative refinement of a basis's primal and dual in f64: residuals through the transforms,
 /// corrections through the anchor B₀ (f32 or f64) and the restricted basis (A_S = B₀·B_r).
-struct Refine<'a, T: Real> {
-    basis: &'a Basis<T>,
+struct Refine<'a, B: Anchor> {
+    basis: &'a B,
     lp: &'a Restricted,
 }
 
 /// Refinement rounds (each gains ~4 digits at the anchor's κ·ε ≈ 1e-4).
 const REFINE_MAX: usize = 6;
 
-impl<T: Real> Refine<'_, T> {
+impl<B: Anchor> Refine<'_, B> {
     /// θ_S with A_S θ_S = h to rounding: θ_S += B_r⁻¹B₀⁻¹(h − A_S θ_S).
     fn primal(
         &self,
@@ -495,7 +809,7 @@ impl<T: Real> Refine<'_, T> {
             if (0..m).map(|i| r[i].abs()).fold(0.0, f64::max) <= 1e-14 * scale {
                 break;
             }
-            self.basis.solve(&mut r);
+            self.basis.solve(dct, idx, &mut r);
             self.lp.ftran(r.as_ref(), &mut di, &mut dc);
             self.apply(&di, &dc, theta_s);
         }
@@ -536,7 +850,7 @@ impl<T: Real> Refine<'_, T> {
             }
             let mut d = Col::<f64>::zeros(m);
             lp.btran(&ci, &cc, &mut d);
-            self.basis.solve_transpose(&mut d);
+            self.basis.solve_transpose(dct, idx, &mut d);
             for i in 0..m {
                 y[i] += d[i];
             }
@@ -574,16 +888,31 @@ enum Outcome {
     Certified(SimplexResult),
     /// Optimal on K as far as the factorization of B₀ can tell, but the certificate failed (its
     /// precision, or a poorly conditioned start basis): rebuild around the current basis (its
-    /// columns first, then the rest of K), in f64 when `double` (the f32 anchor was far off).
+    /// columns first, then the rest of K). `lost`: an f32 anchor's dual was far off; `pivoted`:
+    /// the basis moved from B₀.
     Reanchor {
         ranked: Vec<usize>,
-        double: bool,
+        lost: bool,
+        pivoted: bool,
     },
 }
 
+/// How an anchor B₀ is factored.
+#[derive(Clone, Copy, PartialEq, Debug)]
+enum Factoring {
+    /// LU of B₀ in f32.
+    Single,
+    /// Cholesky of B₀ᵀB₀ in f64 ([`Gram`]).
+    Gram,
+    /// LU of B₀ in f64.
+    Double,
+}
+
 /// Runs the restricted simplex with column generation from `order` (all n columns, most likely
-/// basic first). `k0` columns beyond the first m start in E. `None` when the start basis is
-/// singular or the pivot budget runs out without a certificate.
+/// basic first). `k0` columns beyond the first m start in E. The first anchor is the f32 LU, or
+/// from `gram_min_m` samples on the Gram anchor. `None` when the start basis is singular or the
+/// pivot budget runs out without a certificate.
+#[allow(clippy::too_many_arguments)]
 pub fn finish(
     dct: &mut Dct,
     idx: &[usize],
@@ -592,40 +921,67 @@ pub fn finish(
     k0: usize,
     max_pivots: usize,
     tol: f64,
+    gram_min_m: usize,
 ) -> Option<SimplexResult> {
     let m = idx.len();
     let mut ranked = order[..(m + k0).min(order.len())].to_vec();
     let mut pivots = 0;
-    let mut double = false;
+    let mut how = if m >= gram_min_m {
+        Factoring::Gram
+    } else {
+        Factoring::Single
+    };
     for anchor in 0..MAX_ANCHORS {
-        // The first runs anchor in f32 (the second around the basis where the first stopped);
-        // a basis whose certificate that precision could not settle is re-anchored in f64 (at
-        // once when the f32 anchor was far off).
-        let outcome = if anchor < F32_ANCHORS && !double {
-            run::<f32>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
-        } else {
-            run::<f64>(dct, idx, h, &ranked, &mut pivots, max_pivots, tol)?
+        let s0 = &ranked[..m];
+        let outcome = match how {
+            Factoring::Single => {
+                let b = Basis::<f32>::factor(dct, idx, s0)?;
+                run(dct, idx, h, &ranked, &b, &mut pivots, max_pivots, tol)?
+            }
+            Factoring::Gram => match Gram::factor(dct, idx, s0) {
+                Some(b) => run(dct, idx, h, &ranked, &b, &mut pivots, max_pivots, tol)?,
+                // G not numerically positive definite: B₀ is too ill-conditioned for the
+                // normal equations, not necessarily for an LU.
+                None => {
+                    how = Factoring::Double;
+                    continue;
+                }
+            },
+            Factoring::Double => {
+                let b = Basis::<f64>::factor(dct, idx, s0)?;
+                run(dct, idx, h, &ranked, &b, &mut pivots, max_pivots, tol)?
+            }
         };
         match outcome {
             Outcome::Certified(r) => return Some(r),
             Outcome::Reanchor {
                 ranked: next,
-                double: d,
+                lost,
+                pivoted,
             } => {
                 ranked = next;
-                double |= d;
+                // A second f32 anchor around the basis where the first stopped, unless it was
+                // far off; a Gram anchor again around a new basis; otherwise f64.
+                how = match how {
+                    Factoring::Single if anchor + 1 < F32_ANCHORS && !lost => Factoring::Single,
+                    Factoring::Gram if pivoted => Factoring::Gram,
+                    _ => Factoring::Double,
+                };
             }
         }
     }
     None
 }
 
-/// One restricted simplex: S₀ = ranked[..m], E = ranked[m..], plus generated columns.
-fn run<T: Real>(
+/// One restricted simplex from the anchor `basis` (S₀ = ranked[..m]), E = ranked[m..], plus
+/// generated columns.
+#[allow(clippy::too_many_arguments)]
+fn run<T: Anchor>(
     dct: &mut Dct,
     idx: &[usize],
     h: &[f64],
     ranked: &[usize],
+    basis: &T,
     pivots: &mut usize,
     max_pivots: usize,
     tol: f64,
@@ -634,9 +990,7 @@ fn run<T: Real>(
     let m = idx.len();
     let s0: Vec<usize> = ranked[..m].to_vec();
     let start_pivots = *pivots;
-    let basis = Basis::<T>::factor(dct, idx, &s0)?;
-    let mut theta0 = Col::<f64>::from_fn(m, |r| h[r]);
-    basis.solve(&mut theta0);
+    let (theta0, t_start) = basis.start(dct, idx, h, &ranked[m..]);
     let mut in_k = vec![false; n];
     for &k in &s0 {
         in_k[k] = true;
@@ -654,7 +1008,7 @@ fn run<T: Real>(
         tc: Mat::zeros(m, 0),
         small: None,
     };
-    add_columns(dct, idx, &basis, &mut lp, &ranked[m..]);
+    push_columns(&mut lp, &ranked[m..], t_start);
 
     let scale = (0..m)
         .map(|r| theta0[r].abs())
@@ -705,9 +1059,9 @@ fn run<T: Real>(
             // Optimal on K as far as the anchor tells: price every column with y = B₀⁻ᵀŷ, with a
             // margin for the anchor's rounding.
             let mut yf = y.clone();
-            basis.solve_transpose(&mut yf);
+            basis.solve_transpose(dct, idx, &mut yf);
             dct.adjoint(idx, |r| yf[r], &mut w_full);
-            if generate(dct, idx, &basis, &mut lp, &w_full, LOOSE) {
+            if generate(dct, idx, basis, &mut lp, &w_full, LOOSE) {
                 continue;
             }
             // The basis's exact primal and dual, refined against the f64 transforms.
@@ -722,20 +1076,17 @@ fn run<T: Real>(
                     support.push(lp.e_cols[lp.c[b - m]]);
                 }
             }
-            let refine = Refine {
-                basis: &basis,
-                lp: &lp,
-            };
+            let refine = Refine { basis, lp: &lp };
             refine.primal(dct, idx, h, &support, &mut theta_s);
             refine.dual(dct, idx, &support, &theta_s, &mut yf, &mut w_full);
-            let lost = !T::DOUBLE && w_full.iter().any(|v| v.abs() > 1.0 + LOST);
-            if !lost && generate(dct, idx, &basis, &mut lp, &w_full, tol) {
+            let lost = T::LOSSY && w_full.iter().any(|v| v.abs() > 1.0 + LOST);
+            if !lost && generate(dct, idx, basis, &mut lp, &w_full, tol) {
                 continue;
             }
             if let Some(r) = verify(dct, idx, h, &support, &theta_s, &yf, &w_full, *pivots, tol) {
                 return Some(Outcome::Certified(r));
             }
-            if T::DOUBLE && *pivots == start_pivots {
+            if T::FINAL && *pivots == start_pivots {
                 return None;
             }
             let mut basic = vec![false; n];
@@ -746,7 +1097,8 @@ fn run<T: Real>(
             next.extend(s0.iter().chain(&lp.e_cols).filter(|&&k| !basic[k]));
             return Some(Outcome::Reanchor {
                 ranked: next,
-                double: lost,
+                lost,
+                pivoted: *pivots > start_pivots,
             });
         };
         if *pivots == max_pivots {
@@ -973,6 +1325,87 @@ mod tests {
         assert!(Basis::<f64>::factor(&dct, &idx, &twice).is_none());
     }
 
+    /// The Gram anchor solves the same systems as the f64 LU of B₀, for a support in no particular
+    /// order that holds frequency 0 (its own weight) and high frequencies (the g(2n − d) fold);
+    /// `start` equals a solve plus `columns`.
+    #[test]
+    fn gram_anchor_solves_like_the_lu() {
+        let n = 97;
+        let mut dct = Dct::new(n);
+        let m = 32;
+        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, m, 3)
+            .indices(n)
+            .unwrap();
+        let mut support: Vec<usize> = (0..m).map(|c| (c * 7) % 41).collect();
+        support[5] = 96;
+        support[9] = 90;
+        assert!(support.contains(&0));
+        let lu = Basis::<f64>::factor(&dct, &idx, &support).expect("non-singular");
+        let gram = Gram::factor(&mut dct, &idx, &support).expect("positive definite");
+        let rhs = Col::<f64>::from_fn(m, |r| (r as f64 * 0.37).sin());
+        let (mut x, mut y) = (rhs.clone(), rhs.clone());
+        Basis::solve(&lu, &mut x);
+        Basis::solve_transpose(&lu, &mut y);
+        let (mut xg, mut yg) = (rhs.clone(), rhs.clone());
+        Anchor::solve(&gram, &mut dct, &idx, &mut xg);
+        Anchor::solve_transpose(&gram, &mut dct, &idx, &mut yg);
+        let ks = [0usize, 3, 50, 95];
+        let cols_lu = Anchor::columns(&lu, &dct, &idx, &ks);
+        let cols_g = Anchor::columns(&gram, &dct, &idx, &ks);
+        let h: Vec<f64> = (0..m).map(|r| rhs[r]).collect();
+        let (theta0, cols_start) = gram.start(&mut dct, &idx, &h, &ks);
+        for r in 0..m {
+            assert!(
+                (xg[r] - x[r]).abs() < 1e-9 * (1.0 + x[r].abs()),
+                "solve row {r}"
+            );
+            assert!(
+                (yg[r] - y[r]).abs() < 1e-9 * (1.0 + y[r].abs()),
+                "transpose row {r}"
+            );
+            assert!(
+                (theta0[r] - x[r]).abs() < 1e-9 * (1.0 + x[r].abs()),
+                "start row {r}"
+            );
+            for c in 0..ks.len() {
+                let want = cols_lu[(r, c)];
+                assert!(
+                    (cols_g[(r, c)] - want).abs() < 1e-9 * (1.0 + want.abs()),
+                    "({r}, {c})"
+                );
+                assert_eq!(cols_start[(r, c)], cols_g[(r, c)]);
+            }
+        }
+        // A repeated column makes G singular: refused.
+        let mut twice = support.clone();
+        twice[1] = twice[0];
+        assert!(Gram::factor(&mut dct, &idx, &twice).is_none());
+    }
+
+    /// The recursive Cholesky reproduces A = LLᵀ past its leaf size and refuses an indefinite
+    /// matrix.
+    #[test]
+    fn cholesky_lower_factors_spd_and_refuses_indefinite() {
+        let n = 3 * CHOL_LEAF + 5;
+        let r = Mat::<f64>::from_fn(n, n, |i, j| ((i * 31 + j * 17) % 23) as f64 / 23.0 - 0.5);
+        let a = &r * r.transpose() + Mat::<f64>::identity(n, n);
+        let mut l = a.clone();
+        assert!(cholesky_lower(l.as_mut()));
+        let lower = Mat::<f64>::from_fn(n, n, |i, j| if i >= j { l[(i, j)] } else { 0.0 });
+        let back = &lower * lower.transpose();
+        for i in 0..n {
+            for j in 0..n {
+                assert!(
+                    (back[(i, j)] - a[(i, j)]).abs() < 1e-12 * n as f64,
+                    "({i}, {j})"
+                );
+            }
+        }
+        let mut indefinite = a.clone();
+        indefinite[(n - 1, n - 1)] = -1.0;
+        assert!(!cholesky_lower(indefinite.as_mut()));
+    }
+
     /// From a poor ranking (the lowest frequencies first, few candidates, so column generation
     /// has to find most of the optimal basis) the simplex reaches a certified optimum; ranked
     /// first, the optimal basis certifies with zero pivots; and the verification rejects a
@@ -988,7 +1421,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let h: Vec<f64> = (0..m).map(|_| rng.random_range(-1.0..1.0)).collect();
         let order: Vec<usize> = (0..n).collect();
-        let r = finish(&mut dct, &idx, &h, &order, 4, 1000, 1e-9).expect("certified");
+        let r = finish(&mut dct, &idx, &h, &order, 4, 1000, 1e-9, usize::MAX).expect("certified");
         assert!(r.pivots > 0);
         assert!(r.dual_inf_norm <= 1.0 + 1e-9);
         let objective: f64 = r.theta.iter().map(|v| v.abs()).sum();
@@ -998,11 +1431,18 @@ mod tests {
         for (&i, &hk) in idx.iter().zip(&h) {
             assert!((g[i] - hk).abs() < 1e-12);
         }
+        // The Gram anchor reaches the same optimum.
+        let g = finish(&mut dct, &idx, &h, &order, 4, 1000, 1e-9, 0).expect("certified");
+        assert!((g.dual_objective - r.dual_objective).abs() < 1e-10 * objective);
+        for k in 0..n {
+            assert!((g.theta[k] - r.theta[k]).abs() < 1e-9, "coefficient {k}");
+        }
         let optimal: Vec<usize> = (0..n).filter(|&k| r.theta[k] != 0.0).collect();
         assert_eq!(optimal.len(), m, "random data: a non-degenerate vertex");
         let mut ranked = optimal.clone();
         ranked.extend((0..n).filter(|k| !optimal.contains(k)));
-        let again = finish(&mut dct, &idx, &h, &ranked, 8, 1000, 1e-9).expect("certified");
+        let again =
+            finish(&mut dct, &idx, &h, &ranked, 8, 1000, 1e-9, usize::MAX).expect("certified");
         assert_eq!(again.pivots, 0);
         assert!((again.dual_objective - r.dual_objective).abs() < 1e-10 * objective);
 
