@@ -466,7 +466,8 @@ fn ranking_loop(
     (z, u, done)
 }
 
-/// [`admm_update`] in f32, compiled for AVX2 when the CPU has it (the crate's baseline is SSE2).
+/// [`admm_update`] in f32, in AVX2 intrinsics when the CPU has them (the crate's baseline is SSE2;
+/// the compiled generic loop took ~1.5 µs per update at n = 1901).
 fn update_single(
     x: &[f32],
     z: &mut [f32],
@@ -486,7 +487,39 @@ fn update_single(
             a: f32,
             i: f32,
         ) -> Step<f32> {
-            admm_update::<f32, false>(x, z, u, v, a, i)
+            use std::arch::x86_64::*;
+            let n = x.len().min(z.len()).min(u.len()).min(v.len());
+            let (va, vb) = (_mm256_set1_ps(a), _mm256_set1_ps(1.0 - a));
+            let (hi, lo) = (_mm256_set1_ps(i), _mm256_set1_ps(-i));
+            let zero = _mm256_setzero_ps();
+            let (mut changed, mut nnz) = (0i32, 0u32);
+            let mut k = 0;
+            while k + 8 <= n {
+                let xk = _mm256_loadu_ps(x.as_ptr().add(k));
+                let zk = _mm256_loadu_ps(z.as_ptr().add(k));
+                let uk = _mm256_loadu_ps(u.as_ptr().add(k));
+                // Unfused, as the generic loop rounds.
+                let xh = _mm256_add_ps(_mm256_mul_ps(va, xk), _mm256_mul_ps(vb, zk));
+                let t = _mm256_add_ps(xh, uk);
+                // soft(t, i) = t − clamp(t, −i, i), exactly (0 inside the band).
+                let zn = _mm256_sub_ps(t, _mm256_max_ps(_mm256_min_ps(t, hi), lo));
+                let now = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_NEQ_UQ>(zn, zero));
+                let before = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_NEQ_UQ>(zk, zero));
+                changed |= now ^ before;
+                nnz += (now as u32).count_ones();
+                let un = _mm256_add_ps(uk, _mm256_sub_ps(xh, zn));
+                _mm256_storeu_ps(z.as_mut_ptr().add(k), zn);
+                _mm256_storeu_ps(u.as_mut_ptr().add(k), un);
+                _mm256_storeu_ps(v.as_mut_ptr().add(k), _mm256_sub_ps(zn, un));
+                k += 8;
+            }
+            let rest =
+                admm_update::<f32, false>(&x[k..n], &mut z[k..n], &mut u[k..n], &mut v[k..n], a, i);
+            Step {
+                changed: changed != 0 || rest.changed,
+                nnz: nnz as usize + rest.nnz,
+                ..rest
+            }
         }
         // SAFETY: AVX2 and FMA are present (checked).
         return unsafe { avx2(x, z, u, v, alpha, inv) };
@@ -848,6 +881,42 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The f32 update (AVX2 where present) equals the generic one bit for bit: support flags,
+    /// count and the three vectors, with entries inside, outside and on the threshold band, exact
+    /// zeros, and a length that leaves a remainder.
+    #[test]
+    fn single_update_matches_the_generic_one() {
+        let n = 1901;
+        let x: Vec<f32> = (0..n)
+            .map(|i| ((i * 37 % 23) as f32 - 11.0) * 0.05)
+            .collect();
+        let z0: Vec<f32> = (0..n)
+            .map(|i| {
+                if i % 3 == 0 {
+                    0.0
+                } else {
+                    (i % 7) as f32 * 0.1 - 0.3
+                }
+            })
+            .collect();
+        let u0: Vec<f32> = (0..n)
+            .map(|i| ((i * 13 % 17) as f32 - 8.0) * 0.01)
+            .collect();
+        let (alpha, inv) = (1.8f32, 0.25f32);
+        let (mut z1, mut u1, mut v1) = (z0.clone(), u0.clone(), vec![0.0; n]);
+        let a = admm_update::<f32, false>(&x, &mut z1, &mut u1, &mut v1, alpha, inv);
+        let (mut z2, mut u2, mut v2) = (z0.clone(), u0.clone(), vec![0.0; n]);
+        let b = update_single(&x, &mut z2, &mut u2, &mut v2, alpha, inv);
+        assert_eq!((a.changed, a.nnz), (b.changed, b.nnz));
+        assert!(a.nnz > 0 && a.nnz < n);
+        assert_eq!((&z1, &u1, &v1), (&z2, &u2, &v2));
+        // An update that keeps the support (x = z, u = 0, no threshold) reports no change.
+        let (mut z3, mut u3, mut v3) = (z2.clone(), vec![0.0; n], vec![0.0; n]);
+        let again = update_single(&z2, &mut z3, &mut u3, &mut v3, 1.0, 0.0);
+        assert!(!again.changed);
+        assert_eq!(again.nnz, b.nnz);
     }
 
     #[test]

@@ -59,6 +59,11 @@ pub struct RaderAdmm {
     /// Forward output l to the layout pair: with a = v₀ + Re W_l, P = u0·a + u1·Im W_l,
     /// Q = u2·a + u3·Im W_l.
     unpack: Vec<[f32; 4]>,
+    /// The same tables for the AVX2 path: `pack` as interleaved (a, c) and (b, d) pairs, `unpack`
+    /// as one array per coefficient.
+    pack_ac: Vec<f32>,
+    pack_bd: Vec<f32>,
+    unpack_soa: [Vec<f32>; 4],
     /// V₀ = a0·θ₀; θ₀ = s0·(v₀ + Σ).
     a0: f32,
     s0: f32,
@@ -146,6 +151,9 @@ impl RaderAdmm {
             z: vec![C32::new(0.0, 0.0); len],
             w: vec![C32::new(0.0, 0.0); len],
             scratch: conv.scratch,
+            pack_ac: pack.iter().flat_map(|c| [c[0], c[2]]).collect(),
+            pack_bd: pack.iter().flat_map(|c| [c[1], c[3]]).collect(),
+            unpack_soa: std::array::from_fn(|i| unpack.iter().map(|u| u[i]).collect()),
             pack,
             unpack,
             a0: (1.0 / nf / s0) as f32,
@@ -230,11 +238,158 @@ impl RaderAdmm {
         self.project_impl(v, samples, h, x);
     }
 
-    /// [`RaderAdmm::project`] compiled for AVX2 (the crate's baseline is SSE2).
+    /// [`RaderAdmm::project`] with the elementwise passes in AVX2 intrinsics: the compiled
+    /// portable loops spent ~7 µs of a 16.5 µs projection at n = 1901 (four FFTs of 2048 ~9.4 µs)
+    /// on shuffles for the reversed and interleaved complex accesses.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn project_avx2(&mut self, v: &[f32], samples: &[SamplePos], h: &[f32], x: &mut [f32]) {
-        self.project_impl(v, samples, h, x);
+        use std::arch::x86_64::*;
+        let hh = self.h;
+        let len = self.z.len();
+        // Pack: z_j = (a, c)·P + (b, d)·Q with P, Q read backwards from the layout.
+        let (pl, ql) = (&v[1..1 + hh], &v[1 + hh..]);
+        let c = self.pack[0];
+        self.z[0] = C32::new(c[0] * pl[0] + c[1] * ql[0], c[2] * pl[0] + c[3] * ql[0]);
+        let v0 = self.a0 * v[0];
+        {
+            let zf = self.z.as_mut_ptr() as *mut f32;
+            let dup_rev = _mm256_setr_epi32(3, 3, 2, 2, 1, 1, 0, 0);
+            let mut j = 1;
+            while j + 4 <= hh {
+                let pv = _mm_loadu_ps(pl.as_ptr().add(hh - j - 3));
+                let qv = _mm_loadu_ps(ql.as_ptr().add(hh - j - 3));
+                let pd = _mm256_permutevar8x32_ps(_mm256_castps128_ps256(pv), dup_rev);
+                let qd = _mm256_permutevar8x32_ps(_mm256_castps128_ps256(qv), dup_rev);
+                let ac = _mm256_loadu_ps(self.pack_ac.as_ptr().add(2 * j));
+                let bd = _mm256_loadu_ps(self.pack_bd.as_ptr().add(2 * j));
+                _mm256_storeu_ps(
+                    zf.add(2 * j),
+                    _mm256_fmadd_ps(ac, pd, _mm256_mul_ps(bd, qd)),
+                );
+                j += 4;
+            }
+            for j in j..hh {
+                let c = self.pack[j];
+                let (pv, qv) = (pl[hh - j], ql[hh - j]);
+                self.z[j] = C32::new(c[0] * pv + c[1] * qv, c[2] * pv + c[3] * qv);
+            }
+        }
+        self.z[hh..].fill(C32::new(0.0, 0.0));
+        let dc = self.convolve_avx2();
+        // Forward input: re_l = 2V₀ + 4 Re W_(−l), im_l = 4 Im W_(−l) (l ≥ 1).
+        {
+            let (z, w) = (&mut self.z, &self.w);
+            z[0] = C32::new(2.0 * v0 + 4.0 * w[0].re, -4.0 * w[0].im);
+            let zf = z.as_mut_ptr() as *mut f32;
+            let wf = w.as_ptr() as *const f32;
+            let four = _mm256_set1_ps(4.0);
+            let shift = _mm256_setr_ps(2.0 * v0, 0.0, 2.0 * v0, 0.0, 2.0 * v0, 0.0, 2.0 * v0, 0.0);
+            let mut l = 1;
+            while l + 4 <= hh {
+                let wr = rev4(_mm256_loadu_ps(wf.add(2 * (hh - l - 3))));
+                _mm256_storeu_ps(zf.add(2 * l), _mm256_fmadd_ps(wr, four, shift));
+                l += 4;
+            }
+            for l in l..hh {
+                let wj = w[hh - l];
+                z[l] = C32::new(2.0 * v0 + 4.0 * wj.re, 4.0 * wj.im);
+            }
+            z[hh..len].fill(C32::new(0.0, 0.0));
+        }
+        let first = self.correct_samples(v0, dc, samples, h);
+        let dc = self.convolve_avx2();
+        x[0] = self.s0 * (first + dc);
+        // Unpack: P = u0·a + u1·Im W_l, Q = u2·a + u3·Im W_l with a = first + Re W_l.
+        let (xp, xq) = x[1..].split_at_mut(hh);
+        let wf = self.w.as_ptr() as *const f32;
+        let [u0, u1, u2, u3] = &self.unpack_soa;
+        let f = _mm256_set1_ps(first);
+        let mut l = 0;
+        while l + 8 <= hh {
+            let lo = _mm256_loadu_ps(wf.add(2 * l));
+            let hi = _mm256_loadu_ps(wf.add(2 * l + 8));
+            let re = _mm256_castpd_ps(_mm256_permute4x64_pd::<0xD8>(_mm256_castps_pd(
+                _mm256_shuffle_ps::<0x88>(lo, hi),
+            )));
+            let im = _mm256_castpd_ps(_mm256_permute4x64_pd::<0xD8>(_mm256_castps_pd(
+                _mm256_shuffle_ps::<0xDD>(lo, hi),
+            )));
+            let a = _mm256_add_ps(re, f);
+            let ld = |t: &Vec<f32>| _mm256_loadu_ps(t.as_ptr().add(l));
+            let pv = _mm256_fmadd_ps(ld(u0), a, _mm256_mul_ps(ld(u1), im));
+            let qv = _mm256_fmadd_ps(ld(u2), a, _mm256_mul_ps(ld(u3), im));
+            _mm256_storeu_ps(xp.as_mut_ptr().add(l), pv);
+            _mm256_storeu_ps(xq.as_mut_ptr().add(l), qv);
+            l += 8;
+        }
+        let w = &self.w;
+        for l in l..hh {
+            let a = first + w[l].re;
+            xp[l] = u0[l] * a + u1[l] * w[l].im;
+            xq[l] = u2[l] * a + u3[l] * w[l].im;
+        }
+    }
+
+    /// [`RaderAdmm::convolve`] with the pointwise product in AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn convolve_avx2(&mut self) -> f32 {
+        use std::arch::x86_64::*;
+        self.fft
+            .process_with_scratch(&mut self.z, &mut self.scratch);
+        let len = self.z.len();
+        let (z, w) = (&self.z, &mut self.w);
+        let dc = z[0].re;
+        w[0] = z[0] * self.p[0] + z[0].conj() * self.q[0];
+        let zf = z.as_ptr() as *const f32;
+        let wf = w.as_mut_ptr() as *mut f32;
+        let (pf, qf) = (self.p.as_ptr() as *const f32, self.q.as_ptr() as *const f32);
+        let mut k = 1;
+        while k + 4 <= len {
+            let zk = _mm256_loadu_ps(zf.add(2 * k));
+            let zr = rev4(_mm256_loadu_ps(zf.add(2 * (len - k - 3))));
+            let pk = _mm256_loadu_ps(pf.add(2 * k));
+            let qk = _mm256_loadu_ps(qf.add(2 * k));
+            // z·p: (a·pr − b·pi, b·pr + a·pi); conj(zr)·q: (c·qr + d·qi, c·qi − d·qr).
+            let t1 = _mm256_fmaddsub_ps(
+                zk,
+                _mm256_moveldup_ps(pk),
+                _mm256_mul_ps(_mm256_permute_ps::<0xB1>(zk), _mm256_movehdup_ps(pk)),
+            );
+            let t2 = _mm256_fmsubadd_ps(
+                _mm256_permute_ps::<0xB1>(zr),
+                _mm256_movehdup_ps(qk),
+                _mm256_mul_ps(zr, _mm256_moveldup_ps(qk)),
+            );
+            _mm256_storeu_ps(wf.add(2 * k), _mm256_add_ps(t1, t2));
+            k += 4;
+        }
+        for k in k..len {
+            w[k] = z[k] * self.p[k] + z[len - k].conj() * self.q[k];
+        }
+        self.ifft
+            .process_with_scratch(&mut self.w, &mut self.scratch);
+        dc
+    }
+
+    /// The samples set to h: corrections h − g at the sampled points added to the forward
+    /// input z; returns the value at grid point 0's position (V₀ + 2Σ, or its sample).
+    #[inline(always)]
+    fn correct_samples(&mut self, v0: f32, dc: f32, samples: &[SamplePos], h: &[f32]) -> f32 {
+        let (z, w) = (&mut self.z, &self.w);
+        let mut first = v0 + 2.0 * dc;
+        for (s, &hv) in samples.iter().zip(h) {
+            if s.j == usize::MAX {
+                first = hv;
+                continue;
+            }
+            let wj = w[s.j];
+            let d = hv - (v0 + 2.0 * wj.re + s.g_im * wj.im);
+            z[s.l].re += d;
+            z[s.l].im += s.f_im * d;
+        }
+        first
     }
 
     #[inline(always)]
@@ -249,17 +404,7 @@ impl RaderAdmm {
             *zl = C32::new(2.0 * v0 + 4.0 * wj.re, 4.0 * wj.im);
         }
         z[hh..].fill(C32::new(0.0, 0.0));
-        let mut first = v0 + 2.0 * dc;
-        for (s, &hv) in samples.iter().zip(h) {
-            if s.j == usize::MAX {
-                first = hv;
-                continue;
-            }
-            let wj = w[s.j];
-            let d = hv - (v0 + 2.0 * wj.re + s.g_im * wj.im);
-            z[s.l].re += d;
-            z[s.l].im += s.f_im * d;
-        }
+        let first = self.correct_samples(v0, dc, samples, h);
         let dc = self.convolve();
         let w = &self.w;
         x[0] = self.s0 * (first + dc);
@@ -272,10 +417,48 @@ impl RaderAdmm {
     }
 }
 
+/// Four complex f32 in reverse order (each complex as one 64-bit lane).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn rev4(v: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    _mm256_castpd_ps(_mm256_permute4x64_pd::<0x1B>(_mm256_castps_pd(v)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::recon::dct::Dct;
+
+    /// The AVX2 projection equals the portable one (the other test sees only the path this
+    /// CPU takes), at lengths whose vector loops have remainders of every size.
+    #[test]
+    fn simd_projection_matches_the_portable_one() {
+        if !crate::recon::simd::has_avx2_fma() {
+            return;
+        }
+        for n in [5usize, 7, 13, 19, 101, 383, 1901] {
+            let mut fused = RaderAdmm::new(n).expect("prime");
+            let v: Vec<f32> = (0..n).map(|i| ((i * 37 % 11) as f32 - 5.0) * 0.1).collect();
+            let idx: Vec<usize> = (0..n).step_by(2).collect();
+            let h: Vec<f32> = idx.iter().map(|&i| (i as f32 * 0.3).cos()).collect();
+            let samples = fused.samples(&idx);
+            let (mut a, mut b) = (vec![0.0f32; n], vec![0.0f32; n]);
+            fused.project_impl(&v, &samples.0, &h, &mut a);
+            // SAFETY: AVX2 and FMA are present (checked).
+            unsafe { fused.project_avx2(&v, &samples.0, &h, &mut b) };
+            let scale = a.iter().map(|v| v.abs()).fold(0.0, f32::max);
+            for k in 0..n {
+                assert!(
+                    (a[k] - b[k]).abs() <= 1e-5 * scale,
+                    "n={n} k={k}: {} vs {}",
+                    a[k],
+                    b[k]
+                );
+            }
+        }
+    }
 
     /// One projection in Rader's order equals the natural-order one (inverse DCT, samples set,
     /// forward DCT) at prime lengths, including a sample at grid point 0.
