@@ -132,13 +132,7 @@ impl<T: Real> Basis<T> {
             Default::default(),
         );
         // Reject (near-)singular bases: a tiny pivot in U means a column nearly dependent.
-        let (mut dmax, mut dmin) = (0.0f64, f64::INFINITY);
-        for i in 0..m {
-            let d = lu[(i, i)].to64().abs();
-            dmax = dmax.max(d);
-            dmin = dmin.min(d);
-        }
-        if dmin.is_nan() || dmin <= 1e-12 * dmax {
+        if !diagonal_spread_within((0..m).map(|i| lu[(i, i)].to64()), 1e-12) {
             return None;
         }
         Some(Self { lu, perm })
@@ -182,12 +176,11 @@ impl<T: Real> Basis<T> {
 
 /// The anchor basis B₀ = A_S₀ as the restricted simplex uses it: solves with B₀ and B₀ᵀ, and the
 /// columns B₀⁻¹A_k of the candidates.
-trait Anchor: Sized {
+trait Anchor {
     /// Whether its dual can be far off (f32: then [`LOST`] applies).
     const LOSSY: bool;
     /// Whether a failed certificate without a pivot is final (f64 LU: nothing more precise).
     const FINAL: bool;
-    fn factor(dct: &mut Dct, idx: &[usize], support: &[usize]) -> Option<Self>;
     /// x = B₀⁻¹x.
     fn solve(&self, dct: &mut Dct, idx: &[usize], x: &mut Col<f64>);
     /// c = B₀⁻ᵀc.
@@ -205,9 +198,6 @@ trait Anchor: Sized {
 impl<T: Real> Anchor for Basis<T> {
     const LOSSY: bool = !T::DOUBLE;
     const FINAL: bool = T::DOUBLE;
-    fn factor(dct: &mut Dct, idx: &[usize], support: &[usize]) -> Option<Self> {
-        Basis::factor(dct, idx, support)
-    }
     fn solve(&self, _: &mut Dct, _: &[usize], x: &mut Col<f64>) {
         Basis::solve(self, x);
     }
@@ -215,13 +205,8 @@ impl<T: Real> Anchor for Basis<T> {
         Basis::solve_transpose(self, c);
     }
     fn columns(&self, dct: &Dct, idx: &[usize], ks: &[usize]) -> Mat<f64> {
-        let m = idx.len();
-        let mut a = Mat::<f64>::zeros(m, ks.len());
-        for (c, &k) in ks.iter().enumerate() {
-            if let Some(col) = a.col_mut(c).try_as_col_major_mut() {
-                dct.basis_column(k, idx, col.as_slice_mut());
-            }
-        }
+        let mut a = Mat::<f64>::zeros(idx.len(), ks.len());
+        f64::fill_basis(dct, idx, ks, &mut a);
         self.solve_mat(&mut a);
         a
     }
@@ -394,9 +379,9 @@ fn cholesky_lower(a: MatMut<'_, f64>) -> bool {
     cholesky_lower(a22)
 }
 
-impl Anchor for Gram {
-    const LOSSY: bool = false;
-    const FINAL: bool = false;
+impl Gram {
+    /// The Gram anchor of the sampled DCT columns `support`; `None` when G is not numerically
+    /// positive definite.
     fn factor(dct: &mut Dct, idx: &[usize], support: &[usize]) -> Option<Self> {
         let n = dct.len();
         let m = support.len();
@@ -431,14 +416,8 @@ impl Anchor for Gram {
         if !cholesky_lower(g.as_mut()) {
             return None;
         }
-        let (mut dmax, mut dmin) = (0.0f64, f64::INFINITY);
-        for i in 0..m {
-            let d = l[i * m + i].abs();
-            dmax = dmax.max(d);
-            dmin = dmin.min(d);
-        }
-        // κ(G) ≥ (dmax/dmin)²: beyond ~1e12 f64 has no digits left for the simplex.
-        if dmin.is_nan() || dmin <= 1e-6 * dmax {
+        // κ(G) ≥ (max/min diagonal of L)²: beyond ~1e12 f64 has no digits left for the simplex.
+        if !diagonal_spread_within((0..m).map(|i| l[i * m + i]), 1e-6) {
             return None;
         }
         let mut pos = vec![0; m];
@@ -454,6 +433,11 @@ impl Anchor for Gram {
             w0: r0,
         })
     }
+}
+
+impl Anchor for Gram {
+    const LOSSY: bool = false;
+    const FINAL: bool = false;
 
     fn solve(&self, dct: &mut Dct, idx: &[usize], x: &mut Col<f64>) {
         let mut w = vec![0.0; dct.len()];
@@ -492,6 +476,17 @@ impl Anchor for Gram {
         all.resize_with(self.sorted.len(), k, |_, _| 0.0);
         (theta0, all)
     }
+}
+
+/// Whether a triangular factor's diagonal is free of NaN and its smallest magnitude exceeds
+/// `ratio` times its largest (a near-singular factor fails).
+fn diagonal_spread_within(diag: impl Iterator<Item = f64>, ratio: f64) -> bool {
+    let (mut dmax, mut dmin) = (0.0f64, f64::INFINITY);
+    for d in diag {
+        dmax = dmax.max(d.abs());
+        dmin = dmin.min(d.abs());
+    }
+    !dmin.is_nan() && dmin > ratio * dmax
 }
 
 fn finite(v: &Col<f64>) -> bool {
@@ -776,7 +771,7 @@ fn generate<B: Anchor>(
 }
 
 /// Iterative refinement of a basis's primal and dual in f64: residuals through the transforms,
-/// corrections through the anchor B₀ (f32 or f64) and the restricted basis (A_S = B₀·B_r).
+/// corrections through the anchor B₀ (any [`Anchor`]) and the restricted basis (A_S = B₀·B_r).
 struct Refine<'a, B: Anchor> {
     basis: &'a B,
     lp: &'a Restricted,
@@ -815,7 +810,8 @@ impl<B: Anchor> Refine<'_, B> {
         }
     }
 
-    /// y with A_Sᵀ y = sign(θ_S) to rounding: y += B₀⁻ᵀB_r⁻ᵀ(sign − A_Sᵀy); `w` = Aᵀy on return.
+    /// y with A_Sᵀ y = sign(θ_S) to rounding: y += B₀⁻ᵀB_r⁻ᵀ(sign − A_Sᵀy). `w` holds Aᵀy on entry
+    /// (the caller has just priced with it) and on return.
     fn dual(
         &self,
         dct: &mut Dct,
@@ -828,7 +824,9 @@ impl<B: Anchor> Refine<'_, B> {
         let m = idx.len();
         let lp = self.lp;
         for round in 0..=REFINE_MAX {
-            dct.adjoint(idx, |r| y[r], w);
+            if round > 0 {
+                dct.adjoint(idx, |r| y[r], w);
+            }
             if round == REFINE_MAX {
                 break;
             }
