@@ -12,6 +12,8 @@ pub mod physics;
 pub mod rader;
 pub(crate) mod simd;
 pub mod simplex;
+#[cfg(target_arch = "x86_64")]
+pub mod split_fft;
 
 use std::str::FromStr;
 use std::time::Instant;

@@ -14,3 +14,16 @@ pub fn has_avx2_fma() -> bool {
         false
     }
 }
+
+/// Whether the CPU has AVX-512F (the split-format FFT's kernels).
+#[inline]
+pub fn has_avx512f() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx512f")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
