@@ -162,6 +162,8 @@ struct Split {
     qi: Aligned,
     /// The pack coefficients a, b, c, d (re = a·P + b·Q, im = c·P + d·Q).
     pack: [Vec<f32>; 4],
+    /// Vector 0 holds the octaves below 16, each mirrored within itself: its lane permutation.
+    mirror0: [i32; 16],
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -170,14 +172,11 @@ impl Split {
     /// the input's real parts. z's upper half is not read.
     #[target_feature(enable = "avx512f")]
     unsafe fn convolve(&mut self) -> f32 {
-        use super::split_fft::mirror;
         use std::arch::x86_64::*;
         self.fft.forward(&mut self.zr, &mut self.zi, true);
         let dc = self.zr[0];
         let rev = _mm512_set_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-        // Vector 0 holds the octaves below 16, each mirrored within itself.
-        let v0_idx: [i32; 16] = std::array::from_fn(|l| mirror(l) as i32);
-        let v0_idx = _mm512_loadu_si512(v0_idx.as_ptr() as *const _);
+        let v0_idx = _mm512_loadu_si512(self.mirror0.as_ptr() as *const _);
         let len = self.zr.len();
         for v in 0..len / 16 {
             let (mv, perm) = if v == 0 {
@@ -215,7 +214,7 @@ impl Split {
     }
 
     fn new(p: &[C32], q: &[C32], pack: &[[f32; 4]]) -> Option<Self> {
-        use super::split_fft::{bit_reverse, SplitFft};
+        use super::split_fft::{bit_reverse, mirror, SplitFft};
         if !super::simd::has_avx512f() {
             return None;
         }
@@ -234,6 +233,7 @@ impl Split {
             qr: br(q, |c| c.re),
             qi: br(q, |c| c.im),
             pack: std::array::from_fn(|i| pack.iter().map(|c| c[i]).collect()),
+            mirror0: std::array::from_fn(|l| mirror(l) as i32),
         })
     }
 }
@@ -443,11 +443,8 @@ impl RaderAdmm {
             let [pa, pb, pc, pd] = &sp.pack;
             let one = |j: usize, p: f32, q: f32| (pa[j] * p + pb[j] * q, pc[j] * p + pd[j] * q);
             (sp.zr[0], sp.zi[0]) = one(0, pl[0], ql[0]);
-            // The first line in scalars, so that the vector stores start on a line (a store
-            // straddling two lines costs twice).
-            for j in 1..16.min(hh) {
-                (sp.zr[j], sp.zi[j]) = one(j, pl[hh - j], ql[hh - j]);
-            }
+            // The first line in scalars (with the tail), so that the vector stores start on a
+            // line (a store straddling two lines costs twice).
             let mut j = 16;
             while j + 16 <= hh {
                 let pv = _mm512_permutexvar_ps(rev, _mm512_loadu_ps(pl.as_ptr().add(hh - j - 15)));
@@ -459,7 +456,7 @@ impl RaderAdmm {
                 _mm512_storeu_ps(sp.zi.as_mut_ptr().add(j), im);
                 j += 16;
             }
-            for j in j..hh {
+            for j in (1..16.min(hh)).chain(j..hh) {
                 (sp.zr[j], sp.zi[j]) = one(j, pl[hh - j], ql[hh - j]);
             }
         }
@@ -472,10 +469,6 @@ impl RaderAdmm {
             sp.zi[0] = -4.0 * sp.wi[0];
             let four = _mm512_set1_ps(4.0);
             let shift = _mm512_set1_ps(2.0 * v0);
-            for l in 1..16.min(hh) {
-                sp.zr[l] = 2.0 * v0 + 4.0 * sp.wr[hh - l];
-                sp.zi[l] = 4.0 * sp.wi[hh - l];
-            }
             let mut l = 16;
             while l + 16 <= hh {
                 let wr =
@@ -486,7 +479,8 @@ impl RaderAdmm {
                 _mm512_storeu_ps(sp.zi.as_mut_ptr().add(l), _mm512_mul_ps(wi, four));
                 l += 16;
             }
-            for l in l..hh {
+            // The first line and the tail, as in the pack.
+            for l in (1..16.min(hh)).chain(l..hh) {
                 sp.zr[l] = 2.0 * v0 + 4.0 * sp.wr[hh - l];
                 sp.zi[l] = 4.0 * sp.wi[hh - l];
             }

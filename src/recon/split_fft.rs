@@ -14,6 +14,8 @@
 //! inverse): 2.48 µs per transform, 2.0 µs with the half skipped, against 2.93 µs. In the BP
 //! ranking projection (four per projection, [`super::fused`]), with 64-byte-aligned buffers.
 
+use std::arch::x86_64::{__m512, __mmask16};
+
 /// An f32 buffer aligned to 64 bytes, so that no 16-lane load or store at a multiple of 16
 /// straddles two cache lines (with malloc's 16-byte alignment three in four did; measured in the
 /// BP ranking loop: a projection 14.3 → 10.6 µs).
@@ -295,17 +297,17 @@ impl SplitFft {
 /// The in-vector stages' constants: twiddles of spans 8 and 4, the per-lane signs of spans 8,
 /// 4, 2, 1 (+1 on the lanes that take the sum), and the lanes whose span-2 twiddle is ∓i.
 struct Lanes {
-    w8r: std::arch::x86_64::__m512,
-    w8i: std::arch::x86_64::__m512,
-    w4r: std::arch::x86_64::__m512,
-    w4i: std::arch::x86_64::__m512,
-    sign: [std::arch::x86_64::__m512; 4],
-    rot: std::arch::x86_64::__mmask16,
+    w8r: __m512,
+    w8i: __m512,
+    w4r: __m512,
+    w4i: __m512,
+    sign: [__m512; 4],
+    rot: __mmask16,
     /// The radix-2 stage at span 16 (re, im twiddles), when there is one.
-    r2: Option<(std::arch::x86_64::__m512, std::arch::x86_64::__m512)>,
+    r2: Option<(__m512, __m512)>,
 }
 
-type V2 = (std::arch::x86_64::__m512, std::arch::x86_64::__m512);
+type V2 = (__m512, __m512);
 
 impl SplitFft {
     #[target_feature(enable = "avx512f")]
@@ -362,11 +364,7 @@ fn inverse_first(c: &Lanes, a: V2, b: V2) -> (V2, V2) {
 /// (a + b on the low lanes, a − b on the high ones), then the twiddle.
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn lanes_forward(
-    c: &Lanes,
-    vr: std::arch::x86_64::__m512,
-    vi: std::arch::x86_64::__m512,
-) -> (std::arch::x86_64::__m512, std::arch::x86_64::__m512) {
+fn lanes_forward(c: &Lanes, vr: __m512, vi: __m512) -> (__m512, __m512) {
     use std::arch::x86_64::*;
     let ur = _mm512_fmadd_ps(vr, c.sign[0], _mm512_shuffle_f32x4::<0x4E>(vr, vr));
     let ui = _mm512_fmadd_ps(vi, c.sign[0], _mm512_shuffle_f32x4::<0x4E>(vi, vi));
@@ -388,11 +386,7 @@ fn lanes_forward(
 /// high lanes, then u = v·sign + partner (a + w·b low, a − w·b high).
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn lanes_inverse(
-    c: &Lanes,
-    vr: std::arch::x86_64::__m512,
-    vi: std::arch::x86_64::__m512,
-) -> (std::arch::x86_64::__m512, std::arch::x86_64::__m512) {
+fn lanes_inverse(c: &Lanes, vr: __m512, vi: __m512) -> (__m512, __m512) {
     use std::arch::x86_64::*;
     let ur = _mm512_fmadd_ps(vr, c.sign[3], _mm512_permute_ps::<0xB1>(vr));
     let ui = _mm512_fmadd_ps(vi, c.sign[3], _mm512_permute_ps::<0xB1>(vi));
@@ -413,12 +407,7 @@ fn lanes_inverse(
 /// (xr + i·xi)(wr + i·wi).
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn cmul(
-    xr: std::arch::x86_64::__m512,
-    xi: std::arch::x86_64::__m512,
-    wr: std::arch::x86_64::__m512,
-    wi: std::arch::x86_64::__m512,
-) -> (std::arch::x86_64::__m512, std::arch::x86_64::__m512) {
+fn cmul(xr: __m512, xi: __m512, wr: __m512, wi: __m512) -> (__m512, __m512) {
     use std::arch::x86_64::*;
     (
         _mm512_fmsub_ps(xr, wr, _mm512_mul_ps(xi, wi)),
@@ -429,12 +418,7 @@ fn cmul(
 /// (xr + i·xi)·conj(wr + i·wi).
 #[target_feature(enable = "avx512f")]
 #[inline]
-fn cmul_conj(
-    xr: std::arch::x86_64::__m512,
-    xi: std::arch::x86_64::__m512,
-    wr: std::arch::x86_64::__m512,
-    wi: std::arch::x86_64::__m512,
-) -> (std::arch::x86_64::__m512, std::arch::x86_64::__m512) {
+fn cmul_conj(xr: __m512, xi: __m512, wr: __m512, wi: __m512) -> (__m512, __m512) {
     use std::arch::x86_64::*;
     (
         _mm512_fmadd_ps(xr, wr, _mm512_mul_ps(xi, wi)),
