@@ -31,8 +31,9 @@ enum What {
         #[arg(long, default_value = "bp,pchip,linear,physics,auto")]
         methods: String,
     },
-    /// Solve times (median, p90; first_ms: the first solve, which plans the transforms)
-    /// single-threaded: fast BP at n = 1901, auto with its CV, scale runs.
+    /// Solve times (median, p90; first_ms: the first solve, which plans the transforms;
+    /// median_best_of_3_ms: per curve the best of three solves, n = 1901 only) single-threaded:
+    /// fast BP at n = 1901, auto with its CV, scale runs.
     Speed {
         #[arg(long, default_value_t = 11)]
         repeat: usize,
@@ -255,6 +256,7 @@ fn time_method(
     let mut status = Vec::new();
     let mut solver_used = String::new();
     let mut max_gap = f64::NAN;
+    let mut problems = Vec::new();
     for r in 0..repeat {
         let p = synth::problem(
             grid,
@@ -276,7 +278,22 @@ fn time_method(
         if let Some(g) = out.relative_gap {
             max_gap = max_gap.max(g);
         }
+        problems.push((p.samples, s));
     }
+    // Per curve, the best of this pass and two more: the solver's own time with the host's
+    // noise (other VMs' bursts, first-pass cache and allocator effects) filtered out. Only at
+    // the n = 1901 sizes with the fast solvers, where a pass takes well under a second.
+    let best_of_3 = (grid.n < 10_000 && solver != Solver::Clarabel).then(|| {
+        let mut best = times.clone();
+        for _ in 0..2 {
+            for (b, (samples, s)) in best.iter_mut().zip(&problems) {
+                if let Ok(out) = recon::reconstruct(grid, samples, s) {
+                    *b = b.min(out.solve_ms);
+                }
+            }
+        }
+        median(&mut best)
+    });
     status.sort();
     status.dedup();
     // The first solve of a length plans its transforms; later ones reuse the thread's plans.
@@ -284,7 +301,7 @@ fn time_method(
     Ok(json!({
         "method": method.as_str(), "solver": solver_used, "n": grid.n, "m": m,
         "repeat": repeat, "median_ms": median(&mut times.clone()), "p90_ms": percentile(&mut times, 0.9),
-        "first_ms": first,
+        "first_ms": first, "median_best_of_3_ms": best_of_3,
         "median_iterations": median(&mut iters), "statuses": status,
         "max_relative_gap": max_gap.is_finite().then_some(max_gap),
     }))

@@ -270,7 +270,22 @@ impl Gram {
             }
         }
         self.solve_gram(a.as_mut());
-        Mat::<f64>::from_fn(m, a.ncols(), |r, c| a[(self.pos[r], c)])
+        // Back to the caller's row order, column by column on slices (faer's per-entry `from_fn`
+        // with bounds checks took ~57 µs for 600 x 53 here).
+        let mut out = Mat::<f64>::zeros(m, a.ncols());
+        for c in 0..a.ncols() {
+            let (Some(src), Some(dst)) = (
+                a.col(c).try_as_col_major(),
+                out.col_mut(c).try_as_col_major_mut(),
+            ) else {
+                unreachable!("faer's owned matrices are column-major")
+            };
+            let (src, dst) = (src.as_slice(), dst.as_slice_mut());
+            for (d, &p) in dst.iter_mut().zip(&self.pos) {
+                *d = src[p];
+            }
+        }
+        out
     }
 
     /// v = G⁻¹v (rows in sorted order).
@@ -299,17 +314,26 @@ impl Drop for Gram {
 /// weight is the caller's).
 fn gram_lower(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
     #[cfg(target_arch = "x86_64")]
-    if super::simd::has_avx2_fma() && hg.len() < i32::MAX as usize {
+    if super::simd::fast_gathers() && super::simd::has_avx2_fma() && hg.len() < i32::MAX as usize {
         // SAFETY: AVX2 is present (checked); indices stay below hg.len() (s_a ± s_b < 2n).
         unsafe { gram_lower_avx2(hg, s, g, ld) };
         return;
     }
+    gram_lower_scalar(hg, s, g, ld);
+}
+
+/// [`gram_lower`] in scalar loads (for `s` sorted).
+fn gram_lower_scalar(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
     let m = s.len();
+    assert!(s.is_sorted() && (m == 0 || (s[m - 1] as usize) * 2 < hg.len()));
+    assert!(m == 0 || g.len() >= (m - 1) * ld + m);
     for b in 0..m {
         let kb = s[b] as usize;
-        for a in b..m {
-            let ka = s[a] as usize;
-            g[b * ld + a] = hg[ka - kb] + hg[ka + kb];
+        let (lo, hi) = (hg, &hg[kb..]);
+        for (o, &ka) in g[b * ld + b..b * ld + m].iter_mut().zip(&s[b..]) {
+            let ka = ka as usize;
+            // SAFETY: s is sorted, so kb ≤ ka ≤ s[m - 1] and ka + kb < hg.len() (asserted).
+            *o = unsafe { lo.get_unchecked(ka - kb) + hi.get_unchecked(ka) };
         }
     }
 }
@@ -557,6 +581,58 @@ fn long_step(breaks: &mut [(f64, usize, f64)], mut slope: f64) -> Option<(usize,
         }
     }
     None
+}
+
+/// One pass of the ratio test over basic values `x` with directions `d` (times `sj`): the
+/// slope's change (−sign(x)·d for a live variable, |d| for a degenerate one, which any step
+/// drives from zero), the largest |d|, and each variable's breakpoint t = x/d into `t` (∞ unless
+/// live and t > 0). Separate accumulators and no index-carrying state let it vectorise: the
+/// single pass that also tracked the first breakpoint ran ~2.8 µs per pivot at m = 600.
+fn ratio_pass(x: &[f64], d: &[f64], sj: f64, zero_tol: f64, t: &mut [f64]) -> (f64, f64) {
+    const L: usize = 4;
+    let (mut slope, mut dmax) = ([0.0f64; L], [0.0f64; L]);
+    let lane = |x: f64, d: f64, slope: &mut f64, dmax: &mut f64| {
+        let d = sj * d;
+        let ad = d.abs();
+        *dmax = dmax.max(ad);
+        let live = x.abs() > zero_tol;
+        *slope += if live { -(1f64.copysign(x) * d) } else { ad };
+        let q = x / d;
+        if live & (q > 0.0) {
+            q
+        } else {
+            f64::INFINITY
+        }
+    };
+    let n = x.len().min(d.len()).min(t.len());
+    let (xs, ds, ts) = (&x[..n], &d[..n], &mut t[..n]);
+    let mut xc = xs.chunks_exact(L);
+    let mut dc = ds.chunks_exact(L);
+    let mut tc = ts.chunks_exact_mut(L);
+    for ((xa, da), ta) in (&mut xc).zip(&mut dc).zip(&mut tc) {
+        for k in 0..L {
+            ta[k] = lane(xa[k], da[k], &mut slope[k], &mut dmax[k]);
+        }
+    }
+    for ((&xv, &dv), tv) in xc
+        .remainder()
+        .iter()
+        .zip(dc.remainder())
+        .zip(tc.into_remainder())
+    {
+        *tv = lane(xv, dv, &mut slope[0], &mut dmax[0]);
+    }
+    (
+        slope.iter().sum(),
+        dmax.iter().fold(0.0, |a: f64, &b| a.max(b)),
+    )
+}
+
+/// A faer column's entries as a slice (owned columns are contiguous).
+fn contiguous(c: &Col<f64>) -> &[f64] {
+    c.try_as_col_major()
+        .expect("owned faer columns are contiguous")
+        .as_slice()
 }
 
 /// The restricted LP min ||x||₁ s.t. [I T] x = θ₀ and its simplex basis: the identity with the
@@ -1049,6 +1125,7 @@ fn run<T: Anchor>(
     let mut w = Vec::new();
     let mut unit = Col::<f64>::zeros(m);
     let mut breaks: Vec<(f64, usize, f64)> = Vec::new();
+    let mut tb: Vec<f64> = Vec::new();
     lp.ftran(theta0.as_ref(), &mut xi, &mut xc);
     loop {
         if xi.iter().chain(xc.iter()).any(|v| !v.is_finite()) {
@@ -1149,18 +1226,23 @@ fn run<T: Anchor>(
                 .map(|i| (i, xi[i], sj * di[i]))
                 .chain((0..nc).map(|p| (m + p, xc[p], sj * dc[p])))
         };
-        let mut dmax = 0.0f64;
-        let mut slope = 1.0;
-        let mut first = (f64::INFINITY, usize::MAX, 0.0);
-        for (b, x, d) in basics() {
-            let ad = d.abs();
-            dmax = dmax.max(ad);
-            let live = x.abs() > zero_tol;
-            slope += if live { -(1f64.copysign(x) * d) } else { ad };
-            let t = x / d;
-            let better = live & (t > 0.0) & (t < first.0);
-            first = if better { (t, b, 2.0 * ad) } else { first };
-        }
+        tb.clear();
+        tb.resize(m + nc, 0.0);
+        let (si, mi) = ratio_pass(contiguous(&xi), contiguous(&di), sj, zero_tol, &mut tb[..m]);
+        let (sc, mc) = ratio_pass(contiguous(&xc), contiguous(&dc), sj, zero_tol, &mut tb[m..]);
+        let slope = 1.0 + si + sc;
+        let dmax = mi.max(mc);
+        // The first breakpoint: the smallest t, the lowest index among equals.
+        let first = tb
+            .iter()
+            .enumerate()
+            .fold((f64::INFINITY, usize::MAX), |f, (b, &t)| {
+                if t < f.0 {
+                    (t, b)
+                } else {
+                    f
+                }
+            });
         let (b, t) = if slope >= 0.0 {
             // Degenerate step: the degenerate basic with the largest |d| leaves at t = 0.
             let zero = basics()
@@ -1170,14 +1252,17 @@ fn run<T: Anchor>(
                 Some((b, _, _)) => (b, 0.0),
                 None => return None,
             }
-        } else if slope + first.2 >= 0.0 {
+        } else if first.1 != usize::MAX && slope + 2.0 * dir(first.1).abs() >= 0.0 {
             (first.1, first.0)
         } else {
+            // Breakpoints at t = ∞ (d = 0) change no slope: left out.
             breaks.clear();
-            breaks.extend(basics().filter_map(|(b, x, d)| {
-                let t = x / d;
-                (x.abs() > zero_tol && t > 0.0).then_some((t, b, 2.0 * d.abs()))
-            }));
+            breaks.extend(
+                tb.iter()
+                    .enumerate()
+                    .filter(|&(_, &t)| t < f64::INFINITY)
+                    .map(|(b, &t)| (t, b, 2.0 * dir(b).abs())),
+            );
             long_step(&mut breaks, slope)?
         };
         if dir(b).abs() < 1e-10 * dmax {
@@ -1221,12 +1306,16 @@ fn run<T: Anchor>(
             lp.c_pos[j] = q;
             lp.c.push(j);
             if lp.tc.ncols() <= q {
+                // faer reserves exactly what is asked: grow geometrically, or every new basic
+                // T column would reallocate and copy the m x q block.
+                lp.tc.reserve(m, (q + 1).next_power_of_two().max(16));
                 lp.tc.resize_with(m, q + 1, |_, _| 0.0);
             }
-            let src = lp.t[j * m..(j + 1) * m].to_vec();
-            for (i, v) in src.into_iter().enumerate() {
-                lp.tc[(i, q)] = v;
-            }
+            let dst = lp.tc.col_mut(q).try_as_col_major_mut();
+            let dst = dst
+                .expect("owned faer columns are contiguous")
+                .as_slice_mut();
+            dst.copy_from_slice(&lp.t[j * m..(j + 1) * m]);
             xc.resize_with(q + 1, |_| sj * t);
             xc[q] = sj * t;
         }
@@ -1402,6 +1491,41 @@ mod tests {
         let mut twice = support.clone();
         twice[1] = twice[0];
         assert!(Gram::factor(&mut dct, &idx, &twice).is_none());
+    }
+
+    /// Both Gram fills (gathers where they are fast, scalar loads elsewhere) write G's lower
+    /// triangle exactly, and nothing above it.
+    #[test]
+    fn gram_fills_agree_with_the_formula() {
+        let hg: Vec<f64> = (0..200)
+            .map(|d| (d as f64 * 0.61).cos() / (1.0 + d as f64))
+            .collect();
+        let s: Vec<u32> = vec![0, 1, 2, 5, 9, 10, 11, 12, 13, 40, 41, 57, 70, 88, 99];
+        let (m, ld) = (s.len(), 16);
+        let want = |a: usize, b: usize| hg[(s[a] - s[b]) as usize] + hg[(s[a] + s[b]) as usize];
+        let mut fills: Vec<Vec<f64>> = Vec::new();
+        let mut g = vec![f64::NAN; ld * m];
+        gram_lower_scalar(&hg, &s, &mut g, ld);
+        fills.push(g);
+        #[cfg(target_arch = "x86_64")]
+        if super::super::simd::has_avx2_fma() {
+            let mut g = vec![f64::NAN; ld * m];
+            // SAFETY: AVX2 checked; s_a + s_b < 200.
+            unsafe { gram_lower_avx2(&hg, &s, &mut g, ld) };
+            fills.push(g);
+        }
+        for g in &fills {
+            for b in 0..m {
+                for a in 0..m {
+                    let v = g[b * ld + a];
+                    if a >= b {
+                        assert_eq!(v, want(a, b), "({a}, {b})");
+                    } else {
+                        assert!(v.is_nan(), "({a}, {b}) above the diagonal written");
+                    }
+                }
+            }
+        }
     }
 
     /// The recursive Cholesky reproduces A = LLᵀ past its leaf size and refuses an indefinite
