@@ -185,13 +185,22 @@ trait Anchor {
     fn solve(&self, dct: &mut Dct, idx: &[usize], x: &mut Col<f64>);
     /// c = B₀⁻ᵀc.
     fn solve_transpose(&self, dct: &mut Dct, idx: &[usize], c: &mut Col<f64>);
-    /// B₀⁻¹A_ks, one column per entry of `ks`.
-    fn columns(&self, dct: &Dct, idx: &[usize], ks: &[usize]) -> Mat<f64>;
-    /// (B₀⁻¹h, B₀⁻¹A_ks): the restricted problem's right-hand side and first candidates.
-    fn start(&self, dct: &mut Dct, idx: &[usize], h: &[f64], ks: &[usize]) -> (Col<f64>, Mat<f64>) {
+    /// Appends B₀⁻¹A_ks to `out`: m entries per entry of `ks`, column after column.
+    fn columns(&self, dct: &Dct, idx: &[usize], ks: &[usize], out: &mut Vec<f64>);
+    /// B₀⁻¹h, the restricted problem's right-hand side; appends the first candidates' columns
+    /// B₀⁻¹A_ks to `out` as [`Anchor::columns`] does.
+    fn start(
+        &self,
+        dct: &mut Dct,
+        idx: &[usize],
+        h: &[f64],
+        ks: &[usize],
+        out: &mut Vec<f64>,
+    ) -> Col<f64> {
         let mut theta0 = Col::<f64>::from_fn(idx.len(), |r| h[r]);
         self.solve(dct, idx, &mut theta0);
-        (theta0, self.columns(dct, idx, ks))
+        self.columns(dct, idx, ks, out);
+        theta0
     }
 }
 
@@ -204,11 +213,13 @@ impl<T: Real> Anchor for Basis<T> {
     fn solve_transpose(&self, _: &mut Dct, _: &[usize], c: &mut Col<f64>) {
         Basis::solve_transpose(self, c);
     }
-    fn columns(&self, dct: &Dct, idx: &[usize], ks: &[usize]) -> Mat<f64> {
+    fn columns(&self, dct: &Dct, idx: &[usize], ks: &[usize], out: &mut Vec<f64>) {
         let mut a = Mat::<f64>::zeros(idx.len(), ks.len());
         f64::fill_basis(dct, idx, ks, &mut a);
         self.solve_mat(&mut a);
-        a
+        for c in 0..ks.len() {
+            out.extend(a.col(c).iter().copied());
+        }
     }
 }
 
@@ -253,39 +264,39 @@ impl Gram {
         }
     }
 
-    /// G⁻¹[B₀ᵀA_ks, (w_S)] with rows in the caller's support order; w (= B₀ᵀ of something, on
-    /// all n frequencies) adds a last column.
-    fn block(&self, ks: &[usize], w: Option<&[f64]>) -> Mat<f64> {
+    /// Appends G⁻¹B₀ᵀA_ks to `out` (column after column, rows in the caller's support order);
+    /// with w (= B₀ᵀ of something, on all n frequencies) also returns G⁻¹w_S, in the same order.
+    /// The sorted-order work block is the thread's last one: at m = 600 it is ~250 KB, which
+    /// malloc serves by a fresh mmap, and faulting its pages in at every solve cost more than
+    /// the copy (with T's growth, ~117 page faults per solve).
+    fn block(&self, ks: &[usize], w: Option<&[f64]>, out: &mut Vec<f64>) -> Option<Col<f64>> {
         let m = self.sorted.len();
         let k = ks.len();
-        let mut a = Mat::<f64>::zeros(m, k + usize::from(w.is_some()));
-        for (c, &kc) in ks.iter().enumerate() {
-            if let Some(col) = a.col_mut(c).try_as_col_major_mut() {
-                self.cross(kc, col.as_slice_mut());
-            }
+        let nc = k + usize::from(w.is_some());
+        let mut a = BLOCK_SPARE.take();
+        a.clear();
+        a.resize(m * nc, 0.0);
+        for (col, &kc) in a.chunks_exact_mut(m).zip(ks) {
+            self.cross(kc, col);
         }
         if let Some(w) = w {
-            for (j, &f) in self.sorted.iter().enumerate() {
-                a[(j, k)] = w[f];
+            for (v, &f) in a[k * m..].iter_mut().zip(&self.sorted) {
+                *v = w[f];
             }
         }
-        self.solve_gram(a.as_mut());
-        // Back to the caller's row order, column by column on slices (faer's per-entry `from_fn`
-        // with bounds checks took ~57 µs for 600 x 53 here).
-        let mut out = Mat::<f64>::zeros(m, a.ncols());
-        for c in 0..a.ncols() {
-            let (Some(src), Some(dst)) = (
-                a.col(c).try_as_col_major(),
-                out.col_mut(c).try_as_col_major_mut(),
-            ) else {
-                unreachable!("faer's owned matrices are column-major")
-            };
-            let (src, dst) = (src.as_slice(), dst.as_slice_mut());
+        self.solve_gram(MatMut::from_column_major_slice_mut(&mut a, m, nc));
+        // Back to the caller's row order, on slices (faer's per-entry `from_fn` with bounds
+        // checks took ~57 µs for 600 x 53 here).
+        let start = out.len();
+        out.resize(start + m * k, 0.0);
+        for (dst, src) in out[start..].chunks_exact_mut(m).zip(a.chunks_exact(m)) {
             for (d, &p) in dst.iter_mut().zip(&self.pos) {
                 *d = src[p];
             }
         }
-        out
+        let last = w.map(|_| Col::<f64>::from_fn(m, |r| a[k * m + self.pos[r]]));
+        BLOCK_SPARE.set(a);
+        last
     }
 
     /// v = G⁻¹v (rows in sorted order).
@@ -301,6 +312,10 @@ impl Gram {
 thread_local! {
     /// The last Gram anchor's L buffer, for the next one on this thread.
     static L_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
+    /// [`Gram::block`]'s work block, for the next call on this thread.
+    static BLOCK_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
+    /// The last restricted problem's T, for the next one on this thread (see [`Gram::block`]).
+    static T_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
 }
 
 impl Drop for Gram {
@@ -510,19 +525,23 @@ impl Anchor for Gram {
         }
     }
 
-    fn columns(&self, _: &Dct, _: &[usize], ks: &[usize]) -> Mat<f64> {
-        self.block(ks, None)
+    fn columns(&self, _: &Dct, _: &[usize], ks: &[usize], out: &mut Vec<f64>) {
+        self.block(ks, None, out);
     }
 
     /// One block solve for both: B₀ᵀh joins B₀ᵀA_ks as a last column.
-    fn start(&self, dct: &mut Dct, idx: &[usize], h: &[f64], ks: &[usize]) -> (Col<f64>, Mat<f64>) {
+    fn start(
+        &self,
+        dct: &mut Dct,
+        idx: &[usize],
+        h: &[f64],
+        ks: &[usize],
+        out: &mut Vec<f64>,
+    ) -> Col<f64> {
         let mut w = vec![0.0; dct.len()];
         dct.adjoint(idx, |r| h[r], &mut w);
-        let mut all = self.block(ks, Some(&w));
-        let k = ks.len();
-        let theta0 = all.col(k).to_owned();
-        all.resize_with(self.sorted.len(), k, |_, _| 0.0);
-        (theta0, all)
+        self.block(ks, Some(&w), out)
+            .expect("a block with w returns its column")
     }
 }
 
@@ -741,11 +760,11 @@ impl Restricted {
             .filter(|&i| self.r_pos[i] == usize::MAX)
             .chain(self.m..self.m + self.c.len())
     }
+}
 
-    fn push_column(&mut self, col: ColRef<'_, f64>) {
-        self.t.extend(col.iter().copied());
-        self.c_pos.push(usize::MAX);
-        self.ke += 1;
+impl Drop for Restricted {
+    fn drop(&mut self) {
+        T_SPARE.set(std::mem::take(&mut self.t));
     }
 }
 
@@ -834,16 +853,19 @@ const LOOSE: f64 = 1e-4;
 
 /// Adds columns to E: T columns B₀⁻¹a_k by one block triangular solve.
 fn add_columns<B: Anchor>(dct: &Dct, idx: &[usize], basis: &B, lp: &mut Restricted, new: &[usize]) {
-    push_columns(lp, new, basis.columns(dct, idx, new));
+    basis.columns(dct, idx, new, &mut lp.t);
+    register_columns(lp, new);
 }
 
-/// Adds columns `new` to E with their T columns `a` = B₀⁻¹A_new.
-fn push_columns(lp: &mut Restricted, new: &[usize], a: Mat<f64>) {
-    for (c, &k) in new.iter().enumerate() {
+/// Enters columns `new` in E, their T columns B₀⁻¹A_new having just been appended to `lp.t`.
+fn register_columns(lp: &mut Restricted, new: &[usize]) {
+    for &k in new {
         lp.in_k[k] = true;
         lp.e_cols.push(k);
-        lp.push_column(a.col(c));
+        lp.c_pos.push(usize::MAX);
+        lp.ke += 1;
     }
+    debug_assert_eq!(lp.t.len(), lp.m * lp.ke);
 }
 
 /// Column generation: the columns outside K with |w| > 1 + slack join E, most violated first
@@ -1088,7 +1110,6 @@ fn run<T: Anchor>(
     let m = idx.len();
     let s0: Vec<usize> = ranked[..m].to_vec();
     let start_pivots = *pivots;
-    let (theta0, t_start) = basis.start(dct, idx, h, &ranked[m..]);
     let mut in_k = vec![false; n];
     for &k in &s0 {
         in_k[k] = true;
@@ -1097,7 +1118,12 @@ fn run<T: Anchor>(
         m,
         e_cols: Vec::new(),
         in_k,
-        t: Vec::new(),
+        t: {
+            let mut t = T_SPARE.take();
+            t.clear();
+            t.reserve(m * (ranked.len() - m + GENERATE_MAX));
+            t
+        },
         ke: 0,
         r: Vec::new(),
         r_pos: vec![usize::MAX; m],
@@ -1106,7 +1132,8 @@ fn run<T: Anchor>(
         tc: Mat::zeros(m, 0),
         small: None,
     };
-    push_columns(&mut lp, &ranked[m..], t_start);
+    let theta0 = basis.start(dct, idx, h, &ranked[m..], &mut lp.t);
+    register_columns(&mut lp, &ranked[m..]);
 
     let scale = (0..m)
         .map(|r| theta0[r].abs())
@@ -1461,10 +1488,14 @@ mod tests {
         Anchor::solve(&gram, &mut dct, &idx, &mut xg);
         Anchor::solve_transpose(&gram, &mut dct, &idx, &mut yg);
         let ks = [0usize, 3, 50, 95];
-        let cols_lu = Anchor::columns(&lu, &dct, &idx, &ks);
-        let cols_g = Anchor::columns(&gram, &dct, &idx, &ks);
+        let (mut cols_lu, mut cols_g, mut cols_start) = (Vec::new(), Vec::new(), vec![7.0]);
+        Anchor::columns(&lu, &dct, &idx, &ks, &mut cols_lu);
+        Anchor::columns(&gram, &dct, &idx, &ks, &mut cols_g);
+        // Appended after what the vector held.
+        assert_eq!(cols_g.len(), m * ks.len());
         let h: Vec<f64> = (0..m).map(|r| rhs[r]).collect();
-        let (theta0, cols_start) = gram.start(&mut dct, &idx, &h, &ks);
+        let theta0 = gram.start(&mut dct, &idx, &h, &ks, &mut cols_start);
+        assert_eq!(cols_start.remove(0), 7.0);
         for r in 0..m {
             assert!(
                 (xg[r] - x[r]).abs() < 1e-9 * (1.0 + x[r].abs()),
@@ -1479,12 +1510,12 @@ mod tests {
                 "start row {r}"
             );
             for c in 0..ks.len() {
-                let want = cols_lu[(r, c)];
+                let want = cols_lu[c * m + r];
                 assert!(
-                    (cols_g[(r, c)] - want).abs() < 1e-9 * (1.0 + want.abs()),
+                    (cols_g[c * m + r] - want).abs() < 1e-9 * (1.0 + want.abs()),
                     "({r}, {c})"
                 );
-                assert_eq!(cols_start[(r, c)], cols_g[(r, c)]);
+                assert_eq!(cols_start[c * m + r], cols_g[c * m + r]);
             }
         }
         // A repeated column makes G singular: refused.
