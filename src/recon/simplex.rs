@@ -302,6 +302,17 @@ impl Gram {
     /// v = G⁻¹v (rows in sorted order).
     fn solve_gram(&self, mut v: MatMut<'_, f64>) {
         let m = self.sorted.len();
+        #[cfg(target_arch = "x86_64")]
+        if v.ncols() == 1 && super::simd::has_avx2_fma() {
+            if let Some(x) = v.as_mut().col_mut(0).try_as_col_major_mut() {
+                let l = &self.l_buf[self.l_off..];
+                assert!(x.nrows() == m && (m == 0 || l.len() >= (m - 1) * self.l_ld + m));
+                // SAFETY: AVX2 and FMA present (checked); L holds m columns `l_ld` apart
+                // (asserted) and x has m rows.
+                unsafe { gram_solve_avx2(l, self.l_ld, x.as_slice_mut()) };
+                return;
+            }
+        }
         let l =
             MatRef::from_column_major_slice_with_stride(&self.l_buf[self.l_off..], m, m, self.l_ld);
         solve_lower_triangular_in_place(l, v.as_mut(), Par::Seq);
@@ -377,6 +388,110 @@ unsafe fn gram_lower_avx2(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
             let ka = s[a] as usize;
             col[a] = hg[ka - kb] + hg[ka + kb];
         }
+    }
+}
+
+/// x ← L⁻ᵀL⁻¹x for the lower triangle of the column-major `l` (leading dimension `ld`, m =
+/// x.len()): one right-hand side, as the pricing and refinement solves take it. In blocks of
+/// 8 columns (the forward sweep updates the rows below a block from its 8 columns at once; the
+/// backward sweep takes 8 dot products per load of x), so that L streams through once per
+/// sweep. Measured at m = 600 (L 2.9 MB, out of L2): 41-44 µs against 67-70 µs for faer's pair
+/// of `solve_*_triangular_in_place` on one column (AMD EPYC, Zen 4).
+///
+/// # Safety
+/// AVX2 and FMA must be present, and `l` must hold m columns `ld` ≥ m apart.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn gram_solve_avx2(l: &[f64], ld: usize, x: &mut [f64]) {
+    use std::arch::x86_64::*;
+    const B: usize = 8;
+    let m = x.len();
+    debug_assert!(m == 0 || l.len() >= (m - 1) * ld + m);
+    let lp = l.as_ptr();
+    let xp = x.as_mut_ptr();
+    // Forward: L y = x.
+    let mut j0 = 0;
+    while j0 < m {
+        let jb = B.min(m - j0);
+        let r0 = j0 + jb;
+        for j in j0..r0 {
+            let c = lp.add(j * ld);
+            let xj = *xp.add(j) / *c.add(j);
+            *xp.add(j) = xj;
+            for i in j + 1..r0 {
+                *xp.add(i) -= xj * *c.add(i);
+            }
+        }
+        if jb == B {
+            let cs: [*const f64; B] = std::array::from_fn(|t| lp.add((j0 + t) * ld));
+            let xs: [__m256d; B] = std::array::from_fn(|t| _mm256_set1_pd(*xp.add(j0 + t)));
+            let mut i = r0;
+            while i + 4 <= m {
+                let mut a = _mm256_loadu_pd(xp.add(i));
+                for t in 0..B {
+                    a = _mm256_fnmadd_pd(xs[t], _mm256_loadu_pd(cs[t].add(i)), a);
+                }
+                _mm256_storeu_pd(xp.add(i), a);
+                i += 4;
+            }
+            for i in i..m {
+                let mut v = *xp.add(i);
+                for (t, c) in cs.iter().enumerate() {
+                    v -= *xp.add(j0 + t) * *c.add(i);
+                }
+                *xp.add(i) = v;
+            }
+        } else {
+            for j in j0..r0 {
+                let xj = *xp.add(j);
+                for i in r0..m {
+                    *xp.add(i) -= xj * *lp.add(j * ld + i);
+                }
+            }
+        }
+        j0 = r0;
+    }
+    // Backward: Lᵀ z = y, blocks from the bottom.
+    let mut j1 = m;
+    while j1 > 0 {
+        let jb = B.min(j1);
+        let j0 = j1 - jb;
+        let mut acc = [0.0f64; B];
+        if jb == B {
+            let cs: [*const f64; B] = std::array::from_fn(|t| lp.add((j0 + t) * ld));
+            let mut va = [_mm256_setzero_pd(); B];
+            let mut i = j1;
+            while i + 4 <= m {
+                let xv = _mm256_loadu_pd(xp.add(i));
+                for t in 0..B {
+                    va[t] = _mm256_fmadd_pd(_mm256_loadu_pd(cs[t].add(i)), xv, va[t]);
+                }
+                i += 4;
+            }
+            for t in 0..B {
+                let mut b = [0.0f64; 4];
+                _mm256_storeu_pd(b.as_mut_ptr(), va[t]);
+                let mut s = (b[0] + b[1]) + (b[2] + b[3]);
+                for r in i..m {
+                    s += *cs[t].add(r) * *xp.add(r);
+                }
+                acc[t] = s;
+            }
+        } else {
+            for (t, a) in acc.iter_mut().enumerate().take(jb) {
+                let c = lp.add((j0 + t) * ld);
+                *a = (j1..m).map(|r| *c.add(r) * *xp.add(r)).sum();
+            }
+        }
+        for j in (j0..j1).rev() {
+            let c = lp.add(j * ld);
+            let mut v = *xp.add(j) - acc[j - j0];
+            for i in j + 1..j1 {
+                v -= *c.add(i) * *xp.add(i);
+            }
+            *xp.add(j) = v / *c.add(j);
+        }
+        j1 = j0;
     }
 }
 
@@ -1028,8 +1143,8 @@ enum Factoring {
     Double,
 }
 
-/// Runs the restricted simplex with column generation from `order` (all n columns, most likely
-/// basic first). `k0` columns beyond the first m start in E. The first anchor is the f32 LU, or
+/// Runs the restricted simplex with column generation from `order` (columns most likely basic
+/// first; only the first m + `k0` are read: the first m are S₀, the next `k0` start in E). The first anchor is the f32 LU, or
 /// from `gram_min_m` samples on the Gram anchor. `None` when the start basis is singular or the
 /// pivot budget runs out without a certificate.
 #[allow(clippy::too_many_arguments)]
@@ -1554,6 +1669,45 @@ mod tests {
                     } else {
                         assert!(v.is_nan(), "({a}, {b}) above the diagonal written");
                     }
+                }
+            }
+        }
+    }
+
+    /// The one-column Gram solve (its own AVX2 kernel) agrees with faer's triangular pair, for
+    /// sizes around its 8-column blocks and a padded leading dimension.
+    #[test]
+    fn gram_solve_kernel_matches_the_triangular_pair() {
+        #[cfg(target_arch = "x86_64")]
+        if super::super::simd::has_avx2_fma() {
+            for m in [1usize, 5, 8, 13, 16, 37, 64, 101] {
+                let ld = m + 3;
+                let mut l = vec![f64::NAN; ld * m];
+                for j in 0..m {
+                    for i in j..m {
+                        l[j * ld + i] = if i == j {
+                            1.5 + (j as f64 * 0.3).sin()
+                        } else {
+                            0.2 * ((i * 7 + j * 3) as f64).cos()
+                        };
+                    }
+                }
+                let b: Vec<f64> = (0..m).map(|i| (i as f64 * 0.37).sin() + 0.1).collect();
+                let mut x = b.clone();
+                // SAFETY: AVX2 checked; l holds m columns ld apart.
+                unsafe { gram_solve_avx2(&l, ld, &mut x) };
+                let lt = Mat::<f64>::from_fn(m, m, |i, j| if i >= j { l[j * ld + i] } else { 0.0 });
+                let mut want = Col::<f64>::from_fn(m, |i| b[i]);
+                solve_lower_triangular_in_place(lt.as_ref(), want.as_mat_mut(), Par::Seq);
+                solve_upper_triangular_in_place(lt.transpose(), want.as_mat_mut(), Par::Seq);
+                for i in 0..m {
+                    let tol = 1e-12 * want[i].abs().max(1.0);
+                    assert!(
+                        (x[i] - want[i]).abs() <= tol,
+                        "m = {m}, row {i}: {} vs {}",
+                        x[i],
+                        want[i]
+                    );
                 }
             }
         }
