@@ -1144,9 +1144,9 @@ enum Factoring {
 }
 
 /// Runs the restricted simplex with column generation from `order` (columns most likely basic
-/// first; only the first m + `k0` are read: the first m are S₀, the next `k0` start in E). The first anchor is the f32 LU, or
-/// from `gram_min_m` samples on the Gram anchor. `None` when the start basis is singular or the
-/// pivot budget runs out without a certificate.
+/// first; only the first m + `k0` are read: the first m are S₀, the next `k0` start in E). The
+/// first anchor is the f32 LU, or from `gram_min_m` samples on the Gram anchor. `None` when the
+/// start basis is singular or the pivot budget runs out without a certificate.
 #[allow(clippy::too_many_arguments)]
 pub fn finish(
     dct: &mut Dct,
