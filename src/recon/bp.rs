@@ -116,16 +116,35 @@ pub struct BpSolution {
     pub dual_objective: f64,
     /// Wall time of the solver only, ms.
     pub solve_ms: f64,
+    /// Ψθ, the curve on the grid, when the solver formed it (the exact finish does, to check
+    /// the samples): spares the caller an inverse transform.
+    pub signal: Option<Vec<f64>>,
+}
+
+/// An exact finish's certified optimum.
+struct Finish {
+    theta: Vec<f64>,
+    signal: Option<Vec<f64>>,
+    /// hᵀy of the certificate.
+    dual: f64,
+    pivots: usize,
 }
 
 impl BpSolution {
-    /// A certified optimum: ||θ||₁ = hᵀy = `dual_objective`.
-    fn optimal(theta: Vec<f64>, dual_objective: f64, iterations: usize, t0: Instant) -> Self {
+    /// A certified optimum: ||θ||₁ = hᵀy = `f.dual`, after `iterations` ADMM iterations.
+    fn optimal(f: Finish, iterations: usize, t0: Instant) -> Self {
+        let Finish {
+            theta,
+            signal,
+            dual: dual_objective,
+            pivots,
+        } = f;
         Self {
             objective: theta.iter().map(|v| v.abs()).sum(),
             theta,
+            signal,
             status: SolveStatus::Optimal,
-            iterations,
+            iterations: iterations + pivots,
             dual_objective,
             solve_ms: t0.elapsed().as_secs_f64() * 1e3,
         }
@@ -246,7 +265,13 @@ pub fn solve_fast(
     let project = |dct: &mut Dct, v: &mut [f64]| project(dct, idx, h, problem, v);
     if h.iter().all(|&v| v == 0.0) {
         // θ = 0 is feasible with ||θ||₁ = 0, and y = 0 certifies it for BP and BPDN alike.
-        return BpSolution::optimal(vec![0.0; n], 0.0, 0, t0);
+        let zero = Finish {
+            theta: vec![0.0; n],
+            signal: Some(vec![0.0; n]),
+            dual: 0.0,
+            pivots: 0,
+        };
+        return BpSolution::optimal(zero, 0, t0);
     }
 
     // The minimum-energy solution x0 = Aᵀh (the projection of θ = 0, whose signal is 0: one
@@ -292,8 +317,8 @@ pub fn solve_fast(
         // transforms' cost ~1.5x lower at n = 1901); if the finish fails, the f64 iterations
         // below take over and retry it at twice the budget.
         let (zs, us, its) = admm_single(dct, idx, h, &z, rho, alpha, next_finish, next_stable);
-        if let Some((theta, dual, pivots)) = exact_finish(dct, idx, h, &zs, &us, rho, s, false) {
-            return BpSolution::optimal(theta, dual, its + pivots, t0);
+        if let Some(f) = exact_finish(dct, idx, h, &zs, &us, rho, s, false) {
+            return BpSolution::optimal(f, its, t0);
         }
         simplex_failed = true;
         next_stable *= 2;
@@ -327,6 +352,7 @@ pub fn solve_fast(
                         objective: p,
                         dual_objective: d,
                         solve_ms: t0.elapsed().as_secs_f64() * 1e3,
+                        signal: None,
                     };
                 }
             }
@@ -340,10 +366,8 @@ pub fn solve_fast(
             // Exact finish once the support has settled or the iteration budget is spent; if it
             // fails, wait twice as long.
             if stable >= next_stable || it >= next_finish {
-                if let Some((theta, dual, pivots)) =
-                    exact_finish(dct, idx, h, &z, &u, rho, s, simplex_failed)
-                {
-                    return BpSolution::optimal(theta, dual, it + pivots, t0);
+                if let Some(f) = exact_finish(dct, idx, h, &z, &u, rho, s, simplex_failed) {
+                    return BpSolution::optimal(f, it, t0);
                 }
                 simplex_failed = true;
                 next_stable *= 2;
@@ -388,6 +412,7 @@ pub fn solve_fast(
         objective,
         dual_objective: f64::NAN,
         solve_ms: t0.elapsed().as_secs_f64() * 1e3,
+        signal: None,
     }
 }
 
@@ -542,7 +567,7 @@ fn update_single(
 /// where a square basis is degenerate) a least-squares polish on the support with a corrected
 /// dual; otherwise the restricted simplex from ADMM's ranking. Noisy curves have m non-zeros at
 /// the optimum and ADMM reports slightly fewer, so near m the dense least squares (tens of ms at
-/// m = 600) is only tried once the simplex has failed. Returns (θ, hᵀy, pivots).
+/// m = 600) is only tried once the simplex has failed.
 #[allow(clippy::too_many_arguments)]
 fn exact_finish(
     dct: &mut Dct,
@@ -553,12 +578,17 @@ fn exact_finish(
     rho: f64,
     s: &FastSettings,
     simplex_failed: bool,
-) -> Option<(Vec<f64>, f64, usize)> {
+) -> Option<Finish> {
     let m = idx.len();
     let nnz = z.iter().filter(|v| **v != 0.0).count();
     if nnz < m && (2 * nnz <= m || simplex_failed) {
         if let Some((theta, dual)) = polish(dct, idx, h, z, u, rho, s.certificate_tol) {
-            return Some((theta, dual, 0));
+            return Some(Finish {
+                theta,
+                signal: None,
+                dual,
+                pivots: 0,
+            });
         }
     }
     let k0 = s.candidates.unwrap_or((m / 12).clamp(8, 32));
@@ -573,7 +603,12 @@ fn exact_finish(
         s.certificate_tol,
         s.gram_min_m,
     )
-    .map(|r| (r.theta, r.dual_objective, r.pivots))
+    .map(|r| Finish {
+        theta: r.theta,
+        signal: Some(r.signal),
+        dual: r.dual_objective,
+        pivots: r.pivots,
+    })
 }
 
 /// ADMM iterations between duality-gap checks (a check costs two DCT pairs).
@@ -762,6 +797,7 @@ pub fn solve_clarabel(dct: &Dct, idx: &[usize], h: &[f64], problem: Problem) -> 
                 objective: f64::NAN,
                 dual_objective: f64::NAN,
                 solve_ms: t0.elapsed().as_secs_f64() * 1e3,
+                signal: None,
             }
         }
     };
@@ -781,6 +817,7 @@ pub fn solve_clarabel(dct: &Dct, idx: &[usize], h: &[f64], problem: Problem) -> 
         status,
         iterations: sol.iterations as usize,
         solve_ms: t0.elapsed().as_secs_f64() * 1e3,
+        signal: None,
     }
 }
 

@@ -209,9 +209,13 @@ pub fn reconstruct(
                         bp::solve_clarabel(dct, &samples.idx, &samples.values, problem)
                     }
                 };
-                // The coefficients become the curve: `out` keeps the curve only.
-                let mut g = std::mem::take(&mut sol.theta);
-                dct.inverse(&mut g);
+                // The coefficients become the curve: `out` keeps the curve only (the exact
+                // finish has formed it already).
+                let g = sol.signal.take().unwrap_or_else(|| {
+                    let mut g = std::mem::take(&mut sol.theta);
+                    dct.inverse(&mut g);
+                    g
+                });
                 (sol, g)
             });
             out.solver = match s.solver {

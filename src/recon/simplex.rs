@@ -41,6 +41,8 @@ use super::dct::Dct;
 /// Result of a certified simplex finish.
 pub struct SimplexResult {
     pub theta: Vec<f64>,
+    /// Ψθ, the curve on the whole grid (formed to check the samples).
+    pub signal: Vec<f64>,
     /// hᵀy of the certifying dual point (equals ||θ||₁ up to rounding).
     pub dual_objective: f64,
     pub pivots: usize,
@@ -1016,9 +1018,16 @@ struct Refine<'a, B: Anchor> {
 
 /// Refinement rounds (each gains ~4 digits at the anchor's κ·ε ≈ 1e-4).
 const REFINE_MAX: usize = 6;
+/// Residual (relative to max |h| for the primal, absolute on sign θ for the dual) at which
+/// refinement stops: 100x inside [`verify`]'s 1e-10. The f64 Gram anchor's basic solutions start at
+/// 1e-14 to 1e-12 (measured at m = 600), so they are certified as they are instead of paying a
+/// correction (a Gram solve and two transforms per side) for digits no check or curve uses.
+const REFINED: f64 = 1e-12;
 
 impl<B: Anchor> Refine<'_, B> {
-    /// θ_S with A_S θ_S = h to rounding: θ_S += B_r⁻¹B₀⁻¹(h − A_S θ_S).
+    /// θ_S with A_S θ_S = h to rounding: θ_S += B_r⁻¹B₀⁻¹(h − A_S θ_S). Returns the signal Ψθ of
+    /// the final θ_S (the last residual's transform, for [`verify`] and the caller's curve) and
+    /// its largest sample residual.
     fn primal(
         &self,
         dct: &mut Dct,
@@ -1026,25 +1035,27 @@ impl<B: Anchor> Refine<'_, B> {
         h: &[f64],
         support: &[usize],
         theta_s: &mut Col<f64>,
-    ) {
+    ) -> (Vec<f64>, f64) {
         let (n, m) = (dct.len(), idx.len());
         let scale = h.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
         let (mut di, mut dc) = (Col::<f64>::zeros(m), Col::<f64>::zeros(0));
-        let mut theta = vec![0.0; n];
-        for _ in 0..REFINE_MAX {
-            theta.fill(0.0);
+        let mut signal = vec![0.0; n];
+        for round in 0..=REFINE_MAX {
+            signal.fill(0.0);
             for (c, &k) in support.iter().enumerate() {
-                theta[k] = theta_s[c];
+                signal[k] = theta_s[c];
             }
-            let g = dct.sample(&mut theta, idx);
-            let mut r = Col::<f64>::from_fn(m, |i| h[i] - g[i]);
-            if (0..m).map(|i| r[i].abs()).fold(0.0, f64::max) <= 1e-14 * scale {
-                break;
+            dct.inverse(&mut signal);
+            let mut r = Col::<f64>::from_fn(m, |i| h[i] - signal[idx[i]]);
+            let worst = (0..m).map(|i| r[i].abs()).fold(0.0, f64::max);
+            if worst <= REFINED * scale || round == REFINE_MAX || worst.is_nan() {
+                return (signal, worst);
             }
             self.basis.solve(dct, idx, &mut r);
             self.lp.ftran(r.as_ref(), &mut di, &mut dc);
             self.apply(&di, &dc, theta_s);
         }
+        unreachable!("the last round returns")
     }
 
     /// y with A_Sᵀ y = sign(θ_S) to rounding: y += B₀⁻ᵀB_r⁻ᵀ(sign − A_Sᵀy). `w` holds Aᵀy on entry
@@ -1080,7 +1091,7 @@ impl<B: Anchor> Refine<'_, B> {
                 }
                 worst = worst.max(r.abs());
             }
-            if worst <= 1e-14 {
+            if worst <= REFINED {
                 break;
             }
             let mut d = Col::<f64>::zeros(m);
@@ -1318,13 +1329,21 @@ fn run<T: Anchor>(
                 }
             }
             let refine = Refine { basis, lp: &lp };
-            refine.primal(dct, idx, h, &support, &mut theta_s);
+            let (signal, resid) = refine.primal(dct, idx, h, &support, &mut theta_s);
             refine.dual(dct, idx, &support, &theta_s, &mut yf, &mut w_full);
             let lost = T::LOSSY && w_full.iter().any(|v| v.abs() > 1.0 + LOST);
             if !lost && generate(dct, idx, basis, &mut lp, &w_full, tol) {
                 continue;
             }
-            if let Some(r) = verify(dct, idx, h, &support, &theta_s, &yf, &w_full, *pivots, tol) {
+            let candidate = Candidate {
+                support: &support,
+                theta_s: &theta_s,
+                signal,
+                resid,
+                y: &yf,
+                w: &w_full,
+            };
+            if let Some(r) = verify(n, h, candidate, *pivots, tol) {
                 return Some(Outcome::Certified(r));
             }
             if T::FINAL && *pivots == start_pivots {
@@ -1473,51 +1492,47 @@ fn run<T: Anchor>(
     }
 }
 
+/// A basis's refined primal and dual, as [`verify`] checks them.
+struct Candidate<'a> {
+    support: &'a [usize],
+    theta_s: &'a Col<f64>,
+    /// Ψθ for θ = θ_S on the support, zero elsewhere.
+    signal: Vec<f64>,
+    /// max |h − (Ψθ)_idx|.
+    resid: f64,
+    y: &'a Col<f64>,
+    /// Aᵀy.
+    w: &'a [f64],
+}
+
 /// Checks a candidate optimum against the transforms: θ (zero off the support) must reproduce the
-/// samples, w = Aᵀy must satisfy |w| ≤ 1 + tol everywhere (w on the support equal to sign θ), and
-/// the gap ||θ||₁ - hᵀy must vanish up to rounding.
-#[allow(clippy::too_many_arguments)]
-fn verify(
-    dct: &mut Dct,
-    idx: &[usize],
-    h: &[f64],
-    support: &[usize],
-    theta_s: &Col<f64>,
-    y: &Col<f64>,
-    w: &[f64],
-    pivots: usize,
-    tol: f64,
-) -> Option<SimplexResult> {
-    let n = dct.len();
-    let m = idx.len();
-    if !finite(theta_s) {
+/// samples (its signal and residual come from the transform in [`Refine::primal`]), w = Aᵀy must
+/// satisfy |w| ≤ 1 + tol everywhere (w on the support equal to sign θ), and the gap ||θ||₁ - hᵀy
+/// must vanish up to rounding.
+fn verify(n: usize, h: &[f64], c: Candidate<'_>, pivots: usize, tol: f64) -> Option<SimplexResult> {
+    if !finite(c.theta_s) {
         return None;
     }
-    let inf = w.iter().map(|v| v.abs()).fold(0.0, f64::max);
+    let inf = c.w.iter().map(|v| v.abs()).fold(0.0, f64::max);
     if inf.is_nan() || inf > 1.0 + tol {
         return None;
     }
     let mut theta = vec![0.0; n];
-    for (c, &k) in support.iter().enumerate() {
-        theta[k] = theta_s[c];
+    for (q, &k) in c.support.iter().enumerate() {
+        theta[k] = c.theta_s[q];
     }
     let scale = h.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
-    let resid = dct
-        .sample(&mut theta.clone(), idx)
-        .iter()
-        .zip(h)
-        .map(|(g, hk)| (g - hk).abs())
-        .fold(0.0, f64::max);
-    if resid.is_nan() || resid > 1e-10 * scale {
+    if c.resid.is_nan() || c.resid > 1e-10 * scale {
         return None;
     }
     let objective: f64 = theta.iter().map(|v| v.abs()).sum();
-    let dual_objective: f64 = (0..m).map(|r| h[r] * y[r]).sum();
+    let dual_objective: f64 = h.iter().enumerate().map(|(r, hr)| hr * c.y[r]).sum();
     if (objective - dual_objective).abs() > 1e-10 * objective.max(1e-300) {
         return None;
     }
     Some(SimplexResult {
         theta,
+        signal: c.signal,
         dual_objective,
         pivots,
         dual_inf_norm: inf,
@@ -1777,6 +1792,11 @@ mod tests {
         assert_eq!(again.pivots, 0);
         assert!((again.dual_objective - r.dual_objective).abs() < 1e-10 * objective);
 
+        // The returned curve is the certified θ's.
+        let mut g = r.theta.clone();
+        dct.inverse(&mut g);
+        assert!(g.iter().zip(&r.signal).all(|(a, b)| (a - b).abs() < 1e-13));
+
         // The certificate's own y and w, with θ_S perturbed: primal residual, so rejected.
         let basis = Basis::<f64>::factor(&dct, &idx, &optimal).unwrap();
         let mut theta_s = Col::<f64>::from_fn(m, |c| r.theta[optimal[c]]);
@@ -1784,14 +1804,36 @@ mod tests {
         basis.solve_transpose(&mut y);
         let mut w = vec![0.0; n];
         dct.adjoint(&idx, |c| y[c], &mut w);
-        assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w, 0, 1e-9).is_some());
+        // A candidate as `Refine::primal` hands it over: θ's signal and sample residual.
+        let mut check = |theta_s: &Col<f64>, w: &[f64]| {
+            let mut signal = vec![0.0; n];
+            for (q, &k) in optimal.iter().enumerate() {
+                signal[k] = theta_s[q];
+            }
+            dct.inverse(&mut signal);
+            let resid = idx
+                .iter()
+                .zip(&h)
+                .map(|(&i, hk)| (signal[i] - hk).abs())
+                .fold(0.0, f64::max);
+            let c = Candidate {
+                support: &optimal,
+                theta_s,
+                signal,
+                resid,
+                y: &y,
+                w,
+            };
+            verify(n, &h, c, 0, 1e-9).is_some()
+        };
+        assert!(check(&theta_s, &w));
         theta_s[0] *= 1.0 + 1e-6;
-        assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w, 0, 1e-9).is_none());
+        assert!(!check(&theta_s, &w));
         // ... and a dual that is infeasible somewhere (|w| > 1) is rejected as well.
         theta_s[0] = r.theta[optimal[0]];
         let mut w_bad = w.clone();
         let off = (0..n).find(|k| !optimal.contains(k)).unwrap();
         w_bad[off] = 1.0 + 1e-6;
-        assert!(verify(&mut dct, &idx, &h, &optimal, &theta_s, &y, &w_bad, 0, 1e-9).is_none());
+        assert!(!check(&theta_s, &w_bad));
     }
 }
