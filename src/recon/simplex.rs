@@ -1063,11 +1063,7 @@ impl<B: Anchor> Refine<'_, B> {
         let (mut di, mut dc) = (Col::<f64>::zeros(m), Col::<f64>::zeros(0));
         let mut signal = vec![0.0; n];
         for round in 0..=REFINE_MAX {
-            signal.fill(0.0);
-            for (c, &k) in support.iter().enumerate() {
-                signal[k] = theta_s[c];
-            }
-            dct.inverse(&mut signal);
+            signal_of(dct, support, theta_s, &mut signal);
             let mut r = Col::<f64>::from_fn(m, |i| h[i] - signal[idx[i]]);
             let worst = (0..m).map(|i| r[i].abs()).fold(0.0, f64::max);
             if worst <= REFINED * scale || round == REFINE_MAX || worst.is_nan() {
@@ -1514,6 +1510,15 @@ fn run<T: Anchor>(
     }
 }
 
+/// `signal` ← Ψθ for θ = θ_S on the support, zero elsewhere.
+fn signal_of(dct: &mut Dct, support: &[usize], theta_s: &Col<f64>, signal: &mut [f64]) {
+    signal.fill(0.0);
+    for (c, &k) in support.iter().enumerate() {
+        signal[k] = theta_s[c];
+    }
+    dct.inverse(signal);
+}
+
 /// A basis's refined primal and dual, as [`verify`] checks them.
 struct Candidate<'a> {
     support: &'a [usize],
@@ -1831,10 +1836,7 @@ mod tests {
         // A candidate as `Refine::primal` hands it over: θ's signal and sample residual.
         let mut check = |theta_s: &Col<f64>, w: &[f64]| {
             let mut signal = vec![0.0; n];
-            for (q, &k) in optimal.iter().enumerate() {
-                signal[k] = theta_s[q];
-            }
-            dct.inverse(&mut signal);
+            signal_of(&mut dct, &optimal, theta_s, &mut signal);
             let resid = idx
                 .iter()
                 .zip(&h)
