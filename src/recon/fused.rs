@@ -13,9 +13,11 @@
 //! projection 16-17 µs against 21 µs for the f32 transform pair alone, and ~0.9 ms less per BP
 //! solve at m = 600 (100 ranking iterations).
 //!
-//! On CPUs with AVX-512F the same projection runs on [`super::split_fft`] with the buffers in
-//! split format (re and im arrays) and the spectra in bit-reversed order: 9.5-9.6 µs, ~0.5 ms
-//! less per BP solve at m = 600. Other CPUs keep the AVX2 (or portable) path on rustfft.
+//! On x86-64 with AVX-512F, or with AVX2 and FMA, the same projection runs on
+//! [`super::split_fft`] with the buffers in split format (re and im arrays) and the spectra in
+//! bit-reversed order: 9.5-9.6 µs on AVX-512 (~0.5 ms less per BP solve at m = 600); in AVX2 on
+//! an AMD EPYC (Zen 3) ~0.2 ms less per solve than the AVX2 passes around rustfft's FFTs that
+//! it replaced. Other CPUs, and primes below 19 (FFTs shorter than 32), take the portable path.
 //!
 //! Layout of a coefficient vector X (length n = 2H + 1): X[0] = θ₀, X[1 + l] = θ_(k_l),
 //! X[1 + H + l] = θ_(n − k_l), where k_l ∈ 1..=H is the DCT frequency of forward output l.
@@ -59,6 +61,8 @@ struct Paired {
     f: [Vec<f32>; 2],
     w: [Vec<f32>; 2],
     zero: Option<usize>,
+    /// The number of samples.
+    count: usize,
 }
 
 impl Paired {
@@ -72,6 +76,7 @@ impl Paired {
             f: Default::default(),
             w: Default::default(),
             zero: None,
+            count: pos.len(),
         };
         let push = |p: &mut Paired, j: usize, l: usize, k: usize, g: f32, f: f32, w: f32| {
             p.j.push(j as i32);
@@ -150,7 +155,7 @@ use super::split_fft::Aligned;
 
 #[cfg(target_arch = "x86_64")]
 struct Split {
-    fft: super::split_fft::SplitFft,
+    fft: Kernel,
     zr: Aligned,
     zi: Aligned,
     wr: Aligned,
@@ -166,6 +171,15 @@ struct Split {
     mirror0: [i32; 16],
 }
 
+/// The split-format FFT in the widest vectors the CPU has (one per projection state, so the
+/// variants' size difference costs nothing).
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::large_enum_variant)]
+enum Kernel {
+    Avx512(super::split_fft::SplitFft),
+    Avx2(super::split_fft::SplitFft8),
+}
+
 #[cfg(target_arch = "x86_64")]
 impl Split {
     /// z ← FFT(z) (bit-reversed), w ← IFFT(Z·p + conj(Z_−q)·q) on its lower half; returns Σ of
@@ -173,7 +187,10 @@ impl Split {
     #[target_feature(enable = "avx512f")]
     unsafe fn convolve(&mut self) -> f32 {
         use std::arch::x86_64::*;
-        self.fft.forward(&mut self.zr, &mut self.zi, true);
+        let Kernel::Avx512(fft) = &self.fft else {
+            unreachable!("the AVX-512 convolution on the AVX-512 kernel")
+        };
+        fft.forward(&mut self.zr, &mut self.zi, true);
         let dc = self.zr[0];
         let rev = _mm512_set_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
         let v0_idx = _mm512_loadu_si512(self.mirror0.as_ptr() as *const _);
@@ -209,17 +226,68 @@ impl Split {
             _mm512_storeu_ps(self.wr.as_mut_ptr().add(16 * v), re);
             _mm512_storeu_ps(self.wi.as_mut_ptr().add(16 * v), im);
         }
-        self.fft.inverse(&mut self.wr, &mut self.wi, true);
+        fft.inverse(&mut self.wr, &mut self.wi, true);
+        dc
+    }
+
+    /// [`Split::convolve`] in AVX2 (8 lanes).
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn convolve8(&mut self) -> f32 {
+        use std::arch::x86_64::*;
+        let Kernel::Avx2(fft) = &self.fft else {
+            unreachable!("the AVX2 convolution on the AVX2 kernel")
+        };
+        fft.forward(&mut self.zr, &mut self.zi, true);
+        let dc = self.zr[0];
+        let rev = _mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0);
+        // Vector 0 holds the octaves below 8, each mirrored within itself.
+        let v0_idx = _mm256_setr_epi32(0, 1, 3, 2, 7, 6, 5, 4);
+        let len = self.zr.len();
+        for v in 0..len / 8 {
+            let (mv, perm) = if v == 0 {
+                (0, v0_idx)
+            } else {
+                let top = 1usize << (usize::BITS - 1 - v.leading_zeros());
+                (3 * top - 1 - v, rev)
+            };
+            let ld = |t: &Aligned, at: usize| _mm256_loadu_ps(t.as_ptr().add(8 * at));
+            let (zr, zi) = (ld(&self.zr, v), ld(&self.zi, v));
+            let mr = _mm256_permutevar8x32_ps(ld(&self.zr, mv), perm);
+            let mi = _mm256_permutevar8x32_ps(ld(&self.zi, mv), perm);
+            let (pr, pi, qr, qi) = (
+                ld(&self.pr, v),
+                ld(&self.pi, v),
+                ld(&self.qr, v),
+                ld(&self.qi, v),
+            );
+            // Z·p + conj(M)·q.
+            let re = _mm256_fmadd_ps(
+                mi,
+                qi,
+                _mm256_fmadd_ps(mr, qr, _mm256_fmsub_ps(zr, pr, _mm256_mul_ps(zi, pi))),
+            );
+            let im = _mm256_fnmadd_ps(
+                mi,
+                qr,
+                _mm256_fmadd_ps(mr, qi, _mm256_fmadd_ps(zr, pi, _mm256_mul_ps(zi, pr))),
+            );
+            _mm256_storeu_ps(self.wr.as_mut_ptr().add(8 * v), re);
+            _mm256_storeu_ps(self.wi.as_mut_ptr().add(8 * v), im);
+        }
+        fft.inverse(&mut self.wr, &mut self.wi, true);
         dc
     }
 
     fn new(p: &[C32], q: &[C32], pack: &[[f32; 4]]) -> Option<Self> {
-        use super::split_fft::{bit_reverse, mirror, SplitFft};
-        if !super::simd::has_avx512f() {
-            return None;
-        }
+        use super::split_fft::{bit_reverse, mirror, SplitFft, SplitFft8};
         let len = p.len();
-        let fft = SplitFft::new(len)?;
+        let fft = if super::simd::has_avx512f() {
+            Kernel::Avx512(SplitFft::new(len)?)
+        } else if super::simd::has_avx2_fma() {
+            Kernel::Avx2(SplitFft8::new(len)?)
+        } else {
+            return None;
+        };
         let br =
             |v: &[C32], f: fn(&C32) -> f32| Aligned::from_fn(len, |i| f(&v[bit_reverse(i, len)]));
         Some(Self {
@@ -406,19 +474,13 @@ impl RaderAdmm {
     /// transform.
     pub fn project(&mut self, v: &[f32], samples: &Samples, h: &[f32], x: &mut [f32]) {
         #[cfg(target_arch = "x86_64")]
-        if self.split.is_some() {
-            // SAFETY: `split` exists only when the CPU has AVX-512F.
-            unsafe { self.project_avx512(v, &samples.1, h, x) };
-            return;
+        match self.split.as_ref().map(|s| &s.fft) {
+            // SAFETY: each kernel exists only when the CPU has its features.
+            Some(Kernel::Avx512(_)) => return unsafe { self.project_avx512(v, &samples.1, h, x) },
+            Some(Kernel::Avx2(_)) => return unsafe { self.project_split8(v, &samples.1, h, x) },
+            None => {}
         }
-        let samples = &samples.0[..];
-        #[cfg(target_arch = "x86_64")]
-        if super::simd::has_avx2_fma() {
-            // SAFETY: AVX2 and FMA are present (checked).
-            unsafe { self.project_avx2(v, samples, h, x) };
-            return;
-        }
-        self.project_impl(v, samples, h, x);
+        self.project_impl(v, &samples.0, h, x);
     }
 
     /// [`RaderAdmm::project`] on the split-format AVX-512 FFT ([`super::split_fft`]): every pass
@@ -539,81 +601,114 @@ impl RaderAdmm {
         }
     }
 
-    /// [`RaderAdmm::project`] with the elementwise passes in AVX2 intrinsics, where the compiled
-    /// portable loops shuffled for the reversed and interleaved complex accesses: projection
-    /// 16.5 → 15.1-15.5 µs at n = 1901 (`bench dct`; its four FFTs of 2048 are ~10 µs).
+    /// [`RaderAdmm::project_avx512`] in AVX2 (8 lanes) on [`super::split_fft::SplitFft8`], the
+    /// sample corrections in scalars (AMD's gathers are slower than scalar loads, and AVX2 has
+    /// no scatter).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn project_avx2(&mut self, v: &[f32], samples: &[SamplePos], h: &[f32], x: &mut [f32]) {
+    unsafe fn project_split8(&mut self, v: &[f32], samples: &Paired, h: &[f32], x: &mut [f32]) {
         use std::arch::x86_64::*;
         let hh = self.h;
-        let len = self.z.len();
-        // Pack: z_j = (a, c)·P + (b, d)·Q with P, Q read backwards from the layout.
+        let (a0, s0) = (self.a0, self.s0);
+        let [u0, u1, u2, u3] = &self.unpack;
+        let sp = self.split.as_mut().expect("checked by the caller");
+        let half = sp.zr.len() / 2;
+        let rev = _mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0);
         let (pl, ql) = (&v[1..1 + hh], &v[1 + hh..]);
-        self.z[0] = self.pack_one(0, pl[0], ql[0]);
-        let v0 = self.a0 * v[0];
+        let v0 = a0 * v[0];
+        // Pack: z_j = (a·P + b·Q, c·P + d·Q) with P, Q read backwards from the layout.
         {
-            let zf = self.z.as_mut_ptr() as *mut f32;
-            let dup_rev = _mm256_setr_epi32(3, 3, 2, 2, 1, 1, 0, 0);
-            let mut j = 1;
-            while j + 4 <= hh {
-                let pv = _mm_loadu_ps(pl.as_ptr().add(hh - j - 3));
-                let qv = _mm_loadu_ps(ql.as_ptr().add(hh - j - 3));
-                let pd = _mm256_permutevar8x32_ps(_mm256_castps128_ps256(pv), dup_rev);
-                let qd = _mm256_permutevar8x32_ps(_mm256_castps128_ps256(qv), dup_rev);
-                let ac = _mm256_loadu_ps((self.pack_ac.as_ptr() as *const f32).add(2 * j));
-                let bd = _mm256_loadu_ps((self.pack_bd.as_ptr() as *const f32).add(2 * j));
-                _mm256_storeu_ps(
-                    zf.add(2 * j),
-                    _mm256_fmadd_ps(ac, pd, _mm256_mul_ps(bd, qd)),
-                );
-                j += 4;
+            let [pa, pb, pc, pd] = &sp.pack;
+            let one = |j: usize, p: f32, q: f32| (pa[j] * p + pb[j] * q, pc[j] * p + pd[j] * q);
+            (sp.zr[0], sp.zi[0]) = one(0, pl[0], ql[0]);
+            // The first line in scalars (with the tail), so that the vector stores are aligned.
+            let mut j = 8;
+            while j + 8 <= hh {
+                let pv =
+                    _mm256_permutevar8x32_ps(_mm256_loadu_ps(pl.as_ptr().add(hh - j - 7)), rev);
+                let qv =
+                    _mm256_permutevar8x32_ps(_mm256_loadu_ps(ql.as_ptr().add(hh - j - 7)), rev);
+                let ld = |t: &Vec<f32>| _mm256_loadu_ps(t.as_ptr().add(j));
+                let re = _mm256_fmadd_ps(ld(pa), pv, _mm256_mul_ps(ld(pb), qv));
+                let im = _mm256_fmadd_ps(ld(pc), pv, _mm256_mul_ps(ld(pd), qv));
+                _mm256_storeu_ps(sp.zr.as_mut_ptr().add(j), re);
+                _mm256_storeu_ps(sp.zi.as_mut_ptr().add(j), im);
+                j += 8;
             }
-            for j in j..hh {
-                self.z[j] = self.pack_one(j, pl[hh - j], ql[hh - j]);
+            for j in (1..8.min(hh)).chain(j..hh) {
+                (sp.zr[j], sp.zi[j]) = one(j, pl[hh - j], ql[hh - j]);
             }
         }
-        self.z[hh..].fill(C32::new(0.0, 0.0));
-        let dc = self.convolve_avx2();
-        // Forward input: re_l = 2V₀ + 4 Re W_(−l), im_l = 4 Im W_(−l) (l ≥ 1).
+        sp.zr[hh..half].fill(0.0);
+        sp.zi[hh..half].fill(0.0);
+        let dc = sp.convolve8();
+        // Forward input: re_l = 2V₀ + 4 Re W_(−l), im_l = 4 Im W_(−l) (l ≥ 1), im_0 = −4 Im W_0.
         {
-            let (z, w) = (&mut self.z, &self.w);
-            z[0] = C32::new(2.0 * v0 + 4.0 * w[0].re, -4.0 * w[0].im);
-            let zf = z.as_mut_ptr() as *mut f32;
-            let wf = w.as_ptr() as *const f32;
+            sp.zr[0] = 2.0 * v0 + 4.0 * sp.wr[0];
+            sp.zi[0] = -4.0 * sp.wi[0];
             let four = _mm256_set1_ps(4.0);
-            let shift = _mm256_setr_ps(2.0 * v0, 0.0, 2.0 * v0, 0.0, 2.0 * v0, 0.0, 2.0 * v0, 0.0);
-            let mut l = 1;
-            while l + 4 <= hh {
-                let wr = rev4(_mm256_loadu_ps(wf.add(2 * (hh - l - 3))));
-                _mm256_storeu_ps(zf.add(2 * l), _mm256_fmadd_ps(wr, four, shift));
-                l += 4;
+            let shift = _mm256_set1_ps(2.0 * v0);
+            let mut l = 8;
+            while l + 8 <= hh {
+                let wr =
+                    _mm256_permutevar8x32_ps(_mm256_loadu_ps(sp.wr.as_ptr().add(hh - l - 7)), rev);
+                let wi =
+                    _mm256_permutevar8x32_ps(_mm256_loadu_ps(sp.wi.as_ptr().add(hh - l - 7)), rev);
+                _mm256_storeu_ps(sp.zr.as_mut_ptr().add(l), _mm256_fmadd_ps(wr, four, shift));
+                _mm256_storeu_ps(sp.zi.as_mut_ptr().add(l), _mm256_mul_ps(wi, four));
+                l += 8;
             }
-            for l in l..hh {
-                let wj = w[hh - l];
-                z[l] = C32::new(2.0 * v0 + 4.0 * wj.re, 4.0 * wj.im);
+            for l in (1..8.min(hh)).chain(l..hh) {
+                sp.zr[l] = 2.0 * v0 + 4.0 * sp.wr[hh - l];
+                sp.zi[l] = 4.0 * sp.wi[hh - l];
             }
-            z[hh..len].fill(C32::new(0.0, 0.0));
+            sp.zr[hh..half].fill(0.0);
+            sp.zi[hh..half].fill(0.0);
         }
-        let first = self.correct_samples(v0, dc, samples, h);
-        let dc = self.convolve_avx2();
-        x[0] = self.s0 * (first + dc);
+        // The samples set to h, by the groups of [`Paired`] (one update of z_l per group), in
+        // scalars on raw pointers: with slices the loop reloaded the buffers' pointers and
+        // bounds-checked every access (its time halved).
+        let first = samples.zero.map_or(v0 + 2.0 * dc, |k| h[k]);
+        {
+            let g = samples;
+            let (zr, zi) = (sp.zr.as_mut_ptr(), sp.zi.as_mut_ptr());
+            let (wr, wi) = (sp.wr.as_ptr(), sp.wi.as_ptr());
+            let n = g.j.len();
+            // Paired::new puts j < H, l ≤ H and k < its sample count in every group; the buffers
+            // hold more than H entries and h one value per sample.
+            assert!(sp.zr.len() > hh && h.len() == g.count);
+            assert!(g.l.len() == n && g.k.iter().all(|k| k.len() == n));
+            assert!([&g.g, &g.f, &g.w]
+                .iter()
+                .all(|t| t[0].len() == n && t[1].len() == n));
+            for c in 0..n {
+                // SAFETY: every index is in bounds (see the asserts above).
+                unsafe {
+                    let (j, l) = (
+                        *g.j.get_unchecked(c) as usize,
+                        *g.l.get_unchecked(c) as usize,
+                    );
+                    let (wrj, wij) = (*wr.add(j), *wi.add(j));
+                    let base = v0 + 2.0 * wrj;
+                    let d = |m: usize| {
+                        let hv = *h.get_unchecked(*g.k[m].get_unchecked(c) as usize);
+                        (hv - (base + g.g[m].get_unchecked(c) * wij)) * g.w[m].get_unchecked(c)
+                    };
+                    let (d1, d2) = (d(0), d(1));
+                    *zr.add(l) += d1 + d2;
+                    *zi.add(l) += g.f[0].get_unchecked(c) * d1 + g.f[1].get_unchecked(c) * d2;
+                }
+            }
+        }
+        let dc = sp.convolve8();
+        x[0] = s0 * (first + dc);
         // Unpack: P = u0·a + u1·Im W_l, Q = u2·a + u3·Im W_l with a = first + Re W_l.
         let (xp, xq) = x[1..].split_at_mut(hh);
-        let wf = self.w.as_ptr() as *const f32;
-        let [u0, u1, u2, u3] = &self.unpack;
         let f = _mm256_set1_ps(first);
         let mut l = 0;
         while l + 8 <= hh {
-            let lo = _mm256_loadu_ps(wf.add(2 * l));
-            let hi = _mm256_loadu_ps(wf.add(2 * l + 8));
-            let re = _mm256_castpd_ps(_mm256_permute4x64_pd::<0xD8>(_mm256_castps_pd(
-                _mm256_shuffle_ps::<0x88>(lo, hi),
-            )));
-            let im = _mm256_castpd_ps(_mm256_permute4x64_pd::<0xD8>(_mm256_castps_pd(
-                _mm256_shuffle_ps::<0xDD>(lo, hi),
-            )));
-            let a = _mm256_add_ps(re, f);
+            let a = _mm256_add_ps(_mm256_loadu_ps(sp.wr.as_ptr().add(l)), f);
+            let im = _mm256_loadu_ps(sp.wi.as_ptr().add(l));
             let ld = |t: &Vec<f32>| _mm256_loadu_ps(t.as_ptr().add(l));
             let pv = _mm256_fmadd_ps(ld(u0), a, _mm256_mul_ps(ld(u1), im));
             let qv = _mm256_fmadd_ps(ld(u2), a, _mm256_mul_ps(ld(u3), im));
@@ -622,50 +717,10 @@ impl RaderAdmm {
             l += 8;
         }
         for l in l..hh {
-            (xp[l], xq[l]) = self.unpack_one(l, first, self.w[l]);
+            let a = first + sp.wr[l];
+            xp[l] = u0[l] * a + u1[l] * sp.wi[l];
+            xq[l] = u2[l] * a + u3[l] * sp.wi[l];
         }
-    }
-
-    /// [`RaderAdmm::convolve`] with the pointwise product in AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn convolve_avx2(&mut self) -> f32 {
-        use std::arch::x86_64::*;
-        self.fft
-            .process_with_scratch(&mut self.z, &mut self.scratch);
-        let len = self.z.len();
-        let (z, w) = (&self.z, &mut self.w);
-        let dc = z[0].re;
-        w[0] = z[0] * self.p[0] + z[0].conj() * self.q[0];
-        let zf = z.as_ptr() as *const f32;
-        let wf = w.as_mut_ptr() as *mut f32;
-        let (pf, qf) = (self.p.as_ptr() as *const f32, self.q.as_ptr() as *const f32);
-        let mut k = 1;
-        while k + 4 <= len {
-            let zk = _mm256_loadu_ps(zf.add(2 * k));
-            let zr = rev4(_mm256_loadu_ps(zf.add(2 * (len - k - 3))));
-            let pk = _mm256_loadu_ps(pf.add(2 * k));
-            let qk = _mm256_loadu_ps(qf.add(2 * k));
-            // z·p: (a·pr − b·pi, b·pr + a·pi); conj(zr)·q: (c·qr + d·qi, c·qi − d·qr).
-            let t1 = _mm256_fmaddsub_ps(
-                zk,
-                _mm256_moveldup_ps(pk),
-                _mm256_mul_ps(_mm256_permute_ps::<0xB1>(zk), _mm256_movehdup_ps(pk)),
-            );
-            let t2 = _mm256_fmsubadd_ps(
-                _mm256_permute_ps::<0xB1>(zr),
-                _mm256_movehdup_ps(qk),
-                _mm256_mul_ps(zr, _mm256_moveldup_ps(qk)),
-            );
-            _mm256_storeu_ps(wf.add(2 * k), _mm256_add_ps(t1, t2));
-            k += 4;
-        }
-        for k in k..len {
-            w[k] = z[k] * self.p[k] + z[len - k].conj() * self.q[k];
-        }
-        self.ifft
-            .process_with_scratch(&mut self.w, &mut self.scratch);
-        dc
     }
 
     /// The samples set to h: corrections h − g at the sampled points added to the forward
@@ -710,48 +765,10 @@ impl RaderAdmm {
     }
 }
 
-/// Four complex f32 in reverse order (each complex as one 64-bit lane).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-unsafe fn rev4(v: std::arch::x86_64::__m256) -> std::arch::x86_64::__m256 {
-    use std::arch::x86_64::*;
-    _mm256_castpd_ps(_mm256_permute4x64_pd::<0x1B>(_mm256_castps_pd(v)))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::recon::dct::Dct;
-
-    /// The AVX2 projection equals the portable one (the other test sees only the path this
-    /// CPU takes), at lengths whose vector loops have remainders of every size.
-    #[test]
-    fn simd_projection_matches_the_portable_one() {
-        if !crate::recon::simd::has_avx2_fma() {
-            return;
-        }
-        for n in [5usize, 7, 13, 19, 101, 383, 1901] {
-            let mut fused = RaderAdmm::new(n).expect("prime");
-            let v: Vec<f32> = (0..n).map(|i| ((i * 37 % 11) as f32 - 5.0) * 0.1).collect();
-            let idx: Vec<usize> = (0..n).step_by(2).collect();
-            let h: Vec<f32> = idx.iter().map(|&i| (i as f32 * 0.3).cos()).collect();
-            let samples = fused.samples(&idx);
-            let (mut a, mut b) = (vec![0.0f32; n], vec![0.0f32; n]);
-            fused.project_impl(&v, &samples.0, &h, &mut a);
-            // SAFETY: AVX2 and FMA are present (checked).
-            unsafe { fused.project_avx2(&v, &samples.0, &h, &mut b) };
-            let scale = a.iter().map(|v| v.abs()).fold(0.0, f32::max);
-            for k in 0..n {
-                assert!(
-                    (a[k] - b[k]).abs() <= 1e-5 * scale,
-                    "n={n} k={k}: {} vs {}",
-                    a[k],
-                    b[k]
-                );
-            }
-        }
-    }
 
     /// The AVX-512 projection equals the portable one, at lengths with every vector remainder
     /// and FFT lengths with and without the radix-2 stage (128 ... 8192).
@@ -776,6 +793,55 @@ mod tests {
             for _ in 0..2 {
                 // SAFETY: AVX-512F is present (checked).
                 unsafe { fused.project_avx512(&v, &samples.1, &h, &mut b) };
+                let scale = a.iter().map(|v| v.abs()).fold(0.0, f32::max);
+                for k in 0..n {
+                    assert!(
+                        (a[k] - b[k]).abs() <= 1e-5 * scale,
+                        "n={n} k={k}: {} vs {}",
+                        a[k],
+                        b[k]
+                    );
+                }
+            }
+        }
+    }
+
+    /// The AVX2 split-format projection equals the portable one, at lengths with every 8-lane
+    /// remainder and FFT lengths with and without the radix-2 stage (64 ... 8192).
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn split8_projection_matches_the_portable_one() {
+        if !crate::recon::simd::has_avx2_fma() {
+            eprintln!("skipped: no AVX2/FMA on this CPU");
+            return;
+        }
+        for n in [19usize, 37, 67, 101, 131, 383, 557, 1901, 4099] {
+            let mut fused = RaderAdmm::new(n).expect("prime");
+            let p = fused.p.clone();
+            let q = fused.q.clone();
+            let pack: Vec<[f32; 4]> = (0..fused.h)
+                .map(|j| {
+                    let (ac, bd) = (fused.pack_ac[j], fused.pack_bd[j]);
+                    [ac.re, bd.re, ac.im, bd.im]
+                })
+                .collect();
+            // The AVX2 kernel even where the CPU has AVX-512F.
+            let mut split = Split::new(&p, &q, &pack).expect("AVX2 present");
+            split.fft = Kernel::Avx2(
+                crate::recon::split_fft::SplitFft8::new(p.len()).expect("power of two"),
+            );
+            fused.split = Some(split);
+            let v: Vec<f32> = (0..n).map(|i| ((i * 37 % 11) as f32 - 5.0) * 0.1).collect();
+            let mut idx: Vec<usize> = (0..n).step_by(3).collect();
+            idx.push(n - 1);
+            let h: Vec<f32> = idx.iter().map(|&i| (i as f32 * 0.3).cos()).collect();
+            let samples = fused.samples(&idx);
+            let (mut a, mut b) = (vec![0.0f32; n], vec![0.0f32; n]);
+            fused.project_impl(&v, &samples.0, &h, &mut a);
+            // Twice: the second call sees the buffers the first left behind.
+            for _ in 0..2 {
+                // SAFETY: AVX2 and FMA are present (checked).
+                unsafe { fused.project_split8(&v, &samples.1, &h, &mut b) };
                 let scale = a.iter().map(|v| v.abs()).fold(0.0, f32::max);
                 for k in 0..n {
                     assert!(
