@@ -65,9 +65,6 @@ fn real<T: FftNum>(v: f64) -> T {
     T::from_f64(v).unwrap_or_else(T::zero)
 }
 
-/// Orthonormal DCT pair of any length n ≥ 2 by Makhoul's algorithm on a real FFT of length n:
-/// v = (g₀, g₂, …, g₃, g₁) (evens up, odds down), X_k = Re(e^{-iπk/2n}·FFT(v)_k).
-/// Generic so that the basis-pursuit ranking can run in f32 ([`Dct::single`]).
 /// Makhoul's permutation and twiddle passes around the real FFT (n = buf.len() throughout). The
 /// provided bodies are the scalar loops ([`scalar`]); f64 (BPDN, BP above the exact finish's m,
 /// every f64 transform) runs them in AVX2 where the CPU has it: the compiled loops stayed scalar
@@ -75,77 +72,71 @@ fn real<T: FftNum>(v: f64) -> T {
 pub trait Passes: FftNum {
     /// v = the evens of buf forward, then its odds backward.
     fn split_even_odd(buf: &[Self], v: &mut [Self]) {
-        scalar::split_even_odd(buf, v)
+        scalar::split_from(buf, v, 0)
     }
 
     /// The inverse of [`Passes::split_even_odd`].
     fn merge_even_odd(v: &[Self], buf: &mut [Self]) {
-        scalar::merge_even_odd(v, buf)
+        scalar::merge_from(v, buf, 0)
     }
 
     /// For 1 ≤ k < ⌈n/2⌉ with (a, b) = spec_k and (c, s) = w_k: buf[k] = sk·(ac + bs),
     /// buf[n − k] = sk·(as − bc).
     fn untwiddle(spec: &[Complex<Self>], w: &[Complex<Self>], sk: Self, buf: &mut [Self]) {
-        scalar::untwiddle(spec, w, sk, buf)
+        scalar::untwiddle_from(spec, w, sk, buf, 1)
     }
 
     /// For 1 ≤ k < ⌈n/2⌉: spec_k = (x + iy)·w_k with x = ak·buf[k], y = −ak·buf[n − k].
     fn twiddle_in(buf: &[Self], w: &[Complex<Self>], ak: Self, spec: &mut [Complex<Self>]) {
-        scalar::twiddle_in(buf, w, ak, spec)
+        scalar::twiddle_in_from(buf, w, ak, spec, 1)
     }
 }
 
 impl Passes for f32 {}
 
+/// Where the AVX2 kernel `avx2::$f` stopped (it does whole blocks only), or `None` where the CPU
+/// lacks AVX2 and FMA: the scalar loop takes over from there.
+macro_rules! avx2_prefix {
+    ($f:ident($($a:expr),*)) => {{
+        #[cfg(target_arch = "x86_64")]
+        let done = super::simd::has_avx2_fma()
+            // SAFETY: AVX2 and FMA are present (checked).
+            .then(|| unsafe { avx2::$f($($a),*) });
+        #[cfg(not(target_arch = "x86_64"))]
+        let done: Option<usize> = None;
+        done
+    }};
+}
+
 /// The f64 passes in AVX2 when the CPU has it, each entry rounded as in the scalar loop (unfused).
 impl Passes for f64 {
     fn split_even_odd(buf: &[f64], v: &mut [f64]) {
-        #[cfg(target_arch = "x86_64")]
-        if super::simd::has_avx2_fma() {
-            // SAFETY: AVX2 is present (checked).
-            return unsafe { avx2::split_even_odd(buf, v) };
-        }
-        scalar::split_even_odd(buf, v)
+        let j0 = avx2_prefix!(split_even_odd(buf, v)).unwrap_or(0);
+        scalar::split_from(buf, v, j0)
     }
 
     fn merge_even_odd(v: &[f64], buf: &mut [f64]) {
-        #[cfg(target_arch = "x86_64")]
-        if super::simd::has_avx2_fma() {
-            // SAFETY: AVX2 is present (checked).
-            return unsafe { avx2::merge_even_odd(v, buf) };
-        }
-        scalar::merge_even_odd(v, buf)
+        let j0 = avx2_prefix!(merge_even_odd(v, buf)).unwrap_or(0);
+        scalar::merge_from(v, buf, j0)
     }
 
     fn untwiddle(spec: &[Complex<f64>], w: &[Complex<f64>], sk: f64, buf: &mut [f64]) {
-        #[cfg(target_arch = "x86_64")]
-        if super::simd::has_avx2_fma() {
-            // SAFETY: AVX2 is present (checked).
-            return unsafe { avx2::untwiddle(spec, w, sk, buf) };
-        }
-        scalar::untwiddle(spec, w, sk, buf)
+        let k0 = avx2_prefix!(untwiddle(spec, w, sk, buf)).unwrap_or(1);
+        scalar::untwiddle_from(spec, w, sk, buf, k0)
     }
 
     fn twiddle_in(buf: &[f64], w: &[Complex<f64>], ak: f64, spec: &mut [Complex<f64>]) {
-        #[cfg(target_arch = "x86_64")]
-        if super::simd::has_avx2_fma() {
-            // SAFETY: AVX2 is present (checked).
-            return unsafe { avx2::twiddle_in(buf, w, ak, spec) };
-        }
-        scalar::twiddle_in(buf, w, ak, spec)
+        let k0 = avx2_prefix!(twiddle_in(buf, w, ak, spec)).unwrap_or(1);
+        scalar::twiddle_in_from(buf, w, ak, spec, k0)
     }
 }
 
-/// The passes' scalar loops (the definitions; [`avx2`] must agree with them bit for bit).
+/// The passes' scalar loops from pair j0 (frequency k0) on: the definitions, which [`avx2`] must
+/// match bit for bit, and the vector loops' tails.
 mod scalar {
     use realfft::num_complex::Complex;
     use rustfft::FftNum;
 
-    pub fn split_even_odd<T: FftNum>(buf: &[T], v: &mut [T]) {
-        split_from(buf, v, 0);
-    }
-
-    /// [`split_even_odd`] from pair `j0` on (the vector loop's tail).
     pub fn split_from<T: FftNum>(buf: &[T], v: &mut [T], j0: usize) {
         let n = buf.len();
         for j in j0..n.div_ceil(2) {
@@ -156,10 +147,6 @@ mod scalar {
         }
     }
 
-    pub fn merge_even_odd<T: FftNum>(v: &[T], buf: &mut [T]) {
-        merge_from(v, buf, 0);
-    }
-
     pub fn merge_from<T: FftNum>(v: &[T], buf: &mut [T], j0: usize) {
         let n = buf.len();
         for j in j0..n.div_ceil(2) {
@@ -168,10 +155,6 @@ mod scalar {
         for j in j0..n / 2 {
             buf[2 * j + 1] = v[n - 1 - j];
         }
-    }
-
-    pub fn untwiddle<T: FftNum>(spec: &[Complex<T>], w: &[Complex<T>], sk: T, buf: &mut [T]) {
-        untwiddle_from(spec, w, sk, buf, 1);
     }
 
     pub fn untwiddle_from<T: FftNum>(
@@ -190,10 +173,6 @@ mod scalar {
         }
     }
 
-    pub fn twiddle_in<T: FftNum>(buf: &[T], w: &[Complex<T>], ak: T, spec: &mut [Complex<T>]) {
-        twiddle_in_from(buf, w, ak, spec, 1);
-    }
-
     pub fn twiddle_in_from<T: FftNum>(
         buf: &[T],
         w: &[Complex<T>],
@@ -210,14 +189,13 @@ mod scalar {
     }
 }
 
-/// The f64 passes in AVX2, 4 entries (pairs, frequencies) at a time; the rest by [`scalar`].
+/// The f64 passes in AVX2, 4 entries (pairs, frequencies) at a time; each returns the pair or
+/// frequency where its whole blocks end, for [`scalar`] to finish.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::*;
 
     use realfft::num_complex::Complex;
-
-    use super::scalar;
 
     /// (re, im) of 4 complex f64 at p (Complex is repr(C): re then im).
     #[target_feature(enable = "avx2")]
@@ -239,7 +217,7 @@ mod avx2 {
     }
 
     #[target_feature(enable = "avx2")]
-    pub unsafe fn split_even_odd(buf: &[f64], v: &mut [f64]) {
+    pub unsafe fn split_even_odd(buf: &[f64], v: &mut [f64]) -> usize {
         let n = buf.len();
         assert!(v.len() == n);
         let (b, o) = (buf.as_ptr(), v.as_mut_ptr());
@@ -256,11 +234,11 @@ mod avx2 {
             _mm256_storeu_pd(o.add(4 * i), ev);
             _mm256_storeu_pd(o.add(n - 4 - 4 * i), od);
         }
-        scalar::split_from(buf, v, 4 * blocks);
+        4 * blocks
     }
 
     #[target_feature(enable = "avx2")]
-    pub unsafe fn merge_even_odd(v: &[f64], buf: &mut [f64]) {
+    pub unsafe fn merge_even_odd(v: &[f64], buf: &mut [f64]) -> usize {
         let n = buf.len();
         assert!(v.len() == n);
         let (s, o) = (v.as_ptr(), buf.as_mut_ptr());
@@ -273,11 +251,16 @@ mod avx2 {
             _mm256_storeu_pd(o.add(8 * i), _mm256_permute2f128_pd::<0x20>(lo, hi));
             _mm256_storeu_pd(o.add(8 * i + 4), _mm256_permute2f128_pd::<0x31>(lo, hi));
         }
-        scalar::merge_from(v, buf, 4 * blocks);
+        4 * blocks
     }
 
     #[target_feature(enable = "avx2")]
-    pub unsafe fn untwiddle(spec: &[Complex<f64>], w: &[Complex<f64>], sk: f64, buf: &mut [f64]) {
+    pub unsafe fn untwiddle(
+        spec: &[Complex<f64>],
+        w: &[Complex<f64>],
+        sk: f64,
+        buf: &mut [f64],
+    ) -> usize {
         let n = buf.len();
         let h = n.div_ceil(2);
         assert!(spec.len() >= h && w.len() >= h);
@@ -294,11 +277,16 @@ mod avx2 {
             _mm256_storeu_pd(o.add(n - k - 3), rev(e));
             k += 4;
         }
-        scalar::untwiddle_from(spec, w, sk, buf, k);
+        k
     }
 
     #[target_feature(enable = "avx2")]
-    pub unsafe fn twiddle_in(buf: &[f64], w: &[Complex<f64>], ak: f64, spec: &mut [Complex<f64>]) {
+    pub unsafe fn twiddle_in(
+        buf: &[f64],
+        w: &[Complex<f64>],
+        ak: f64,
+        spec: &mut [Complex<f64>],
+    ) -> usize {
         let n = buf.len();
         let h = n.div_ceil(2);
         assert!(spec.len() >= h && w.len() >= h);
@@ -321,10 +309,13 @@ mod avx2 {
             _mm256_storeu_pd(o.add(2 * k + 4), _mm256_permute2f128_pd::<0x31>(lo, hi));
             k += 4;
         }
-        scalar::twiddle_in_from(buf, w, ak, spec, k);
+        k
     }
 }
 
+/// Orthonormal DCT pair of any length n ≥ 2 by Makhoul's algorithm on a real FFT of length n:
+/// v = (g₀, g₂, …, g₃, g₁) (evens up, odds down), X_k = Re(e^{-iπk/2n}·FFT(v)_k).
+/// Generic so that the basis-pursuit ranking can run in f32 ([`Dct::single`]).
 pub struct Makhoul<T: FftNum> {
     n: usize,
     fft: RealPair<T>,
@@ -797,18 +788,18 @@ mod tests {
                 .collect();
             let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
             <f64 as Passes>::split_even_odd(&x, &mut a);
-            scalar::split_even_odd(&x, &mut b);
+            scalar::split_from(&x, &mut b, 0);
             assert_eq!(a, b, "split n={n}");
             <f64 as Passes>::merge_even_odd(&x, &mut a);
-            scalar::merge_even_odd(&x, &mut b);
+            scalar::merge_from(&x, &mut b, 0);
             assert_eq!(a, b, "merge n={n}");
             <f64 as Passes>::untwiddle(&spec, &w, 0.7, &mut a);
-            scalar::untwiddle(&spec, &w, 0.7, &mut b);
+            scalar::untwiddle_from(&spec, &w, 0.7, &mut b, 1);
             assert_eq!(a, b, "untwiddle n={n}");
             let zero = Complex::new(0.0, 0.0);
             let (mut sa, mut sb) = (vec![zero; n / 2 + 1], vec![zero; n / 2 + 1]);
             <f64 as Passes>::twiddle_in(&x, &w, 0.3, &mut sa);
-            scalar::twiddle_in(&x, &w, 0.3, &mut sb);
+            scalar::twiddle_in_from(&x, &w, 0.3, &mut sb, 1);
             assert_eq!(sa, sb, "twiddle_in n={n}");
         }
     }

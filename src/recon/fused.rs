@@ -47,7 +47,7 @@ struct SamplePos {
 /// sample, and the same samples grouped by inverse output ([`Paired`]).
 pub struct Samples(Vec<SamplePos>, Paired);
 
-/// The samples grouped by inverse output j, for the AVX-512 correction pass: grid points
+/// The samples grouped by inverse output j, for the split-format correction passes: grid points
 /// ±(Rader's j) share one j and one forward input l, so a group's correction is one update of
 /// z_l and the groups' l are distinct (gathers and scatters without conflicts). Struct of
 /// arrays padded to whole vectors with groups of weight 0 at l = H (the zero padding, which an
@@ -129,10 +129,9 @@ pub struct RaderAdmm {
     w: Vec<C32>,
     scratch: Vec<C32>,
     /// Inverse convolution input j from the layout pair (P, Q) at l = −j mod H:
-    /// re = a·P + b·Q, im = c·P + d·Q (Makhoul's twiddle, scale and Rader's conjugation), held as
-    /// the pairs (a, c) and (b, d) so that the AVX2 pass loads them as complex vectors.
-    pack_ac: Vec<C32>,
-    pack_bd: Vec<C32>,
+    /// re = a·P + b·Q, im = c·P + d·Q (Makhoul's twiddle, scale and Rader's conjugation); one
+    /// array per coefficient a, b, c, d.
+    pack: [Vec<f32>; 4],
     /// Forward output l to the layout pair: with a = v₀ + Re W_l, P = u0·a + u1·Im W_l,
     /// Q = u2·a + u3·Im W_l; one array per coefficient.
     unpack: [Vec<f32>; 4],
@@ -165,8 +164,6 @@ struct Split {
     pi: Aligned,
     qr: Aligned,
     qi: Aligned,
-    /// The pack coefficients a, b, c, d (re = a·P + b·Q, im = c·P + d·Q).
-    pack: [Vec<f32>; 4],
     /// Vector 0 holds the octaves below 16, each mirrored within itself: its lane permutation.
     mirror0: [i32; 16],
 }
@@ -278,7 +275,7 @@ impl Split {
         dc
     }
 
-    fn new(p: &[C32], q: &[C32], pack: &[[f32; 4]]) -> Option<Self> {
+    fn new(p: &[C32], q: &[C32]) -> Option<Self> {
         use super::split_fft::{bit_reverse, mirror, SplitFft, SplitFft8};
         let len = p.len();
         let fft = if super::simd::has_avx512f() {
@@ -300,7 +297,6 @@ impl Split {
             pi: br(p, |c| c.im),
             qr: br(q, |c| c.re),
             qi: br(q, |c| c.im),
-            pack: std::array::from_fn(|i| pack.iter().map(|c| c[i]).collect()),
             mirror0: std::array::from_fn(|l| mirror(l) as i32),
         })
     }
@@ -375,7 +371,7 @@ impl RaderAdmm {
         }
         let len = conv.z.len();
         #[cfg(target_arch = "x86_64")]
-        let split = Split::new(&conv.p, &conv.q, &pack);
+        let split = Split::new(&conv.p, &conv.q);
         Some(Self {
             n,
             h,
@@ -386,8 +382,7 @@ impl RaderAdmm {
             z: vec![C32::new(0.0, 0.0); len],
             w: vec![C32::new(0.0, 0.0); len],
             scratch: conv.scratch,
-            pack_ac: pack.iter().map(|c| C32::new(c[0], c[2])).collect(),
-            pack_bd: pack.iter().map(|c| C32::new(c[1], c[3])).collect(),
+            pack: std::array::from_fn(|i| pack.iter().map(|c| c[i]).collect()),
             unpack: std::array::from_fn(|i| unpack.iter().map(|u| u[i]).collect()),
             a0: (1.0 / nf / s0) as f32,
             s0: s0 as f32,
@@ -422,8 +417,8 @@ impl RaderAdmm {
     /// Inverse convolution input j from the layout pair (P, Q).
     #[inline(always)]
     fn pack_one(&self, j: usize, p: f32, q: f32) -> C32 {
-        let (ac, bd) = (self.pack_ac[j], self.pack_bd[j]);
-        C32::new(ac.re * p + bd.re * q, ac.im * p + bd.im * q)
+        let [a, b, c, d] = &self.pack;
+        C32::new(a[j] * p + b[j] * q, c[j] * p + d[j] * q)
     }
 
     /// The layout pair (P, Q) of forward output l = `wl`.
@@ -494,7 +489,7 @@ impl RaderAdmm {
         use std::arch::x86_64::*;
         let hh = self.h;
         let (a0, s0) = (self.a0, self.s0);
-        let [u0, u1, u2, u3] = &self.unpack;
+        let ([u0, u1, u2, u3], [pa, pb, pc, pd]) = (&self.unpack, &self.pack);
         let sp = self.split.as_mut().expect("checked by the caller");
         let half = sp.zr.len() / 2;
         let rev = _mm512_set_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
@@ -502,7 +497,6 @@ impl RaderAdmm {
         let (pl, ql) = (&v[1..1 + hh], &v[1 + hh..]);
         let v0 = a0 * v[0];
         {
-            let [pa, pb, pc, pd] = &sp.pack;
             let one = |j: usize, p: f32, q: f32| (pa[j] * p + pb[j] * q, pc[j] * p + pd[j] * q);
             (sp.zr[0], sp.zi[0]) = one(0, pl[0], ql[0]);
             // The first line in scalars (with the tail), so that the vector stores start on a
@@ -610,7 +604,7 @@ impl RaderAdmm {
         use std::arch::x86_64::*;
         let hh = self.h;
         let (a0, s0) = (self.a0, self.s0);
-        let [u0, u1, u2, u3] = &self.unpack;
+        let ([u0, u1, u2, u3], [pa, pb, pc, pd]) = (&self.unpack, &self.pack);
         let sp = self.split.as_mut().expect("checked by the caller");
         let half = sp.zr.len() / 2;
         let rev = _mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0);
@@ -618,7 +612,6 @@ impl RaderAdmm {
         let v0 = a0 * v[0];
         // Pack: z_j = (a·P + b·Q, c·P + d·Q) with P, Q read backwards from the layout.
         {
-            let [pa, pb, pc, pd] = &sp.pack;
             let one = |j: usize, p: f32, q: f32| (pa[j] * p + pb[j] * q, pc[j] * p + pd[j] * q);
             (sp.zr[0], sp.zi[0]) = one(0, pl[0], ql[0]);
             // The first line in scalars (with the tail), so that the vector stores are aligned.
@@ -817,20 +810,12 @@ mod tests {
         }
         for n in [19usize, 37, 67, 101, 131, 383, 557, 1901, 4099] {
             let mut fused = RaderAdmm::new(n).expect("prime");
-            let p = fused.p.clone();
-            let q = fused.q.clone();
-            let pack: Vec<[f32; 4]> = (0..fused.h)
-                .map(|j| {
-                    let (ac, bd) = (fused.pack_ac[j], fused.pack_bd[j]);
-                    [ac.re, bd.re, ac.im, bd.im]
-                })
-                .collect();
-            // The AVX2 kernel even where the CPU has AVX-512F.
-            let mut split = Split::new(&p, &q, &pack).expect("AVX2 present");
+            // The AVX2 kernel even where the CPU has AVX-512F (the split's buffers and tables do
+            // not depend on the kernel).
+            let split = fused.split.as_mut().expect("AVX2 present");
             split.fft = Kernel::Avx2(
-                crate::recon::split_fft::SplitFft8::new(p.len()).expect("power of two"),
+                crate::recon::split_fft::SplitFft8::new(split.zr.len()).expect("power of two"),
             );
-            fused.split = Some(split);
             let v: Vec<f32> = (0..n).map(|i| ((i * 37 % 11) as f32 - 5.0) * 0.1).collect();
             let mut idx: Vec<usize> = (0..n).step_by(3).collect();
             idx.push(n - 1);

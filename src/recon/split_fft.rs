@@ -1,8 +1,9 @@
 //! A split-format (separate re and im arrays) complex f32 FFT of a power-of-two length in AVX-512
-//! (and in AVX2, [`SplitFft8`]), for convolutions: the forward transform (decimation in frequency) leaves the spectrum in
-//! bit-reversed order and the inverse (decimation in time) takes it back from that order, so no
-//! permutation pass is ever made; the pointwise product between them works in bit-reversed order
-//! ([`mirror`] pairs bin q with bin −q there). Both transforms are unnormalized, like rustfft's.
+//! (and in AVX2, [`SplitFft8`]), for convolutions: the forward transform (decimation in
+//! frequency) leaves the spectrum in bit-reversed order and the inverse (decimation in time) takes
+//! it back from that order, so no permutation pass is ever made; the pointwise product between
+//! them works in bit-reversed order ([`mirror`] pairs bin q with bin −q there). Both transforms
+//! are unnormalized, like rustfft's.
 //!
 //! Stages whose butterfly span is ≥ 16 run between whole vectors (radix 4, one radix-2 stage at
 //! span 16 when their count is odd); the last four (spans 8, 4, 2, 1) run inside each vector with
@@ -140,11 +141,10 @@ impl SplitFft {
         if len < 64 || !len.is_power_of_two() {
             return None;
         }
-        let tw = twiddle;
         let vector_stages = len.trailing_zeros() as usize - 4;
         let radix4 = radix4_stages(len, vector_stages);
         let radix2 = (vector_stages % 2 == 1).then(|| {
-            let w: [(f32, f32); 16] = std::array::from_fn(|j| tw(j, 32));
+            let w: [(f32, f32); 16] = std::array::from_fn(|j| twiddle(j, 32));
             [w.map(|t| t.0), w.map(|t| t.1)]
         });
         let mut lane_tw = [[[0.0; 16]; 2]; 2];
@@ -154,7 +154,11 @@ impl SplitFft {
                 let high = l & s != 0;
                 lane_sign[t][l] = if high { -1.0 } else { 1.0 };
                 if t < 2 {
-                    let (c, sn) = if high { tw(l % s, 2 * s) } else { (1.0, 0.0) };
+                    let (c, sn) = if high {
+                        twiddle(l % s, 2 * s)
+                    } else {
+                        (1.0, 0.0)
+                    };
                     lane_tw[t][0][l] = c;
                     lane_tw[t][1][l] = sn;
                 }
@@ -494,48 +498,46 @@ mod tests {
         forward: impl Fn(&mut [f32], &mut [f32], bool),
         inverse: impl Fn(&mut [f32], &mut [f32], bool),
     ) {
-        {
-            let mut planner = FftPlanner::<f32>::new();
-            let (fw, iv) = (planner.plan_fft_forward(len), planner.plan_fft_inverse(len));
-            for zero in [false, true] {
-                let x: Vec<Complex<f32>> = (0..len)
-                    .map(|k| {
-                        if zero && k >= len / 2 {
-                            Complex::new(0.0, 0.0)
-                        } else {
-                            Complex::new((k as f32 * 0.37).sin(), (k as f32 * 1.3).cos() - 0.2)
-                        }
-                    })
-                    .collect();
-                let mut want = x.clone();
-                fw.process(&mut want);
-                let mut re: Vec<f32> = x.iter().map(|c| c.re).collect();
-                let mut im: Vec<f32> = x.iter().map(|c| c.im).collect();
-                if zero {
-                    // Not read.
-                    re[len / 2..].fill(f32::NAN);
-                    im[len / 2..].fill(f32::NAN);
-                }
-                forward(&mut re, &mut im, zero);
-                let tol = 1e-5 * len as f32;
-                for i in 0..len {
-                    let q = bit_reverse(i, len);
-                    assert!((want[q].re - re[i]).abs() < tol, "len={len} i={i}");
-                    assert!((want[q].im - im[i]).abs() < tol, "len={len} i={i}");
-                    assert_eq!(bit_reverse(mirror(i), len), (len - q) % len);
-                }
-                let mut back = want.clone();
-                iv.process(&mut back);
-                inverse(&mut re, &mut im, zero);
-                let top = if zero { len / 2 } else { len };
-                for k in 0..top {
-                    assert!((back[k].re - re[k]).abs() < tol, "len={len} k={k}");
-                    assert!((back[k].im - im[k]).abs() < tol, "len={len} k={k}");
-                    assert!(
-                        (x[k].re * len as f32 - re[k]).abs() < tol,
-                        "len={len} k={k}"
-                    );
-                }
+        let mut planner = FftPlanner::<f32>::new();
+        let (fw, iv) = (planner.plan_fft_forward(len), planner.plan_fft_inverse(len));
+        for zero in [false, true] {
+            let x: Vec<Complex<f32>> = (0..len)
+                .map(|k| {
+                    if zero && k >= len / 2 {
+                        Complex::new(0.0, 0.0)
+                    } else {
+                        Complex::new((k as f32 * 0.37).sin(), (k as f32 * 1.3).cos() - 0.2)
+                    }
+                })
+                .collect();
+            let mut want = x.clone();
+            fw.process(&mut want);
+            let mut re: Vec<f32> = x.iter().map(|c| c.re).collect();
+            let mut im: Vec<f32> = x.iter().map(|c| c.im).collect();
+            if zero {
+                // Not read.
+                re[len / 2..].fill(f32::NAN);
+                im[len / 2..].fill(f32::NAN);
+            }
+            forward(&mut re, &mut im, zero);
+            let tol = 1e-5 * len as f32;
+            for i in 0..len {
+                let q = bit_reverse(i, len);
+                assert!((want[q].re - re[i]).abs() < tol, "len={len} i={i}");
+                assert!((want[q].im - im[i]).abs() < tol, "len={len} i={i}");
+                assert_eq!(bit_reverse(mirror(i), len), (len - q) % len);
+            }
+            let mut back = want.clone();
+            iv.process(&mut back);
+            inverse(&mut re, &mut im, zero);
+            let top = if zero { len / 2 } else { len };
+            for k in 0..top {
+                assert!((back[k].re - re[k]).abs() < tol, "len={len} k={k}");
+                assert!((back[k].im - im[k]).abs() < tol, "len={len} k={k}");
+                assert!(
+                    (x[k].re * len as f32 - re[k]).abs() < tol,
+                    "len={len} k={k}"
+                );
             }
         }
     }
