@@ -305,13 +305,17 @@ impl Gram {
     fn solve_gram(&self, mut v: MatMut<'_, f64>) {
         let m = self.sorted.len();
         #[cfg(target_arch = "x86_64")]
-        if v.ncols() == 1 && super::simd::has_avx2_fma() {
-            if let Some(x) = v.as_mut().col_mut(0).try_as_col_major_mut() {
+        if v.ncols() < GRAM_KERNEL_COLS && super::simd::has_avx2_fma() && v.row_stride() == 1 {
+            let (k, cs) = (v.ncols(), v.col_stride());
+            if k <= 1 || cs == m as isize {
                 let l = &self.l_buf[self.l_off..];
-                assert!(x.nrows() == m && (m == 0 || l.len() >= (m - 1) * self.l_ld + m));
+                assert!(m == 0 || l.len() >= (m - 1) * self.l_ld + m);
+                // SAFETY: the k columns of m rows are contiguous (unit row stride, column
+                // stride m or a single column), so they are one slice of m·k entries.
+                let x = unsafe { std::slice::from_raw_parts_mut(v.as_ptr_mut(), m * k) };
                 // SAFETY: AVX2 and FMA present (checked); L holds m columns `l_ld` apart
-                // (asserted) and x has m rows.
-                unsafe { gram_solve_avx2(l, self.l_ld, x.as_slice_mut()) };
+                // (asserted).
+                unsafe { gram_solve_columns_avx2(l, self.l_ld, x, m) };
                 return;
             }
         }
@@ -321,6 +325,10 @@ impl Gram {
         solve_upper_triangular_in_place(l.transpose(), v, Par::Seq);
     }
 }
+
+/// Right-hand sides from which [`Gram::solve_gram`] takes faer's blocked triangular solves
+/// instead of [`gram_solve_avx2`] (measured at m = 600 on Zen 3: level at 8 columns).
+const GRAM_KERNEL_COLS: usize = 8;
 
 thread_local! {
     /// The last Gram anchor's L buffer, for the next one on this thread.
@@ -393,61 +401,89 @@ unsafe fn gram_lower_avx2(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
     }
 }
 
-/// x ← L⁻ᵀL⁻¹x for the lower triangle of the column-major `l` (leading dimension `ld`, m =
-/// x.len()): one right-hand side, as the pricing and refinement solves take it. In blocks of
-/// 8 columns (the forward sweep updates the rows below a block from its 8 columns at once; the
-/// backward sweep takes 8 dot products per load of x), so that L streams through once per
-/// sweep. Measured at m = 600 (L 2.9 MB, out of L2): 41-44 µs against 67-70 µs for faer's pair
-/// of `solve_*_triangular_in_place` on one column (AMD EPYC, Zen 4).
+/// x ← L⁻ᵀL⁻¹x for the lower triangle of the column-major `l` (leading dimension `ld`), for R
+/// right-hand sides at once: the columns of `x`, `ldx` apart, m rows each. In blocks of 8
+/// columns of L (the forward sweep updates the rows below a block from its 8 columns at once;
+/// the backward sweep takes TQ·R dot products per pass over the rows, TQ·R ≤ 8 accumulators),
+/// so that L streams through once per sweep for all R. With R = 1 this is the one-column kernel
+/// the pricing and refinement solves take: at m = 600 (L 2.9 MB, out of L2) 41-44 µs against
+/// 67-70 µs for faer's pair of `solve_*_triangular_in_place` (AMD EPYC, Zen 4). With R = 4 a
+/// column costs about a quarter of that, where faer's pair on a few columns costs nearly its
+/// one-column time per column (Zen 3, best of 200: 4 columns 103 against 171 µs, 2 columns 60
+/// against 146; from ~8 columns faer's blocked solves are faster).
 ///
 /// # Safety
-/// AVX2 and FMA must be present, and `l` must hold m columns `ld` ≥ m apart.
+/// AVX2 and FMA must be present, `l` must hold m columns `ld` ≥ m apart, and x must point to R
+/// columns of m entries, `ldx` apart.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn gram_solve_avx2(l: &[f64], ld: usize, x: &mut [f64]) {
+unsafe fn gram_solve_avx2<const R: usize, const TQ: usize>(
+    l: &[f64],
+    ld: usize,
+    x: *mut f64,
+    ldx: usize,
+    m: usize,
+) {
     use std::arch::x86_64::*;
     const B: usize = 8;
-    let m = x.len();
     debug_assert!(m == 0 || l.len() >= (m - 1) * ld + m);
     let lp = l.as_ptr();
-    let xp = x.as_mut_ptr();
-    // Forward: L y = x.
+    let xc: [*mut f64; R] = std::array::from_fn(|c| x.add(c * ldx));
+    // Forward: L y = x. The right-hand sides interleave in the scalar parts, so that their
+    // division chains overlap.
     let mut j0 = 0;
     while j0 < m {
         let jb = B.min(m - j0);
         let r0 = j0 + jb;
         for j in j0..r0 {
-            let c = lp.add(j * ld);
-            let xj = *xp.add(j) / *c.add(j);
-            *xp.add(j) = xj;
+            let col = lp.add(j * ld);
+            let d = *col.add(j);
+            let xj: [f64; R] = std::array::from_fn(|c| *xc[c].add(j) / d);
+            for c in 0..R {
+                *xc[c].add(j) = xj[c];
+            }
             for i in j + 1..r0 {
-                *xp.add(i) -= xj * *c.add(i);
+                let li = *col.add(i);
+                for c in 0..R {
+                    *xc[c].add(i) -= xj[c] * li;
+                }
             }
         }
         if jb == B {
             let cs: [*const f64; B] = std::array::from_fn(|t| lp.add((j0 + t) * ld));
-            let xs: [__m256d; B] = std::array::from_fn(|t| _mm256_set1_pd(*xp.add(j0 + t)));
+            let bc: [[__m256d; R]; B] = std::array::from_fn(|t| {
+                std::array::from_fn(|c| _mm256_set1_pd(*xc[c].add(j0 + t)))
+            });
             let mut i = r0;
             while i + 4 <= m {
-                let mut a = _mm256_loadu_pd(xp.add(i));
+                let mut a: [__m256d; R] = std::array::from_fn(|c| _mm256_loadu_pd(xc[c].add(i)));
                 for t in 0..B {
-                    a = _mm256_fnmadd_pd(xs[t], _mm256_loadu_pd(cs[t].add(i)), a);
+                    let lv = _mm256_loadu_pd(cs[t].add(i));
+                    for c in 0..R {
+                        a[c] = _mm256_fnmadd_pd(bc[t][c], lv, a[c]);
+                    }
                 }
-                _mm256_storeu_pd(xp.add(i), a);
+                for c in 0..R {
+                    _mm256_storeu_pd(xc[c].add(i), a[c]);
+                }
                 i += 4;
             }
             for i in i..m {
-                let mut v = *xp.add(i);
-                for (t, c) in cs.iter().enumerate() {
-                    v -= *xp.add(j0 + t) * *c.add(i);
+                for xp in xc {
+                    let mut v = *xp.add(i);
+                    for (t, col) in cs.iter().enumerate() {
+                        v -= *xp.add(j0 + t) * *col.add(i);
+                    }
+                    *xp.add(i) = v;
                 }
-                *xp.add(i) = v;
             }
         } else {
-            for j in j0..r0 {
-                let xj = *xp.add(j);
-                for i in r0..m {
-                    *xp.add(i) -= xj * *lp.add(j * ld + i);
+            for xp in xc {
+                for j in j0..r0 {
+                    let xj = *xp.add(j);
+                    for i in r0..m {
+                        *xp.add(i) -= xj * *lp.add(j * ld + i);
+                    }
                 }
             }
         }
@@ -458,42 +494,81 @@ unsafe fn gram_solve_avx2(l: &[f64], ld: usize, x: &mut [f64]) {
     while j1 > 0 {
         let jb = B.min(j1);
         let j0 = j1 - jb;
-        let mut acc = [0.0f64; B];
+        let mut acc = [[0.0f64; R]; B];
         if jb == B {
-            let cs: [*const f64; B] = std::array::from_fn(|t| lp.add((j0 + t) * ld));
-            let mut va = [_mm256_setzero_pd(); B];
-            let mut i = j1;
-            while i + 4 <= m {
-                let xv = _mm256_loadu_pd(xp.add(i));
-                for t in 0..B {
-                    va[t] = _mm256_fmadd_pd(_mm256_loadu_pd(cs[t].add(i)), xv, va[t]);
+            for tq in (0..B).step_by(TQ) {
+                let cs: [*const f64; TQ] = std::array::from_fn(|t| lp.add((j0 + tq + t) * ld));
+                let mut va = [[_mm256_setzero_pd(); R]; TQ];
+                let mut i = j1;
+                while i + 4 <= m {
+                    let xv: [__m256d; R] = std::array::from_fn(|c| _mm256_loadu_pd(xc[c].add(i)));
+                    for t in 0..TQ {
+                        let lv = _mm256_loadu_pd(cs[t].add(i));
+                        for c in 0..R {
+                            va[t][c] = _mm256_fmadd_pd(lv, xv[c], va[t][c]);
+                        }
+                    }
+                    i += 4;
                 }
-                i += 4;
-            }
-            for t in 0..B {
-                let mut b = [0.0f64; 4];
-                _mm256_storeu_pd(b.as_mut_ptr(), va[t]);
-                let mut s = (b[0] + b[1]) + (b[2] + b[3]);
-                for r in i..m {
-                    s += *cs[t].add(r) * *xp.add(r);
+                for t in 0..TQ {
+                    for c in 0..R {
+                        let mut b = [0.0f64; 4];
+                        _mm256_storeu_pd(b.as_mut_ptr(), va[t][c]);
+                        let mut s = (b[0] + b[1]) + (b[2] + b[3]);
+                        for r in i..m {
+                            s += *cs[t].add(r) * *xc[c].add(r);
+                        }
+                        acc[tq + t][c] = s;
+                    }
                 }
-                acc[t] = s;
             }
         } else {
             for (t, a) in acc.iter_mut().enumerate().take(jb) {
-                let c = lp.add((j0 + t) * ld);
-                *a = (j1..m).map(|r| *c.add(r) * *xp.add(r)).sum();
+                let col = lp.add((j0 + t) * ld);
+                for c in 0..R {
+                    a[c] = (j1..m).map(|r| *col.add(r) * *xc[c].add(r)).sum();
+                }
             }
         }
         for j in (j0..j1).rev() {
-            let c = lp.add(j * ld);
-            let mut v = *xp.add(j) - acc[j - j0];
+            let col = lp.add(j * ld);
+            let mut v: [f64; R] = std::array::from_fn(|c| *xc[c].add(j) - acc[j - j0][c]);
             for i in j + 1..j1 {
-                v -= *c.add(i) * *xp.add(i);
+                let li = *col.add(i);
+                for c in 0..R {
+                    v[c] -= li * *xc[c].add(i);
+                }
             }
-            *xp.add(j) = v / *c.add(j);
+            let d = *col.add(j);
+            for c in 0..R {
+                *xc[c].add(j) = v[c] / d;
+            }
         }
         j1 = j0;
+    }
+}
+
+/// x ← L⁻ᵀL⁻¹x for the k = x.len() / m columns of the column-major x (m rows, contiguous), four
+/// at a time through [`gram_solve_avx2`].
+///
+/// # Safety
+/// AVX2 and FMA must be present, and `l` must hold m columns `ld` ≥ m apart.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn gram_solve_columns_avx2(l: &[f64], ld: usize, x: &mut [f64], m: usize) {
+    let k = x.len().checked_div(m).unwrap_or(0);
+    let p = x.as_mut_ptr();
+    let mut c = 0;
+    while c + 4 <= k {
+        gram_solve_avx2::<4, 2>(l, ld, p.add(c * m), m, m);
+        c += 4;
+    }
+    let p = p.add(c * m);
+    match k - c {
+        3 => gram_solve_avx2::<3, 2>(l, ld, p, m, m),
+        2 => gram_solve_avx2::<2, 4>(l, ld, p, m, m),
+        1 => gram_solve_avx2::<1, 8>(l, ld, p, m, m),
+        _ => {}
     }
 }
 
@@ -501,11 +576,12 @@ unsafe fn gram_solve_avx2(l: &[f64], ld: usize, x: &mut [f64]) {
 const CHOL_LEAF: usize = 16;
 
 /// A = LLᵀ in place on the lower triangle (the upper one is not read); false when A is not
-/// numerically positive definite. Recursive halving (Gustavson's recursive Cholesky), so that
+/// numerically positive definite. Recursive splitting (Gustavson's recursive Cholesky), so that
 /// nearly all the work is one triangular solve and one symmetric product per level through
-/// faer's kernels (the product itself halved, [`syrk_lower`]). At 600 x 600: 1.43 ms against
-/// 1.60 ms for faer's `cholesky_in_place` on a random SPD matrix, 1.56 against 1.65 ms inside the
-/// BP solve (Intel Xeon); on the AMD EPYC 1.57 against 1.64 (faer's: 1.64).
+/// faer's kernels (the product itself halved, [`syrk_lower`]). At 600 x 600, split in halves:
+/// 1.43 ms against 1.60 ms for faer's `cholesky_in_place` on a random SPD matrix, 1.56 against
+/// 1.65 ms inside the BP solve (Intel Xeon); on the AMD EPYC (Zen 4) 1.57 against 1.64 (faer's:
+/// 1.64); on Zen 3 2.06-2.09 ms, 1.97-1.99 split at three fifths.
 fn cholesky_lower(a: MatMut<'_, f64>) -> bool {
     let n = a.nrows();
     if n <= CHOL_LEAF {
@@ -530,7 +606,10 @@ fn cholesky_lower(a: MatMut<'_, f64>) -> bool {
         }
         return true;
     }
-    let n1 = (n / 2).next_multiple_of(8).min(n - 1);
+    // Three fifths first: at 600 the top-level trsm (faer's, ~36 GF here) is then 360² x 240
+    // and the product it feeds 240² x 360. Measured at 600 on Zen 3 (best of 100, interleaved,
+    // 3 runs): halves 2.06-2.09 ms, 0.55 2.08, 0.6 1.97-1.99, 0.65 2.01-2.03, 0.7 2.01.
+    let n1 = (n * 3 / 5).next_multiple_of(8).min(n - 1);
     let (mut a11, _, mut a21, mut a22) = a.split_at_mut(n1, n1);
     if !cholesky_lower(a11.as_mut()) {
         return false;
@@ -714,31 +793,55 @@ const REFRESH: usize = 16;
 
 /// Long-step ratio test: pass the breakpoints (t, basic variable, slope increase) in increasing t
 /// while the objective still decreases; returns the one where the slope turns non-negative.
-/// Usually only a few are passed, so the minimum is found by scans and the rest sorted only when
-/// many are (a heap of all of them cost ~10 % of the solve).
+/// For the long steps that pass more than [`smallest_breaks`] holds (measured at m = 600: about
+/// two per solve, ~34 of ~340 breakpoints passed), in sorted chunks cut off by selection: a full
+/// sort of them all, after eight minimum scans, was ~25 µs each.
 fn long_step(breaks: &mut [(f64, usize, f64)], mut slope: f64) -> Option<(usize, f64)> {
+    let by = |a: &(f64, usize, f64), b: &(f64, usize, f64)| a.0.total_cmp(&b.0);
     let mut rest = breaks;
-    for _ in 0..8 {
-        let (i, _) = rest
-            .iter()
-            .enumerate()
-            .min_by(|a, b| a.1 .0.total_cmp(&b.1 .0))?;
-        rest.swap(0, i);
-        let (t, b, inc) = rest[0];
-        slope += inc;
-        if slope >= 0.0 {
-            return Some((b, t));
+    let mut chunk = 4 * NEAR_BREAKS;
+    while !rest.is_empty() {
+        let k = chunk.min(rest.len());
+        if k < rest.len() {
+            rest.select_nth_unstable_by(k - 1, by);
         }
-        rest = &mut rest[1..];
-    }
-    rest.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-    for &(t, b, inc) in rest.iter() {
-        slope += inc;
-        if slope >= 0.0 {
-            return Some((b, t));
+        let (head, tail) = rest.split_at_mut(k);
+        head.sort_unstable_by(by);
+        for &(t, b, inc) in head.iter() {
+            slope += inc;
+            if slope >= 0.0 {
+                return Some((b, t));
+            }
         }
+        rest = tail;
+        chunk *= 4;
     }
     None
+}
+
+/// Breakpoints [`smallest_breaks`] collects for the long step's first try.
+const NEAR_BREAKS: usize = 8;
+
+/// The (t, index) of the [`NEAR_BREAKS`] smallest finite breakpoints of `tb` in increasing t
+/// (equal t: lower index first), and how many there are. One pass with a short insertion list:
+/// collecting every breakpoint and scanning for the minimum repeatedly cost ~8 µs per long step
+/// at m = 600 (about one pivot in four).
+fn smallest_breaks(tb: &[f64]) -> ([(f64, usize); NEAR_BREAKS], usize) {
+    let mut near = [(f64::INFINITY, usize::MAX); NEAR_BREAKS];
+    let mut count = 0;
+    for (b, &t) in tb.iter().enumerate() {
+        // The list's last entry is ∞ until it is full: one comparison rejects the rest.
+        if t < near[NEAR_BREAKS - 1].0 {
+            let mut p = count.min(NEAR_BREAKS - 1);
+            while p > 0 && near[p - 1].0 > t {
+                near[p] = near[p - 1];
+                p -= 1;
+            }
+            near[p] = (t, b);
+            count = (count + 1).min(NEAR_BREAKS);
+        }
+    }
+    (near, count)
 }
 
 /// One pass of the ratio test over basic values `x` with directions `d` (times `sj`): the
@@ -917,6 +1020,80 @@ struct Pricer {
     s: Vec<f64>,
 }
 
+/// ĉ_i ← sign(x_i) on the identity rows outside R (`r_pos` = usize::MAX), 0 on R, pushing
+/// (i, new − old) for each row that changes. The definition is [`chat_changes_from`]; with AVX2
+/// the rows are compared four at a time and only a group with a change takes the scalar loop
+/// (the compiled loop branched on the random signs: ~2.2 µs of a ~13 µs pivot at m = 600).
+fn chat_changes(x: &[f64], r_pos: &[usize], chat: &mut [f64], changed: &mut Vec<(usize, f64)>) {
+    assert!(x.len() >= chat.len() && r_pos.len() >= chat.len());
+    #[cfg(target_arch = "x86_64")]
+    if super::simd::has_avx2_fma() {
+        // SAFETY: AVX2 is present (checked); x and r_pos are at least chat's length (asserted).
+        unsafe { chat_changes_avx2(x, r_pos, chat, changed) };
+        return;
+    }
+    chat_changes_from(0, chat.len(), x, r_pos, chat, changed);
+}
+
+/// [`chat_changes`] on the rows `start..end`.
+fn chat_changes_from(
+    start: usize,
+    end: usize,
+    x: &[f64],
+    r_pos: &[usize],
+    chat: &mut [f64],
+    changed: &mut Vec<(usize, f64)>,
+) {
+    for i in start..end {
+        let c = if r_pos[i] == usize::MAX {
+            sign(x[i])
+        } else {
+            0.0
+        };
+        if c != chat[i] {
+            changed.push((i, c - chat[i]));
+            chat[i] = c;
+        }
+    }
+}
+
+/// [`chat_changes`] in AVX2: c = (x ≥ 0 ? 1 : −1) masked to +0 on R, as `sign` and the
+/// scalar loop give it (NaN fails x ≥ 0 in both).
+///
+/// # Safety
+/// AVX2 must be present, and x and r_pos at least chat's length.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn chat_changes_avx2(
+    x: &[f64],
+    r_pos: &[usize],
+    chat: &mut [f64],
+    changed: &mut Vec<(usize, f64)>,
+) {
+    use std::arch::x86_64::*;
+    let m = chat.len();
+    let (one, minus, zero) = (
+        _mm256_set1_pd(1.0),
+        _mm256_set1_pd(-1.0),
+        _mm256_setzero_pd(),
+    );
+    let none = _mm256_set1_epi64x(-1);
+    let mut i = 0;
+    while i + 4 <= m {
+        let xv = _mm256_loadu_pd(x.as_ptr().add(i));
+        let rv = _mm256_loadu_si256(r_pos.as_ptr().add(i) as *const __m256i);
+        let outside = _mm256_castsi256_pd(_mm256_cmpeq_epi64(rv, none));
+        let s = _mm256_blendv_pd(minus, one, _mm256_cmp_pd::<_CMP_GE_OQ>(xv, zero));
+        let c = _mm256_and_pd(s, outside);
+        let old = _mm256_loadu_pd(chat.as_ptr().add(i));
+        if _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NEQ_UQ>(c, old)) != 0 {
+            chat_changes_from(i, i + 4, x, r_pos, chat, changed);
+        }
+        i += 4;
+    }
+    chat_changes_from(i, m, x, r_pos, chat, changed);
+}
+
 /// Changed rows of ĉ beyond which s is recomputed rather than updated.
 const PRICER_ROWS: usize = 24;
 
@@ -926,17 +1103,12 @@ impl Pricer {
     fn update(&mut self, lp: &Restricted, xi: &Col<f64>, full: bool) {
         let m = lp.m;
         let mut changed = Vec::new();
-        for i in 0..m {
-            let c = if lp.r_pos[i] == usize::MAX {
-                sign(xi[i])
-            } else {
-                0.0
-            };
-            if c != self.chat[i] {
-                changed.push((i, c - self.chat[i]));
-                self.chat[i] = c;
-            }
-        }
+        chat_changes(
+            contiguous(xi),
+            &lp.r_pos[..m],
+            &mut self.chat[..m],
+            &mut changed,
+        );
         let old = if full || changed.len() > PRICER_ROWS {
             0
         } else {
@@ -1434,15 +1606,29 @@ fn run<T: Anchor>(
         } else if first.1 != usize::MAX && slope + 2.0 * dir(first.1).abs() >= 0.0 {
             (first.1, first.0)
         } else {
-            // Breakpoints at t = ∞ (d = 0) change no slope: left out.
-            breaks.clear();
-            breaks.extend(
-                tb.iter()
-                    .enumerate()
-                    .filter(|&(_, &t)| t < f64::INFINITY)
-                    .map(|(b, &t)| (t, b, 2.0 * dir(b).abs())),
-            );
-            long_step(&mut breaks, slope)?
+            // Usually the slope turns within the first few breakpoints: those from one pass,
+            // all of them (sorted) only when it does not.
+            let (near, count) = smallest_breaks(&tb);
+            let mut s = slope;
+            let turn = near[..count].iter().find(|&&(_, b)| {
+                s += 2.0 * dir(b).abs();
+                s >= 0.0
+            });
+            match turn {
+                Some(&(t, b)) => (b, t),
+                None if count < NEAR_BREAKS => return None,
+                None => {
+                    // Breakpoints at t = ∞ (d = 0) change no slope: left out.
+                    breaks.clear();
+                    breaks.extend(
+                        tb.iter()
+                            .enumerate()
+                            .filter(|&(_, &t)| t < f64::INFINITY)
+                            .map(|(b, &t)| (t, b, 2.0 * dir(b).abs())),
+                    );
+                    long_step(&mut breaks, slope)?
+                }
+            }
         };
         if dir(b).abs() < 1e-10 * dmax {
             return None;
@@ -1716,8 +1902,9 @@ mod tests {
         }
     }
 
-    /// The one-column Gram solve (its own AVX2 kernel) agrees with faer's triangular pair, for
-    /// sizes around its 8-column blocks and a padded leading dimension.
+    /// The Gram solve's AVX2 kernel agrees with faer's triangular pair, for sizes around its
+    /// 8-column blocks and 4-row vectors, a padded leading dimension, and 1 to 9 right-hand
+    /// sides (groups of 4, then 3, 2 or 1).
     #[test]
     fn gram_solve_kernel_matches_the_triangular_pair() {
         #[cfg(target_arch = "x86_64")]
@@ -1734,25 +1921,106 @@ mod tests {
                         };
                     }
                 }
-                let b: Vec<f64> = (0..m).map(|i| (i as f64 * 0.37).sin() + 0.1).collect();
-                let mut x = b.clone();
-                // SAFETY: AVX2 checked; l holds m columns ld apart.
-                unsafe { gram_solve_avx2(&l, ld, &mut x) };
                 let lt = Mat::<f64>::from_fn(m, m, |i, j| if i >= j { l[j * ld + i] } else { 0.0 });
-                let mut want = Col::<f64>::from_fn(m, |i| b[i]);
-                solve_lower_triangular_in_place(lt.as_ref(), want.as_mat_mut(), Par::Seq);
-                solve_upper_triangular_in_place(lt.transpose(), want.as_mat_mut(), Par::Seq);
-                for i in 0..m {
-                    let tol = 1e-12 * want[i].abs().max(1.0);
-                    assert!(
-                        (x[i] - want[i]).abs() <= tol,
-                        "m = {m}, row {i}: {} vs {}",
-                        x[i],
-                        want[i]
-                    );
+                for k in 1..=9 {
+                    let b: Vec<f64> = (0..m * k).map(|i| (i as f64 * 0.37).sin() + 0.1).collect();
+                    let mut x = b.clone();
+                    // SAFETY: AVX2 checked; l holds m columns ld apart.
+                    unsafe { gram_solve_columns_avx2(&l, ld, &mut x, m) };
+                    let mut want = Mat::<f64>::from_fn(m, k, |i, c| b[c * m + i]);
+                    solve_lower_triangular_in_place(lt.as_ref(), want.as_mut(), Par::Seq);
+                    solve_upper_triangular_in_place(lt.transpose(), want.as_mut(), Par::Seq);
+                    for c in 0..k {
+                        for i in 0..m {
+                            let (got, w) = (x[c * m + i], want[(i, c)]);
+                            let tol = 1e-12 * w.abs().max(1.0);
+                            assert!(
+                                (got - w).abs() <= tol,
+                                "m = {m}, k = {k}, column {c}, row {i}: {got} vs {w}"
+                            );
+                        }
+                    }
                 }
             }
         }
+    }
+
+    /// The long step passes breakpoints in increasing t until the slope turns, across its sorted
+    /// chunks, and reports none when the slope never turns.
+    #[test]
+    fn long_step_passes_breakpoints_in_order() {
+        let n = 700;
+        let breaks: Vec<(f64, usize, f64)> = (0..n)
+            .map(|b| (((b * 389) % n) as f64 + 0.5, b, 1.0 + (b % 3) as f64))
+            .collect();
+        let mut sorted = breaks.clone();
+        sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let total: f64 = breaks.iter().map(|b| b.2).sum();
+        for passed in [0usize, 1, 7, 31, 32, 33, 200, 699] {
+            // A slope that turns exactly at the `passed`-th breakpoint (0-based).
+            let before: f64 = sorted[..passed].iter().map(|b| b.2).sum();
+            let slope = -(before + 0.5 * sorted[passed].2);
+            let mut work = breaks.clone();
+            let want = (sorted[passed].1, sorted[passed].0);
+            assert_eq!(long_step(&mut work, slope), Some(want), "passed {passed}");
+        }
+        let mut work = breaks.clone();
+        assert_eq!(long_step(&mut work, -total - 1.0), None);
+    }
+
+    /// The long step's first breakpoints are the smallest finite ones in increasing t, equal t
+    /// by lower index, however many (or few) there are.
+    #[test]
+    fn smallest_breaks_are_the_sorted_head() {
+        let inf = f64::INFINITY;
+        for len in [0usize, 1, 5, 8, 9, 40, 611] {
+            let tb: Vec<f64> = (0..len)
+                .map(|b| match (b * 37) % 11 {
+                    0..=2 => inf,
+                    k => ((b * 13) % 7) as f64 * 0.25 + k as f64 * 1e-3 * ((b % 3) as f64),
+                })
+                .collect();
+            let mut want: Vec<(f64, usize)> = tb
+                .iter()
+                .enumerate()
+                .filter(|(_, t)| t.is_finite())
+                .map(|(b, &t)| (t, b))
+                .collect();
+            want.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            want.truncate(NEAR_BREAKS);
+            let (near, count) = smallest_breaks(&tb);
+            assert_eq!(&near[..count], &want[..], "len {len}");
+        }
+    }
+
+    /// The vector scan of ĉ finds the same changes as the scalar definition, on R and off it,
+    /// for signs of every kind (±0, NaN) and a length that leaves a tail.
+    #[test]
+    fn chat_changes_match_the_scalar_loop() {
+        let m = 23;
+        let x: Vec<f64> = (0..m)
+            .map(|i| match i % 6 {
+                0 => 0.0,
+                1 => -0.0,
+                2 => f64::NAN,
+                3 => -(i as f64),
+                _ => i as f64 * 0.5,
+            })
+            .collect();
+        let r_pos: Vec<usize> = (0..m)
+            .map(|i| if i % 5 == 0 { i / 5 } else { usize::MAX })
+            .collect();
+        let start: Vec<f64> = (0..m).map(|i| [1.0, -1.0, 0.0][i % 3]).collect();
+        let (mut got, mut want) = (start.clone(), start);
+        let (mut got_changes, mut want_changes) = (Vec::new(), Vec::new());
+        chat_changes(&x, &r_pos, &mut got, &mut got_changes);
+        chat_changes_from(0, m, &x, &r_pos, &mut want, &mut want_changes);
+        assert_eq!(got_changes, want_changes);
+        assert!(!want_changes.is_empty());
+        assert_eq!(
+            got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            want.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
     }
 
     /// The recursive Cholesky reproduces A = LLᵀ past its leaf size and refuses an indefinite
