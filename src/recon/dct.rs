@@ -322,7 +322,6 @@ pub struct Makhoul<T: FftNum> {
     v: Vec<T>,
     spec: Vec<Complex<T>>,
     scratch: Vec<Complex<T>>,
-    /// (cos, sin) of πk/2n, k ≤ n/2.
     /// e^(iπk/2n) for k ≤ n/2.
     twiddle: Vec<Complex<T>>,
     s0: T,

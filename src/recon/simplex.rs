@@ -788,12 +788,45 @@ const GENERATE_MAX: usize = 32;
 /// Pivots between recomputations of the basic solution from scratch (the running update drifts).
 const REFRESH: usize = 16;
 
-/// Long-step ratio test: pass the breakpoints (t, basic variable, slope increase) in increasing t
-/// while the objective still decreases; returns the one where the slope turns non-negative.
-/// For the long steps that pass more than [`smallest_breaks`] holds (measured at m = 600: about
-/// two per solve, ~34 of ~340 breakpoints passed), in sorted chunks cut off by selection: a full
-/// sort of them all, after eight minimum scans, was ~25 µs each.
-fn long_step(breaks: &mut [(f64, usize, f64)], mut slope: f64) -> Option<(usize, f64)> {
+/// Long-step ratio test over the breakpoints `tb` (t per basic variable, ∞ for none) with slope
+/// increases `inc(b)`: pass them in increasing t (equal t: lower index first) while the objective
+/// still decreases; returns (b, t) where the slope turns non-negative. Usually it turns within
+/// the first few, which [`smallest_breaks`] finds in one pass; only otherwise are all of them
+/// collected into `breaks` and passed by [`pass_in_order`].
+fn long_step(
+    tb: &[f64],
+    inc: impl Fn(usize) -> f64,
+    slope: f64,
+    breaks: &mut Vec<(f64, usize, f64)>,
+) -> Option<(usize, f64)> {
+    let (near, count) = smallest_breaks(tb);
+    let mut s = slope;
+    for &(t, b) in &near[..count] {
+        s += inc(b);
+        if s >= 0.0 {
+            return Some((b, t));
+        }
+    }
+    if count < NEAR_BREAKS {
+        return None;
+    }
+    // Breakpoints at t = ∞ (d = 0) change no slope: left out.
+    breaks.clear();
+    breaks.extend(
+        tb.iter()
+            .enumerate()
+            .filter(|&(_, &t)| t < f64::INFINITY)
+            .map(|(b, &t)| (t, b, inc(b))),
+    );
+    pass_in_order(breaks, slope)
+}
+
+/// Passes the breakpoints (t, basic variable, slope increase) in increasing t from `slope` until
+/// it turns non-negative; returns that one. For the long steps that pass more than
+/// [`smallest_breaks`] holds (measured at m = 600: about two per solve, ~34 of ~340 breakpoints
+/// passed), in sorted chunks cut off by selection: a full sort of them all, after eight minimum
+/// scans, was ~25 µs each.
+fn pass_in_order(breaks: &mut [(f64, usize, f64)], mut slope: f64) -> Option<(usize, f64)> {
     let by = |a: &(f64, usize, f64), b: &(f64, usize, f64)| a.0.total_cmp(&b.0);
     let mut rest = breaks;
     let mut chunk = 4 * NEAR_BREAKS;
@@ -1603,29 +1636,7 @@ fn run<T: Anchor>(
         } else if first.1 != usize::MAX && slope + 2.0 * dir(first.1).abs() >= 0.0 {
             (first.1, first.0)
         } else {
-            // Usually the slope turns within the first few breakpoints: those from one pass,
-            // all of them (sorted) only when it does not.
-            let (near, count) = smallest_breaks(&tb);
-            let mut s = slope;
-            let turn = near[..count].iter().find(|&&(_, b)| {
-                s += 2.0 * dir(b).abs();
-                s >= 0.0
-            });
-            match turn {
-                Some(&(t, b)) => (b, t),
-                None if count < NEAR_BREAKS => return None,
-                None => {
-                    // Breakpoints at t = ∞ (d = 0) change no slope: left out.
-                    breaks.clear();
-                    breaks.extend(
-                        tb.iter()
-                            .enumerate()
-                            .filter(|&(_, &t)| t < f64::INFINITY)
-                            .map(|(b, &t)| (t, b, 2.0 * dir(b).abs())),
-                    );
-                    long_step(&mut breaks, slope)?
-                }
-            }
+            long_step(&tb, |b| 2.0 * dir(b).abs(), slope, &mut breaks)?
         };
         if dir(b).abs() < 1e-10 * dmax {
             return None;
@@ -1942,8 +1953,8 @@ mod tests {
         }
     }
 
-    /// The long step passes breakpoints in increasing t until the slope turns, across its sorted
-    /// chunks, and reports none when the slope never turns.
+    /// The long step's fallback passes breakpoints in increasing t until the slope turns, across
+    /// its sorted chunks, and reports none when the slope never turns.
     #[test]
     fn long_step_passes_breakpoints_in_order() {
         let n = 700;
@@ -1959,10 +1970,14 @@ mod tests {
             let slope = -(before + 0.5 * sorted[passed].2);
             let mut work = breaks.clone();
             let want = (sorted[passed].1, sorted[passed].0);
-            assert_eq!(long_step(&mut work, slope), Some(want), "passed {passed}");
+            assert_eq!(
+                pass_in_order(&mut work, slope),
+                Some(want),
+                "passed {passed}"
+            );
         }
         let mut work = breaks.clone();
-        assert_eq!(long_step(&mut work, -total - 1.0), None);
+        assert_eq!(pass_in_order(&mut work, -total - 1.0), None);
     }
 
     /// The long step's first breakpoints are the smallest finite ones in increasing t, equal t
