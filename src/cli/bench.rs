@@ -223,13 +223,13 @@ fn dct_pairs(repeat: usize) -> serde_json::Value {
         // with every 3rd grid point sampled; compare with the f32 pair above.
         if let Some(f) = d.rader_admm() {
             let idx: Vec<usize> = (0..n).step_by(3).collect();
-            let samples = f.samples(&idx);
             let h: Vec<f32> = idx.iter().map(|&i| (i as f32 * 0.1).cos()).collect();
+            let samples = f.samples(&idx, &h);
             let mut v = vec![0.0f32; n];
             let mut x: Vec<f32> = (0..n).map(|i| (i as f32 * 0.37).sin()).collect();
             let us = time_pairs(n, &mut || {
                 std::mem::swap(&mut v, &mut x);
-                f.project(&v, &samples, &h, &mut x);
+                f.project(&v, &samples, &mut x);
             });
             rows.push(json!({
                 "n": n, "backend": "rader_order_f32_projection", "real_fft": real_fft,

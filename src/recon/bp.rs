@@ -450,10 +450,10 @@ fn admm_single(
     let hs: Vec<f32> = h.iter().map(|&v| v as f32).collect();
     let (inv, a) = ((1.0 / rho) as f32, alpha as f32);
     if let Some(f) = dct.rader_admm() {
-        let samples = f.samples(idx);
+        let samples = f.samples(idx, &hs);
         let z = f.to_layout(z0);
         let (z, u, done) = ranking_loop(z, a, inv, iters, stable_iter, |v, x| {
-            f.project(v, &samples, &hs, x)
+            f.project(v, &samples, x)
         });
         return (f.to_natural(&z), f.to_natural(&u), done);
     }
