@@ -324,7 +324,9 @@ impl Gram {
 }
 
 /// Right-hand sides from which [`Gram::solve_gram`] takes faer's blocked triangular solves
-/// instead of [`gram_solve_avx2`] (measured at m = 600 on Zen 3: level at 8 columns).
+/// instead of [`gram_solve_columns_avx2`] (measured at m = 600 on Zen 3: level at 8 columns;
+/// with L's panels shared by the groups, the kernel for the first block of 33 columns still
+/// cost ~0.1 ms more per BP solve than faer).
 const GRAM_KERNEL_COLS: usize = 8;
 
 thread_local! {
@@ -398,155 +400,19 @@ unsafe fn gram_lower_avx2(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
     }
 }
 
-/// x ← L⁻ᵀL⁻¹x for the lower triangle of the column-major `l` (leading dimension `ld`), for R
-/// right-hand sides at once: the columns of `x`, `ldx` apart, m rows each. In blocks of 8
-/// columns of L (the forward sweep updates the rows below a block from its 8 columns at once;
-/// the backward sweep takes TQ·R dot products per pass over the rows, TQ·R ≤ 8 accumulators),
-/// so that L streams through once per sweep for all R. With R = 1 this is the one-column kernel
-/// the pricing and refinement solves take: at m = 600 (L 2.9 MB, out of L2) 41-44 µs against
-/// 67-70 µs for faer's pair of `solve_*_triangular_in_place` (AMD EPYC, Zen 4). With R = 4 a
-/// column costs about a quarter of that, where faer's pair on a few columns costs nearly its
-/// one-column time per column (Zen 3, best of 200: 4 columns 103 against 171 µs, 2 columns 60
-/// against 146; from ~8 columns faer's blocked solves are faster).
+/// x ← L⁻ᵀL⁻¹x for the lower triangle of the column-major `l` (leading dimension `ld`) and the
+/// k = x.len() / m columns of the column-major x (m rows, contiguous). L is taken in panels of
+/// 8 columns; each panel serves every right-hand side, in groups of 4 (then 3, 2 or 1), before
+/// the next, so that L streams through once per sweep however many columns there are, and a
+/// panel (38 KB at m = 600) is reread from L2 by the groups after the first. The forward sweep
+/// updates the rows below a panel from its 8 columns at once; the backward sweep takes TQ·R dot
+/// products per pass over the rows (TQ·R ≤ 8 accumulators).
 ///
-/// # Safety
-/// AVX2 and FMA must be present, `l` must hold m columns `ld` ≥ m apart, and x must point to R
-/// columns of m entries, `ldx` apart.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn gram_solve_avx2<const R: usize, const TQ: usize>(
-    l: &[f64],
-    ld: usize,
-    x: *mut f64,
-    ldx: usize,
-    m: usize,
-) {
-    use std::arch::x86_64::*;
-    const B: usize = 8;
-    debug_assert!(m == 0 || l.len() >= (m - 1) * ld + m);
-    let lp = l.as_ptr();
-    let xc: [*mut f64; R] = std::array::from_fn(|c| x.add(c * ldx));
-    // Forward: L y = x. The right-hand sides interleave in the scalar parts, so that their
-    // division chains overlap.
-    let mut j0 = 0;
-    while j0 < m {
-        let jb = B.min(m - j0);
-        let r0 = j0 + jb;
-        for j in j0..r0 {
-            let col = lp.add(j * ld);
-            let d = *col.add(j);
-            let xj: [f64; R] = std::array::from_fn(|c| *xc[c].add(j) / d);
-            for c in 0..R {
-                *xc[c].add(j) = xj[c];
-            }
-            for i in j + 1..r0 {
-                let li = *col.add(i);
-                for c in 0..R {
-                    *xc[c].add(i) -= xj[c] * li;
-                }
-            }
-        }
-        if jb == B {
-            let cs: [*const f64; B] = std::array::from_fn(|t| lp.add((j0 + t) * ld));
-            let bc: [[__m256d; R]; B] = std::array::from_fn(|t| {
-                std::array::from_fn(|c| _mm256_set1_pd(*xc[c].add(j0 + t)))
-            });
-            let mut i = r0;
-            while i + 4 <= m {
-                let mut a: [__m256d; R] = std::array::from_fn(|c| _mm256_loadu_pd(xc[c].add(i)));
-                for t in 0..B {
-                    let lv = _mm256_loadu_pd(cs[t].add(i));
-                    for c in 0..R {
-                        a[c] = _mm256_fnmadd_pd(bc[t][c], lv, a[c]);
-                    }
-                }
-                for c in 0..R {
-                    _mm256_storeu_pd(xc[c].add(i), a[c]);
-                }
-                i += 4;
-            }
-            for i in i..m {
-                for xp in xc {
-                    let mut v = *xp.add(i);
-                    for (t, col) in cs.iter().enumerate() {
-                        v -= *xp.add(j0 + t) * *col.add(i);
-                    }
-                    *xp.add(i) = v;
-                }
-            }
-        } else {
-            for xp in xc {
-                for j in j0..r0 {
-                    let xj = *xp.add(j);
-                    for i in r0..m {
-                        *xp.add(i) -= xj * *lp.add(j * ld + i);
-                    }
-                }
-            }
-        }
-        j0 = r0;
-    }
-    // Backward: Lᵀ z = y, blocks from the bottom.
-    let mut j1 = m;
-    while j1 > 0 {
-        let jb = B.min(j1);
-        let j0 = j1 - jb;
-        let mut acc = [[0.0f64; R]; B];
-        if jb == B {
-            for tq in (0..B).step_by(TQ) {
-                let cs: [*const f64; TQ] = std::array::from_fn(|t| lp.add((j0 + tq + t) * ld));
-                let mut va = [[_mm256_setzero_pd(); R]; TQ];
-                let mut i = j1;
-                while i + 4 <= m {
-                    let xv: [__m256d; R] = std::array::from_fn(|c| _mm256_loadu_pd(xc[c].add(i)));
-                    for t in 0..TQ {
-                        let lv = _mm256_loadu_pd(cs[t].add(i));
-                        for c in 0..R {
-                            va[t][c] = _mm256_fmadd_pd(lv, xv[c], va[t][c]);
-                        }
-                    }
-                    i += 4;
-                }
-                for t in 0..TQ {
-                    for c in 0..R {
-                        let mut b = [0.0f64; 4];
-                        _mm256_storeu_pd(b.as_mut_ptr(), va[t][c]);
-                        let mut s = (b[0] + b[1]) + (b[2] + b[3]);
-                        for r in i..m {
-                            s += *cs[t].add(r) * *xc[c].add(r);
-                        }
-                        acc[tq + t][c] = s;
-                    }
-                }
-            }
-        } else {
-            for (t, a) in acc.iter_mut().enumerate().take(jb) {
-                let col = lp.add((j0 + t) * ld);
-                for c in 0..R {
-                    a[c] = (j1..m).map(|r| *col.add(r) * *xc[c].add(r)).sum();
-                }
-            }
-        }
-        for j in (j0..j1).rev() {
-            let col = lp.add(j * ld);
-            let mut v: [f64; R] = std::array::from_fn(|c| *xc[c].add(j) - acc[j - j0][c]);
-            for i in j + 1..j1 {
-                let li = *col.add(i);
-                for c in 0..R {
-                    v[c] -= li * *xc[c].add(i);
-                }
-            }
-            let d = *col.add(j);
-            for c in 0..R {
-                *xc[c].add(j) = v[c] / d;
-            }
-        }
-        j1 = j0;
-    }
-}
-
-/// x ← L⁻ᵀL⁻¹x for the k = x.len() / m columns of the column-major x (m rows, contiguous), four
-/// at a time through [`gram_solve_avx2`].
+/// With one column this is the kernel the pricing and refinement solves take: at m = 600 (L
+/// 2.9 MB, out of L2) 41-44 µs against 67-70 µs for faer's pair of `solve_*_triangular_in_place`
+/// (AMD EPYC, Zen 4). With 4 a column costs about a quarter of that, where faer's pair on a few
+/// columns costs nearly its one-column time per column (Zen 3, best of 200: 4 columns 103
+/// against 171 µs, 2 columns 60 against 146).
 ///
 /// # Safety
 /// AVX2 and FMA must be present, and `l` must hold m columns `ld` ≥ m apart.
@@ -554,18 +420,184 @@ unsafe fn gram_solve_avx2<const R: usize, const TQ: usize>(
 #[target_feature(enable = "avx2,fma")]
 unsafe fn gram_solve_columns_avx2(l: &[f64], ld: usize, x: &mut [f64], m: usize) {
     let k = x.len().checked_div(m).unwrap_or(0);
-    let p = x.as_mut_ptr();
-    let mut c = 0;
-    while c + 4 <= k {
-        gram_solve_avx2::<4, 2>(l, ld, p.add(c * m), m, m);
-        c += 4;
+    assert!(m == 0 || l.len() >= (m - 1) * ld + m);
+    let (lp, xp) = (l.as_ptr(), x.as_mut_ptr());
+    let group = |c: usize| -> [*mut f64; 4] { std::array::from_fn(|r| xp.add((c + r) * m)) };
+    let (full, rest) = (k / 4 * 4, k % 4);
+    let mut j0 = 0;
+    while j0 < m {
+        for c in (0..full).step_by(4) {
+            forward_panel::<4>(lp, ld, group(c), j0, m);
+        }
+        let g = group(full);
+        match rest {
+            3 => forward_panel::<3>(lp, ld, [g[0], g[1], g[2]], j0, m),
+            2 => forward_panel::<2>(lp, ld, [g[0], g[1]], j0, m),
+            1 => forward_panel::<1>(lp, ld, [g[0]], j0, m),
+            _ => {}
+        }
+        j0 += PANEL.min(m - j0);
     }
-    let p = p.add(c * m);
-    match k - c {
-        3 => gram_solve_avx2::<3, 2>(l, ld, p, m, m),
-        2 => gram_solve_avx2::<2, 4>(l, ld, p, m, m),
-        1 => gram_solve_avx2::<1, 8>(l, ld, p, m, m),
-        _ => {}
+    let mut j1 = m;
+    while j1 > 0 {
+        for c in (0..full).step_by(4) {
+            backward_panel::<4, 2>(lp, ld, group(c), j1, m);
+        }
+        let g = group(full);
+        match rest {
+            3 => backward_panel::<3, 2>(lp, ld, [g[0], g[1], g[2]], j1, m),
+            2 => backward_panel::<2, 4>(lp, ld, [g[0], g[1]], j1, m),
+            1 => backward_panel::<1, 8>(lp, ld, [g[0]], j1, m),
+            _ => {}
+        }
+        j1 -= PANEL.min(j1);
+    }
+}
+
+/// Columns of L per panel of [`gram_solve_columns_avx2`].
+const PANEL: usize = 8;
+
+/// The forward sweep (L y = x) over the panel of L's columns from j0, for the R right-hand sides
+/// `xc` (m entries each).
+///
+/// # Safety
+/// As [`gram_solve_columns_avx2`]; `xc` point to R columns of m entries.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn forward_panel<const R: usize>(
+    lp: *const f64,
+    ld: usize,
+    xc: [*mut f64; R],
+    j0: usize,
+    m: usize,
+) {
+    use std::arch::x86_64::*;
+    const B: usize = PANEL;
+    let jb = B.min(m - j0);
+    let r0 = j0 + jb;
+    // The right-hand sides interleave in the scalar part, so that their division chains overlap.
+    for j in j0..r0 {
+        let col = lp.add(j * ld);
+        let d = *col.add(j);
+        let xj: [f64; R] = std::array::from_fn(|c| *xc[c].add(j) / d);
+        for c in 0..R {
+            *xc[c].add(j) = xj[c];
+        }
+        for i in j + 1..r0 {
+            let li = *col.add(i);
+            for c in 0..R {
+                *xc[c].add(i) -= xj[c] * li;
+            }
+        }
+    }
+    if jb == B {
+        let cs: [*const f64; B] = std::array::from_fn(|t| lp.add((j0 + t) * ld));
+        let bc: [[__m256d; R]; B] =
+            std::array::from_fn(|t| std::array::from_fn(|c| _mm256_set1_pd(*xc[c].add(j0 + t))));
+        let mut i = r0;
+        while i + 4 <= m {
+            let mut a: [__m256d; R] = std::array::from_fn(|c| _mm256_loadu_pd(xc[c].add(i)));
+            for t in 0..B {
+                let lv = _mm256_loadu_pd(cs[t].add(i));
+                for c in 0..R {
+                    a[c] = _mm256_fnmadd_pd(bc[t][c], lv, a[c]);
+                }
+            }
+            for c in 0..R {
+                _mm256_storeu_pd(xc[c].add(i), a[c]);
+            }
+            i += 4;
+        }
+        for i in i..m {
+            for xp in xc {
+                let mut v = *xp.add(i);
+                for (t, col) in cs.iter().enumerate() {
+                    v -= *xp.add(j0 + t) * *col.add(i);
+                }
+                *xp.add(i) = v;
+            }
+        }
+    } else {
+        for xp in xc {
+            for j in j0..r0 {
+                let xj = *xp.add(j);
+                for i in r0..m {
+                    *xp.add(i) -= xj * *lp.add(j * ld + i);
+                }
+            }
+        }
+    }
+}
+
+/// The backward sweep (Lᵀ z = y) over the panel of L's columns that ends at j1, for the R
+/// right-hand sides `xc`.
+///
+/// # Safety
+/// As [`forward_panel`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn backward_panel<const R: usize, const TQ: usize>(
+    lp: *const f64,
+    ld: usize,
+    xc: [*mut f64; R],
+    j1: usize,
+    m: usize,
+) {
+    use std::arch::x86_64::*;
+    const B: usize = PANEL;
+    let jb = B.min(j1);
+    let j0 = j1 - jb;
+    let mut acc = [[0.0f64; R]; B];
+    if jb == B {
+        for tq in (0..B).step_by(TQ) {
+            let cs: [*const f64; TQ] = std::array::from_fn(|t| lp.add((j0 + tq + t) * ld));
+            let mut va = [[_mm256_setzero_pd(); R]; TQ];
+            let mut i = j1;
+            while i + 4 <= m {
+                let xv: [__m256d; R] = std::array::from_fn(|c| _mm256_loadu_pd(xc[c].add(i)));
+                for t in 0..TQ {
+                    let lv = _mm256_loadu_pd(cs[t].add(i));
+                    for c in 0..R {
+                        va[t][c] = _mm256_fmadd_pd(lv, xv[c], va[t][c]);
+                    }
+                }
+                i += 4;
+            }
+            for t in 0..TQ {
+                for c in 0..R {
+                    let mut b = [0.0f64; 4];
+                    _mm256_storeu_pd(b.as_mut_ptr(), va[t][c]);
+                    let mut s = (b[0] + b[1]) + (b[2] + b[3]);
+                    for r in i..m {
+                        s += *cs[t].add(r) * *xc[c].add(r);
+                    }
+                    acc[tq + t][c] = s;
+                }
+            }
+        }
+    } else {
+        for (t, a) in acc.iter_mut().enumerate().take(jb) {
+            let col = lp.add((j0 + t) * ld);
+            for c in 0..R {
+                a[c] = (j1..m).map(|r| *col.add(r) * *xc[c].add(r)).sum();
+            }
+        }
+    }
+    for j in (j0..j1).rev() {
+        let col = lp.add(j * ld);
+        let mut v: [f64; R] = std::array::from_fn(|c| *xc[c].add(j) - acc[j - j0][c]);
+        for i in j + 1..j1 {
+            let li = *col.add(i);
+            for c in 0..R {
+                v[c] -= li * *xc[c].add(i);
+            }
+        }
+        let d = *col.add(j);
+        for c in 0..R {
+            *xc[c].add(j) = v[c] / d;
+        }
     }
 }
 
@@ -1930,7 +1962,8 @@ mod tests {
                     }
                 }
                 let lt = Mat::<f64>::from_fn(m, m, |i, j| if i >= j { l[j * ld + i] } else { 0.0 });
-                for k in 1..=9 {
+                // 1-4 columns (one group), 5-9 (a group of 4 then the rest), 12 (three groups).
+                for k in (1..=9).chain([12]) {
                     let b: Vec<f64> = (0..m * k).map(|i| (i as f64 * 0.37).sin() + 0.1).collect();
                     let mut x = b.clone();
                     // SAFETY: AVX2 checked; l holds m columns ld apart.
