@@ -276,7 +276,9 @@ impl Split {
         // Vector 0 holds the octaves below 8, each mirrored within itself.
         let v0_idx = _mm256_setr_epi32(0, 1, 3, 2, 7, 6, 5, 4);
         let vecs = self.zr.len() / 8;
-        let lens = [&self.zi, &self.wr, &self.wi, &self.pr, &self.pi, &self.qr, &self.qi];
+        let lens = [
+            &self.zi, &self.wr, &self.wi, &self.pr, &self.pi, &self.qr, &self.qi,
+        ];
         assert!(lens.iter().all(|t| t.len() == 8 * vecs));
         let (zr, zi) = (self.zr.as_ptr(), self.zi.as_ptr());
         let (wr, wi) = (self.wr.as_mut_ptr(), self.wi.as_mut_ptr());
