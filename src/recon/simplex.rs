@@ -233,20 +233,16 @@ impl<T: Real> Anchor for Basis<T> {
 /// with the products by B₀ and B₀ᵀ through the transforms. κ(G) = κ(B₀)² (~4e6 at m = 600,
 /// n = 1901) leaves ~1e-9 relative error in f64, against ~1e-4 for the f32 LU of B₀.
 ///
-/// G is held with its columns in increasing frequency (`sorted`), so that j − k ≥ 0 below the
-/// diagonal; `order` maps back to the caller's support order.
+/// The support comes in increasing frequency (`finish` sorts S₀), so that j − k ≥ 0 below the
+/// diagonal of G and its solves need no permutation.
 struct Gram {
     /// L (column-major m x m, lower triangle) with G = LLᵀ, in `l_buf[l_off..]` with columns
     /// `l_ld` apart.
     l_buf: Vec<f64>,
     l_off: usize,
     l_ld: usize,
+    /// The support, in increasing frequency.
     sorted: Vec<usize>,
-    /// sorted[j] = support[order[j]], and pos[order[j]] = j.
-    order: Vec<usize>,
-    pos: Vec<usize>,
-    /// The caller's support was sorted already (order and pos are the identity).
-    in_order: bool,
     /// c_k²·½g(d) for d < 2n (c_k = √(2/n), the DCT weight of k > 0).
     half_g: Vec<f64>,
     /// c_0 / c_k: frequency 0's weight relative to the others.
@@ -268,8 +264,7 @@ impl Gram {
         }
     }
 
-    /// Appends G⁻¹B₀ᵀA_ks to `out` (column after column, rows in the caller's support order);
-    /// with w (= B₀ᵀ of something, on all n frequencies) also returns G⁻¹w_S, in the same order.
+    /// Appends G⁻¹B₀ᵀA_ks to `out` (column after column, rows in support order); with w (= B₀ᵀ of something, on all n frequencies) also returns G⁻¹w_S, in the same order.
     /// The sorted-order work block is the thread's last one: at m = 600 it is ~250 KB, which
     /// malloc serves by a fresh mmap, and faulting its pages in at every solve cost more than
     /// the copy (with T's growth, ~117 page faults per solve).
@@ -289,17 +284,8 @@ impl Gram {
             a.extend(self.sorted.iter().map(|&f| w[f]));
         }
         self.solve_gram(MatMut::from_column_major_slice_mut(&mut a, m, nc));
-        // Back to the caller's row order, on slices (faer's per-entry `from_fn` with bounds
-        // checks took ~57 µs for 600 x 53 here).
-        out.reserve(m * k);
-        if self.in_order {
-            out.extend_from_slice(&a[..m * k]);
-        } else {
-            for src in a.chunks_exact(m).take(k) {
-                out.extend(self.pos.iter().map(|&p| src[p]));
-            }
-        }
-        let last = w.map(|_| Col::<f64>::from_fn(m, |r| a[k * m + self.pos[r]]));
+        out.extend_from_slice(&a[..m * k]);
+        let last = w.map(|_| Col::<f64>::from_fn(m, |r| a[k * m + r]));
         BLOCK_SPARE.set(a);
         last
     }
@@ -706,9 +692,11 @@ impl Gram {
             half_g[d] = v;
             half_g[2 * n - d] = -v;
         }
-        let mut order: Vec<usize> = (0..m).collect();
-        order.sort_unstable_by_key(|&a| support[a]);
-        let sorted: Vec<usize> = order.iter().map(|&a| support[a]).collect();
+        assert!(
+            support.is_sorted(),
+            "the Gram anchor's support in increasing frequency"
+        );
+        let sorted = support.to_vec();
         let s32: Vec<u32> = sorted.iter().map(|&k| k as u32).collect();
         // Columns on 64-byte lines: faer's kernels load them without splitting lines. The
         // buffer is the thread's last one: only the lower triangle is written and read, so
@@ -734,18 +722,11 @@ impl Gram {
         if !diagonal_spread_within((0..m).map(|i| l[i * ld + i]), 1e-6) {
             return None;
         }
-        let mut pos = vec![0; m];
-        for (j, &a) in order.iter().enumerate() {
-            pos[a] = j;
-        }
         Some(Self {
             l_buf,
             l_off,
             l_ld: ld,
             sorted,
-            in_order: support.is_sorted(),
-            order,
-            pos,
             half_g,
             w0: r0,
         })
@@ -759,19 +740,15 @@ impl Anchor for Gram {
     fn solve(&self, dct: &mut Dct, idx: &[usize], x: &mut Col<f64>) {
         let mut w = vec![0.0; dct.len()];
         dct.adjoint(idx, |r| x[r], &mut w);
-        let mut v = Col::<f64>::from_fn(self.sorted.len(), |j| w[self.sorted[j]]);
-        self.solve_gram(v.as_mat_mut());
-        for (j, &a) in self.order.iter().enumerate() {
-            x[a] = v[j];
-        }
+        *x = Col::<f64>::from_fn(self.sorted.len(), |j| w[self.sorted[j]]);
+        self.solve_gram(x.as_mat_mut());
     }
 
     fn solve_transpose(&self, dct: &mut Dct, idx: &[usize], c: &mut Col<f64>) {
-        let mut v = Col::<f64>::from_fn(self.order.len(), |j| c[self.order[j]]);
-        self.solve_gram(v.as_mat_mut());
+        self.solve_gram(c.as_mat_mut());
         let mut theta = vec![0.0; dct.len()];
         for (j, &k) in self.sorted.iter().enumerate() {
-            theta[k] = v[j];
+            theta[k] = c[j];
         }
         let y = dct.sample(&mut theta, idx);
         for (r, v) in y.into_iter().enumerate() {
@@ -1437,9 +1414,8 @@ pub fn finish(
         Factoring::Single
     };
     for anchor in 0..MAX_ANCHORS {
-        // S₀ in increasing frequency, the Gram anchor's own order: its block solves then come
-        // back in the caller's order without a permutation (the basis is a set; the pivots
-        // on the 20 bench curves at m = 600 are the same).
+        // S₀ in increasing frequency, the order the Gram anchor takes it in (the basis is a
+        // set; the pivots on the 20 bench curves at m = 600 are the same).
         ranked[..m].sort_unstable();
         let s0 = &ranked[..m];
         let outcome = match how {
@@ -1871,6 +1847,7 @@ mod tests {
         let mut support: Vec<usize> = (0..m).map(|c| (c * 7) % 41).collect();
         support[5] = 96;
         support[9] = 90;
+        support.sort_unstable();
         assert!(support.contains(&0));
         let lu = Basis::<f64>::factor(&dct, &idx, &support).expect("non-singular");
         let gram = Gram::factor(&mut dct, &idx, &support).expect("positive definite");
