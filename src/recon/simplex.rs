@@ -264,29 +264,32 @@ impl Gram {
         }
     }
 
-    /// Appends G⁻¹B₀ᵀA_ks to `out` (column after column, rows in support order); with w (= B₀ᵀ of something, on all n frequencies) also returns G⁻¹w_S, in the same order.
-    /// The sorted-order work block is the thread's last one: at m = 600 it is ~250 KB, which
-    /// malloc serves by a fresh mmap, and faulting its pages in at every solve cost more than
-    /// the copy (with T's growth, ~117 page faults per solve).
+    /// Appends G⁻¹B₀ᵀA_ks to `out` (column after column, rows in support order); with w (= B₀ᵀ of
+    /// something, on all n frequencies) also returns G⁻¹w_S, in the same order. Solved in place
+    /// at the end of `out` (w's column taken off again after), which is T: the caller's buffer,
+    /// kept from solve to solve (a fresh ~250 KB block at m = 600 came from mmap, and faulting
+    /// its pages in at every solve cost ~117 page faults).
     fn block(&self, ks: &[usize], w: Option<&[f64]>, out: &mut Vec<f64>) -> Option<Col<f64>> {
         let m = self.sorted.len();
         let k = ks.len();
         let nc = k + usize::from(w.is_some());
-        // Filled and copied by extending, not zero-filled first: the two memsets of ~160 KB at
-        // the first block were ~1 % of an m = 600 solve.
-        let mut a = BLOCK_SPARE.take();
-        a.clear();
-        a.reserve(m * nc);
+        // Filled by extending, not zero-filled first: a memset of ~160 KB at the first block
+        // was ~1 % of an m = 600 solve.
+        let start = out.len();
+        out.reserve(m * nc);
         for &kc in ks {
-            self.cross(kc, &mut a);
+            self.cross(kc, out);
         }
         if let Some(w) = w {
-            a.extend(self.sorted.iter().map(|&f| w[f]));
+            out.extend(self.sorted.iter().map(|&f| w[f]));
         }
-        self.solve_gram(MatMut::from_column_major_slice_mut(&mut a, m, nc));
-        out.extend_from_slice(&a[..m * k]);
-        let last = w.map(|_| Col::<f64>::from_fn(m, |r| a[k * m + r]));
-        BLOCK_SPARE.set(a);
+        self.solve_gram(MatMut::from_column_major_slice_mut(
+            &mut out[start..],
+            m,
+            nc,
+        ));
+        let last = w.map(|_| Col::<f64>::from_fn(m, |r| out[start + k * m + r]));
+        out.truncate(start + m * k);
         last
     }
 
@@ -324,8 +327,6 @@ const GRAM_KERNEL_COLS: usize = 8;
 thread_local! {
     /// The last Gram anchor's L buffer, for the next one on this thread.
     static L_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
-    /// [`Gram::block`]'s work block, for the next call on this thread.
-    static BLOCK_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
     /// The last restricted problem's T, for the next one on this thread (see [`Gram::block`]).
     static T_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
 }
