@@ -282,6 +282,8 @@ pub fn solve_fast(
     dct.forward(&mut x);
     let scale = x.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
     let bp = matches!(problem, Problem::BasisPursuit);
+    // Aᵀh again is the exact finish's right-hand side (one DCT fewer per solve).
+    let ath = if bp { x.clone() } else { Vec::new() };
     // For BP ρ stays fixed (residual balancing was measured to scramble the support and cost
     // pivots).
     let fraction = s.threshold_fraction.unwrap_or(if bp && m > s.exact_max_m {
@@ -317,7 +319,7 @@ pub fn solve_fast(
         // transforms' cost ~1.5x lower at n = 1901); if the finish fails, the f64 iterations
         // below take over and retry it at twice the budget.
         let (zs, us, its) = admm_single(dct, idx, h, &z, rho, alpha, next_finish, next_stable);
-        if let Some(f) = exact_finish(dct, idx, h, &zs, &us, rho, s, false) {
+        if let Some(f) = exact_finish(dct, idx, h, &ath, &zs, &us, rho, s, false) {
             return BpSolution::optimal(f, its, t0);
         }
         simplex_failed = true;
@@ -366,7 +368,7 @@ pub fn solve_fast(
             // Exact finish once the support has settled or the iteration budget is spent; if it
             // fails, wait twice as long.
             if stable >= next_stable || it >= next_finish {
-                if let Some(f) = exact_finish(dct, idx, h, &z, &u, rho, s, simplex_failed) {
+                if let Some(f) = exact_finish(dct, idx, h, &ath, &z, &u, rho, s, simplex_failed) {
                     return BpSolution::optimal(f, it, t0);
                 }
                 simplex_failed = true;
@@ -648,6 +650,7 @@ fn exact_finish(
     dct: &mut Dct,
     idx: &[usize],
     h: &[f64],
+    ath: &[f64],
     z: &[f64],
     u: &[f64],
     rho: f64,
@@ -672,6 +675,7 @@ fn exact_finish(
         dct,
         idx,
         h,
+        ath,
         &order,
         k0,
         s.max_pivots,
