@@ -282,11 +282,13 @@ pub fn solve_fast(
     dct.forward(&mut x);
     let scale = x.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
     let bp = matches!(problem, Problem::BasisPursuit);
-    // Aᵀh again is the exact finish's right-hand side (one DCT fewer per solve).
-    let ath = if bp { x.clone() } else { Vec::new() };
+    // Aᵀh again is the exact finish's right-hand side (one DCT fewer per solve); only BP up to
+    // `exact_max_m` samples has an exact finish.
+    let exact = bp && m <= s.exact_max_m;
+    let ath = if exact { x.clone() } else { Vec::new() };
     // For BP ρ stays fixed (residual balancing was measured to scramble the support and cost
     // pivots).
-    let fraction = s.threshold_fraction.unwrap_or(if bp && m > s.exact_max_m {
+    let fraction = s.threshold_fraction.unwrap_or(if bp && !exact {
         // Gap-certified path (measured at n = 65 536, m = 6554: 0.01 reaches a 1e-3 gap in
         // ~10 % fewer iterations than 0.005, as fast as 0.02).
         0.01
@@ -300,7 +302,7 @@ pub fn solve_fast(
     });
     let mut rho = 1.0 / (fraction * scale);
     let alpha = if bp { s.relaxation } else { 1.0 };
-    if bp && m <= s.exact_max_m && 8 * m >= n {
+    if exact && 8 * m >= n {
         x = interpolated_start(dct, idx, h);
     }
     let mut z: Vec<f64> = x.iter().map(|&v| soft(v, 1.0 / rho)).collect();
@@ -314,7 +316,7 @@ pub fn solve_fast(
     let mut next_finish = s.finish_iter.unwrap_or((m / 6).max(50)).max(1);
     let mut simplex_failed = false;
 
-    if bp && m <= s.exact_max_m {
+    if exact {
         // The ADMM run before the exact finish only ranks columns, so it runs in f32 (the
         // transforms' cost ~1.5x lower at n = 1901); if the finish fails, the f64 iterations
         // below take over and retry it at twice the budget.
@@ -343,7 +345,7 @@ pub fn solve_fast(
         } = update_double(&x, &mut z, &mut u, &mut v, alpha, 1.0 / rho);
         let zn = z2.sqrt().max(1e-300);
         let (r, sd) = (r2.sqrt() / zn, rho * s2.sqrt() / zn);
-        if bp && m > s.exact_max_m {
+        if bp && !exact {
             if it % GAP_EVERY == 0 {
                 let (theta, p, d) = certified_gap(dct, idx, h, &z, &u, rho);
                 if p - d <= s.gap_tol * p.max(1e-300) {
