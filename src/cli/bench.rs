@@ -41,6 +41,15 @@ enum What {
         #[arg(long)]
         clarabel_m: Option<usize>,
     },
+    /// The BP exact finish's dense Cholesky (a random SPD m x m matrix), ms: the AVX2 route
+    /// against faer's recursive one, best and median of `repeat`.
+    Chol {
+        #[arg(long, default_value_t = 101)]
+        repeat: usize,
+        /// Comma-separated sizes.
+        #[arg(long, default_value = "300,600,900")]
+        m: String,
+    },
     /// One orthonormal DCT pair (inverse + forward), µs: the real-FFT (Makhoul) path against
     /// rustdct, and the same path in f32, at the sizes the solvers meet.
     Dct {
@@ -162,12 +171,71 @@ pub fn run(a: Args) -> CliResult {
             );
         }
         What::Dct { repeat } => println!("{}", dct_pairs(repeat.max(1))),
+        What::Chol { repeat, m } => {
+            let ms: Vec<usize> = parse_list(&m, "m")?;
+            println!("{}", chol(&ms, repeat.max(1)));
+        }
         What::Speed { repeat, clarabel_m } => {
             let out = speed(repeat, clarabel_m).map_err(CliError::failure)?;
             println!("{out}");
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+fn chol(ms: &[usize], repeat: usize) -> serde_json::Value {
+    use crate::recon::chol;
+    use rand::{Rng, SeedableRng};
+    use std::time::Instant;
+    let mut rows = Vec::new();
+    for &m in ms {
+        // G = XXᵀ/m + I/2 (lower triangle, columns on the Gram anchor's leading dimension).
+        let ld = m.next_multiple_of(8);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(m as u64);
+        let x = faer::Mat::<f64>::from_fn(m, m, |_, _| rng.random::<f64>() - 0.5);
+        let g = &x * x.transpose() / (m as f64) + faer::Mat::<f64>::identity(m, m) * 0.5;
+        let mut src = vec![0.0; ld * m];
+        for j in 0..m {
+            for i in j..m {
+                src[j * ld + i] = g[(i, j)];
+            }
+        }
+        let mut a = src.clone();
+        let mut time = |f: &mut dyn FnMut(&mut [f64]) -> bool| {
+            let mut t = Vec::with_capacity(repeat);
+            for _ in 0..=repeat {
+                a.copy_from_slice(&src);
+                let t0 = Instant::now();
+                assert!(f(&mut a), "the SPD test matrix factors");
+                t.push(t0.elapsed().as_secs_f64() * 1e3);
+            }
+            t.remove(0); // warm-up
+            let best = t.iter().copied().fold(f64::INFINITY, f64::min);
+            (best, median(&mut t))
+        };
+        let flop = (m as f64).powi(3) / 3.0;
+        let (best, med) = time(&mut |a| {
+            chol::cholesky_lower(faer::MatMut::from_column_major_slice_with_stride_mut(
+                a, m, m, ld,
+            ))
+        });
+        rows.push(
+            json!({"m": m, "route": "faer_recursive", "best_ms": best, "median_ms": med,
+            "best_gflops": flop / best / 1e6, "repeat": repeat}),
+        );
+        if crate::recon::simd::has_avx2_fma() {
+            let mut pack = Vec::new();
+            let (best, med) = time(&mut |a| {
+                // SAFETY: AVX2 and FMA are present (checked).
+                unsafe { chol::cholesky_lower_avx2(a, m, ld, &mut pack) }
+            });
+            rows.push(
+                json!({"m": m, "route": "avx2_blocked", "best_ms": best, "median_ms": med,
+                "best_gflops": flop / best / 1e6, "repeat": repeat}),
+            );
+        }
+    }
+    json!({"benchmark": "chol", "threads": 1, "rows": rows})
 }
 
 fn dct_pairs(repeat: usize) -> serde_json::Value {

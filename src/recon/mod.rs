@@ -5,6 +5,7 @@
 //! (`physics`), and `auto`, which picks by cross-validation on the measured samples themselves and
 //! reports that cross-validated error as the estimate of the reconstruction error.
 pub mod bp;
+pub mod chol;
 pub mod dct;
 pub mod fused;
 pub mod interp;

@@ -29,7 +29,6 @@
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::lu::partial_pivoting::factor::{lu_in_place, lu_in_place_scratch};
 use faer::linalg::matmul::matmul;
-use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::linalg::triangular_solve::{
     solve_lower_triangular_in_place, solve_unit_lower_triangular_in_place,
     solve_unit_upper_triangular_in_place, solve_upper_triangular_in_place,
@@ -596,85 +595,6 @@ unsafe fn backward_panel<const R: usize, const TQ: usize>(
     }
 }
 
-/// Columns below which [`cholesky_lower`] factors directly.
-const CHOL_LEAF: usize = 16;
-
-/// A = LLᵀ in place on the lower triangle (the upper one is not read); false when A is not
-/// numerically positive definite. Recursive splitting (Gustavson's recursive Cholesky), so that
-/// nearly all the work is one triangular solve and one symmetric product per level through
-/// faer's kernels (the product itself halved, [`syrk_lower`]). At 600 x 600, split in halves:
-/// 1.43 ms against 1.60 ms for faer's `cholesky_in_place` on a random SPD matrix, 1.56 against
-/// 1.65 ms inside the BP solve (Intel Xeon); on the AMD EPYC (Zen 4) 1.57 against 1.64 (faer's:
-/// 1.64); on Zen 3 2.06-2.09 ms, 1.97-1.99 split at three fifths.
-fn cholesky_lower(a: MatMut<'_, f64>) -> bool {
-    let n = a.nrows();
-    if n <= CHOL_LEAF {
-        let mut a = a;
-        for j in 0..n {
-            let d = a[(j, j)];
-            if d.is_nan() || d <= 0.0 {
-                return false;
-            }
-            let d = d.sqrt();
-            a[(j, j)] = d;
-            for i in j + 1..n {
-                a[(i, j)] /= d;
-            }
-            for k in j + 1..n {
-                let f = a[(k, j)];
-                for i in k..n {
-                    let v = a[(i, j)];
-                    a[(i, k)] -= v * f;
-                }
-            }
-        }
-        return true;
-    }
-    // Three fifths first: at 600 the top-level trsm (faer's, ~36 GF here) is then 360² x 240
-    // and the product it feeds 240² x 360. Measured at 600 on Zen 3 (best of 100, interleaved,
-    // 3 runs): halves 2.06-2.09 ms, 0.55 2.08, 0.6 1.97-1.99, 0.65 2.01-2.03, 0.7 2.01.
-    let n1 = (n * 3 / 5).next_multiple_of(8).min(n - 1);
-    let (mut a11, _, mut a21, mut a22) = a.split_at_mut(n1, n1);
-    if !cholesky_lower(a11.as_mut()) {
-        return false;
-    }
-    // A21 ← A21·L11⁻ᵀ, i.e. L11·A21ᵀ = A21ᵀ.
-    solve_lower_triangular_in_place(a11.as_ref(), a21.as_mut().transpose_mut(), Par::Seq);
-    syrk_lower(a22.as_mut(), a21.as_ref());
-    cholesky_lower(a22)
-}
-
-/// Columns up to which [`syrk_lower`] leaves the product to faer's triangular kernel.
-const SYRK_LEAF: usize = 64;
-
-/// C ← C − A·Aᵀ on the lower triangle. Halving C puts its off-diagonal block in one gemm, which
-/// faer runs near the FMA peak, where its triangular product does not: at 600 x 600 the
-/// Cholesky took 1.57-1.58 ms against 1.64-1.66 ms (hot, best of 100; gemm 57 GF, the
-/// triangular product 49 GF, the machine's peak 55-57).
-fn syrk_lower(c: MatMut<'_, f64>, a: MatRef<'_, f64>) {
-    let n = c.nrows();
-    if n <= SYRK_LEAF {
-        triangular::matmul(
-            c,
-            BlockStructure::TriangularLower,
-            Accum::Add,
-            a,
-            BlockStructure::Rectangular,
-            a.transpose(),
-            BlockStructure::Rectangular,
-            -1.0,
-            Par::Seq,
-        );
-        return;
-    }
-    let h = (n / 2).next_multiple_of(8).min(n - 1);
-    let (c11, _, c21, c22) = c.split_at_mut(h, h);
-    let (a1, a2) = a.split_at_row(h);
-    syrk_lower(c11, a1);
-    matmul(c21, Accum::Add, a2, a1.transpose(), -1.0, Par::Seq);
-    syrk_lower(c22, a2);
-}
-
 impl Gram {
     /// The Gram anchor of the sampled DCT columns `support`; `None` when G is not numerically
     /// positive definite.
@@ -717,8 +637,7 @@ impl Gram {
             l[..m].iter_mut().for_each(|v| *v *= r0);
             l[0] *= r0;
         }
-        let mut g = MatMut::from_column_major_slice_with_stride_mut(l, m, m, ld);
-        if !cholesky_lower(g.as_mut()) {
+        if !super::chol::factor_lower(l, m, ld) {
             return None;
         }
         // κ(G) ≥ (max/min diagonal of L)²: beyond ~1e12 f64 has no digits left for the simplex.
@@ -2062,32 +1981,6 @@ mod tests {
             got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
             want.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
         );
-    }
-
-    /// The recursive Cholesky reproduces A = LLᵀ past its leaf size and refuses an indefinite
-    /// matrix.
-    #[test]
-    fn cholesky_lower_factors_spd_and_refuses_indefinite() {
-        // Past the leaf size, and past the symmetric product's own leaf (its halving).
-        for n in [3 * CHOL_LEAF + 5, 3 * SYRK_LEAF + 5] {
-            let r = Mat::<f64>::from_fn(n, n, |i, j| ((i * 31 + j * 17) % 23) as f64 / 23.0 - 0.5);
-            let a = &r * r.transpose() + Mat::<f64>::identity(n, n);
-            let mut l = a.clone();
-            assert!(cholesky_lower(l.as_mut()));
-            let lower = Mat::<f64>::from_fn(n, n, |i, j| if i >= j { l[(i, j)] } else { 0.0 });
-            let back = &lower * lower.transpose();
-            for i in 0..n {
-                for j in 0..n {
-                    assert!(
-                        (back[(i, j)] - a[(i, j)]).abs() < 1e-12 * n as f64,
-                        "n = {n}: ({i}, {j})"
-                    );
-                }
-            }
-            let mut indefinite = a.clone();
-            indefinite[(n - 1, n - 1)] = -1.0;
-            assert!(!cholesky_lower(indefinite.as_mut()));
-        }
     }
 
     /// From a poor ranking (the lowest frequencies first, few candidates, so column generation

@@ -1,0 +1,501 @@
+//! Dense Cholesky factorization G = LLᵀ of the BP exact finish's Gram anchor (m x m, m ≈ 600 at
+//! the bench's m = 600) on AVX2 and FMA.
+//!
+//! faer's kernels reach ~90 % of the FMA peak on a large gemm, but its Cholesky of 600 x 600
+//! (recursive, through its triangular solve and products) reached 34-37 GF on the Zen 3 host
+//! where the peak is ~50: the triangular solve on a row-major right-hand side, the triangular
+//! products and the many small blocks of the recursion lose the rest. Here:
+//! - right-looking, in panels of [`NB`] columns: nearly all the work (~55 of the 72 MFLOP at
+//!   m = 600) is the lower rank-96 update of the trailing matrix, one 8 x 4 register tile at a
+//!   time (46-49 GF on Zen 3, against ~36 for faer's recursive symmetric product at these
+//!   sizes; an 8 x 6 tile was no faster, a 12 x 4 one spilled registers and ran at 22);
+//! - each panel is factored left-looking in groups of 4 columns (the 4 x 4 diagonal block in
+//!   scalar, the rows below solved in registers), through the same tile;
+//! - the panel is packed once, in 8-row strips k-major, as it is computed: the packed strips are
+//!   both operands of the trailing update (a group of 4 rows lies in one strip), so nothing is
+//!   packed twice.
+//!
+//! Only the lower triangle is meaningful. Tiles that straddle the diagonal also write entries
+//! above it (in the diagonal blocks of panels and trailing updates): the upper triangle is
+//! scratch, never read by the solves that use L.
+use faer::linalg::matmul::matmul;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
+use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
+use faer::{Accum, MatMut, MatRef, Par};
+#[cfg(target_arch = "x86_64")]
+use std::arch::x86_64::*;
+
+/// Columns per panel (a multiple of 8). Measured at m = 600 on Zen 3 (best of 100, with an
+/// 8 x 6 tile): 48 1.79 ms, 96 1.77, 144 1.79, 192 1.83. `csmetro bench chol` times both routes.
+const NB: usize = 96;
+
+/// G = LLᵀ in place on the lower triangle of the column-major `l` (m x m, columns `ld` apart):
+/// [`cholesky_lower_avx2`] where the CPU has them (at m = 600 on Zen 3, best of 100:
+/// 1.74-1.78 ms against 2.09-2.11 for [`cholesky_lower`] through faer), else faer's.
+pub fn factor_lower(l: &mut [f64], m: usize, ld: usize) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if super::simd::has_avx2_fma() {
+        let mut pack = CHOL_PACK.take();
+        // SAFETY: AVX2 and FMA are present (checked).
+        let ok = unsafe { cholesky_lower_avx2(l, m, ld, &mut pack) };
+        CHOL_PACK.set(pack);
+        return ok;
+    }
+    cholesky_lower(MatMut::from_column_major_slice_with_stride_mut(l, m, m, ld))
+}
+
+/// Columns below which [`cholesky_lower`] factors directly.
+const CHOL_LEAF: usize = 16;
+
+/// A = LLᵀ in place on the lower triangle (the upper one is not read); false when A is not
+/// numerically positive definite. Recursive splitting (Gustavson's recursive Cholesky), so that
+/// nearly all the work is one triangular solve and one symmetric product per level through
+/// faer's kernels (the product itself halved, [`syrk_lower`]). At 600 x 600, split in halves:
+/// 1.43 ms against 1.60 ms for faer's `cholesky_in_place` on a random SPD matrix, 1.56 against
+/// 1.65 ms inside the BP solve (Intel Xeon); on the AMD EPYC (Zen 4) 1.57 against 1.64 (faer's:
+/// 1.64); on Zen 3 2.06-2.09 ms, 1.97-1.99 split at three fifths.
+pub fn cholesky_lower(a: MatMut<'_, f64>) -> bool {
+    let n = a.nrows();
+    if n <= CHOL_LEAF {
+        let mut a = a;
+        for j in 0..n {
+            let d = a[(j, j)];
+            if d.is_nan() || d <= 0.0 {
+                return false;
+            }
+            let d = d.sqrt();
+            a[(j, j)] = d;
+            for i in j + 1..n {
+                a[(i, j)] /= d;
+            }
+            for k in j + 1..n {
+                let f = a[(k, j)];
+                for i in k..n {
+                    let v = a[(i, j)];
+                    a[(i, k)] -= v * f;
+                }
+            }
+        }
+        return true;
+    }
+    // Three fifths first: at 600 the top-level trsm (faer's, ~36 GF here) is then 360² x 240
+    // and the product it feeds 240² x 360. Measured at 600 on Zen 3 (best of 100, interleaved,
+    // 3 runs): halves 2.06-2.09 ms, 0.55 2.08, 0.6 1.97-1.99, 0.65 2.01-2.03, 0.7 2.01.
+    let n1 = (n * 3 / 5).next_multiple_of(8).min(n - 1);
+    let (mut a11, _, mut a21, mut a22) = a.split_at_mut(n1, n1);
+    if !cholesky_lower(a11.as_mut()) {
+        return false;
+    }
+    // A21 ← A21·L11⁻ᵀ, i.e. L11·A21ᵀ = A21ᵀ.
+    solve_lower_triangular_in_place(a11.as_ref(), a21.as_mut().transpose_mut(), Par::Seq);
+    syrk_lower(a22.as_mut(), a21.as_ref());
+    cholesky_lower(a22)
+}
+
+/// Columns up to which [`syrk_lower`] leaves the product to faer's triangular kernel.
+const SYRK_LEAF: usize = 64;
+
+/// C ← C − A·Aᵀ on the lower triangle. Halving C puts its off-diagonal block in one gemm, which
+/// faer runs near the FMA peak, where its triangular product does not: at 600 x 600 the
+/// Cholesky took 1.57-1.58 ms against 1.64-1.66 ms (hot, best of 100; gemm 57 GF, the
+/// triangular product 49 GF, the machine's peak 55-57).
+fn syrk_lower(c: MatMut<'_, f64>, a: MatRef<'_, f64>) {
+    let n = c.nrows();
+    if n <= SYRK_LEAF {
+        triangular::matmul(
+            c,
+            BlockStructure::TriangularLower,
+            Accum::Add,
+            a,
+            BlockStructure::Rectangular,
+            a.transpose(),
+            BlockStructure::Rectangular,
+            -1.0,
+            Par::Seq,
+        );
+        return;
+    }
+    let h = (n / 2).next_multiple_of(8).min(n - 1);
+    let (c11, _, c21, c22) = c.split_at_mut(h, h);
+    let (a1, a2) = a.split_at_row(h);
+    syrk_lower(c11, a1);
+    matmul(c21, Accum::Add, a2, a1.transpose(), -1.0, Par::Seq);
+    syrk_lower(c22, a2);
+}
+
+thread_local! {
+    /// The AVX2 route's packed panel, for the next factorization on this thread (~0.5 MB at
+    /// m = 600: fresh, it would come from mmap and fault its pages in at every solve).
+    static CHOL_PACK: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
+/// Factors the lower triangle of the column-major n x n matrix in `a` (columns `ld` ≥ n apart)
+/// in place; false when it is not numerically positive definite (a pivot ≤ 0 or NaN). `pack`
+/// is scratch, kept by the caller from call to call.
+///
+/// # Safety
+/// AVX2 and FMA must be present.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+pub unsafe fn cholesky_lower_avx2(a: &mut [f64], n: usize, ld: usize, pack: &mut Vec<f64>) -> bool {
+    assert!(ld >= n && (n == 0 || a.len() >= (n - 1) * ld + n));
+    let base = a.as_mut_ptr();
+    let mut j = 0;
+    while j < n {
+        let b = NB.min(n - j);
+        let r = n - j;
+        let stride = b * 8;
+        // Every entry read below is written first in this call (see `panel`): no zeroing.
+        pack.resize(r.div_ceil(8) * stride, 0.0);
+        let p = base.add(j * ld + j);
+        if !panel(p, ld, r, b, pack.as_mut_ptr(), stride) {
+            return false;
+        }
+        if r > b {
+            trailing_update(p.add(b * ld + b), ld, r - b, b, pack.as_ptr(), stride);
+        }
+        j += b;
+    }
+    true
+}
+
+/// acc[c] (8 rows as two vectors) = Σ_kk a[kk][0..8]·b[kk·bs + c] for c < 4: the 8 x 4 tile of
+/// a k-step product, `a` packed k-major in 8s.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn tile(a: *const f64, b: *const f64, bs: usize, k: usize) -> [[__m256d; 2]; 4] {
+    // Eight named accumulators: LLVM keeps them in registers (a 12 x 4 tile, 16 registers,
+    // spilled and ran at half the rate).
+    let z = _mm256_setzero_pd();
+    let (mut c00, mut c01, mut c10, mut c11) = (z, z, z, z);
+    let (mut c20, mut c21, mut c30, mut c31) = (z, z, z, z);
+    let (mut a, mut b) = (a, b);
+    for _ in 0..k {
+        let a0 = _mm256_loadu_pd(a);
+        let a1 = _mm256_loadu_pd(a.add(4));
+        let v = _mm256_broadcast_sd(&*b);
+        c00 = _mm256_fmadd_pd(a0, v, c00);
+        c01 = _mm256_fmadd_pd(a1, v, c01);
+        let v = _mm256_broadcast_sd(&*b.add(1));
+        c10 = _mm256_fmadd_pd(a0, v, c10);
+        c11 = _mm256_fmadd_pd(a1, v, c11);
+        let v = _mm256_broadcast_sd(&*b.add(2));
+        c20 = _mm256_fmadd_pd(a0, v, c20);
+        c21 = _mm256_fmadd_pd(a1, v, c21);
+        let v = _mm256_broadcast_sd(&*b.add(3));
+        c30 = _mm256_fmadd_pd(a0, v, c30);
+        c31 = _mm256_fmadd_pd(a1, v, c31);
+        a = a.add(8);
+        b = b.add(bs);
+    }
+    [[c00, c01], [c10, c11], [c20, c21], [c30, c31]]
+}
+
+/// The `rows` (≤ 8) entries from `col` as two vectors, zero beyond.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn load8(col: *const f64, rows: usize) -> [__m256d; 2] {
+    if rows == 8 {
+        [_mm256_loadu_pd(col), _mm256_loadu_pd(col.add(4))]
+    } else {
+        let mut t = [0.0f64; 8];
+        std::ptr::copy_nonoverlapping(col, t.as_mut_ptr(), rows);
+        [
+            _mm256_loadu_pd(t.as_ptr()),
+            _mm256_loadu_pd(t.as_ptr().add(4)),
+        ]
+    }
+}
+
+/// Stores the first `rows` (≤ 8) lanes of v to `col`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn store8(col: *mut f64, rows: usize, v: [__m256d; 2]) {
+    if rows == 8 {
+        _mm256_storeu_pd(col, v[0]);
+        _mm256_storeu_pd(col.add(4), v[1]);
+    } else {
+        let mut t = [0.0f64; 8];
+        _mm256_storeu_pd(t.as_mut_ptr(), v[0]);
+        _mm256_storeu_pd(t.as_mut_ptr().add(4), v[1]);
+        std::ptr::copy_nonoverlapping(t.as_ptr(), col, rows);
+    }
+}
+
+/// Factors the panel of rows 0..r, columns 0..b at p (its top b x b block on the diagonal, all
+/// earlier panels' updates applied), left-looking in groups of 4 columns, and writes its rows
+/// packed to `pk`: strip s (rows 8s..8s+8) at pk + s·stride, column c at + 8c.
+///
+/// Entries of `pk` read here are written first: the tile of group g reads columns < 4g of the
+/// strips from 4g / 8 down, which earlier groups wrote (they write every strip from their own
+/// first one); a partial last strip's lanes beyond r start from zeros and stay finite.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn panel(p: *mut f64, ld: usize, r: usize, b: usize, pk: *mut f64, stride: usize) -> bool {
+    let strips = r.div_ceil(8);
+    for c0 in (0..b).step_by(4) {
+        let w = 4.min(b - c0);
+        let s0 = c0 / 8;
+        // Rows c0..c0 + 4 as the tile's second operand: one strip, lanes c0 % 8 ∈ {0, 4}.
+        let bp = pk.add(s0 * stride + c0 % 8);
+        // The diagonal strip first: its update, then the w x w diagonal block in scalar.
+        let rows0 = 8.min(r - 8 * s0);
+        let acc = tile(pk.add(s0 * stride), bp, 8, c0);
+        for (c, acc) in acc.iter().enumerate().take(w) {
+            let col = p.add((c0 + c) * ld + 8 * s0);
+            let v = load8(col, rows0);
+            store8(
+                col,
+                rows0,
+                [_mm256_sub_pd(v[0], acc[0]), _mm256_sub_pd(v[1], acc[1])],
+            );
+        }
+        let mut lt = [[0.0f64; 4]; 4];
+        let mut inv = [0.0f64; 4];
+        for c in 0..w {
+            let d = *p.add((c0 + c) * ld + c0 + c);
+            let d = lt[c][..c].iter().fold(d, |d, v| d - v * v);
+            if d.is_nan() || d <= 0.0 {
+                return false;
+            }
+            let d = d.sqrt();
+            lt[c][c] = d;
+            inv[c] = 1.0 / d;
+            for i in c + 1..w {
+                let v = *p.add((c0 + c) * ld + c0 + i);
+                let v = (0..c).fold(v, |v, q| v - lt[i][q] * lt[c][q]);
+                lt[i][c] = v / d;
+            }
+        }
+        // Every strip from the diagonal one: X ← (X − update)·L_gg⁻ᵀ, in registers.
+        for s in s0..strips {
+            let rows = 8.min(r - 8 * s);
+            let acc = if s == s0 {
+                [[_mm256_setzero_pd(); 2]; 4]
+            } else {
+                tile(pk.add(s * stride), bp, 8, c0)
+            };
+            let mut xs = [[_mm256_setzero_pd(); 2]; 4];
+            for c in 0..w {
+                let col = p.add((c0 + c) * ld + 8 * s);
+                let v = load8(col, rows);
+                let (mut v0, mut v1) = (
+                    _mm256_sub_pd(v[0], acc[c][0]),
+                    _mm256_sub_pd(v[1], acc[c][1]),
+                );
+                for q in 0..c {
+                    let f = _mm256_set1_pd(lt[c][q]);
+                    v0 = _mm256_fnmadd_pd(xs[q][0], f, v0);
+                    v1 = _mm256_fnmadd_pd(xs[q][1], f, v1);
+                }
+                let d = _mm256_set1_pd(inv[c]);
+                xs[c] = [_mm256_mul_pd(v0, d), _mm256_mul_pd(v1, d)];
+            }
+            if s == s0 {
+                // The diagonal rows take L_gg itself (rows above c0 are scratch).
+                let mut t = [[0.0f64; 8]; 4];
+                for c in 0..w {
+                    _mm256_storeu_pd(t[c].as_mut_ptr(), xs[c][0]);
+                    _mm256_storeu_pd(t[c].as_mut_ptr().add(4), xs[c][1]);
+                    for i in c..w {
+                        t[c][c0 % 8 + i] = lt[i][c];
+                    }
+                    xs[c] = [
+                        _mm256_loadu_pd(t[c].as_ptr()),
+                        _mm256_loadu_pd(t[c].as_ptr().add(4)),
+                    ];
+                }
+            }
+            for (c, x) in xs.iter().enumerate().take(w) {
+                store8(p.add((c0 + c) * ld + 8 * s), rows, *x);
+                let q = pk.add(s * stride + (c0 + c) * 8);
+                _mm256_storeu_pd(q, x[0]);
+                _mm256_storeu_pd(q.add(4), x[1]);
+            }
+        }
+    }
+    true
+}
+
+/// C (r x r, lower, at c) −= PPᵀ for the panel rows below its diagonal block (strips from b / 8
+/// of `pk`, k = b columns).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn trailing_update(
+    c: *mut f64,
+    ld: usize,
+    r: usize,
+    b: usize,
+    pk: *const f64,
+    stride: usize,
+) {
+    let first = b / 8;
+    let strips = (r + b).div_ceil(8);
+    for t in (0..r).step_by(4) {
+        let w = 4.min(r - t);
+        // Trailing row t is panel row b + t: strip (b + t) / 8, lane t % 8 ∈ {0, 4}.
+        let bp = pk.add(((b + t) / 8) * stride + t % 8);
+        for s in (b + t) / 8..strips {
+            debug_assert!(s >= first);
+            let row0 = 8 * s - b;
+            let rows = 8.min(r - row0);
+            let acc = tile(pk.add(s * stride), bp, 8, b);
+            for (q, acc) in acc.iter().enumerate().take(w) {
+                let col = c.add((t + q) * ld + row0);
+                let v = load8(col, rows);
+                store8(
+                    col,
+                    rows,
+                    [_mm256_sub_pd(v[0], acc[0]), _mm256_sub_pd(v[1], acc[1])],
+                );
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use faer::Mat;
+
+    /// The recursive Cholesky reproduces A = LLᵀ past its leaf size and refuses an indefinite
+    /// matrix.
+    #[test]
+    fn cholesky_lower_factors_spd_and_refuses_indefinite() {
+        // Past the leaf size, and past the symmetric product's own leaf (its halving).
+        for n in [3 * CHOL_LEAF + 5, 3 * SYRK_LEAF + 5] {
+            let r = Mat::<f64>::from_fn(n, n, |i, j| ((i * 31 + j * 17) % 23) as f64 / 23.0 - 0.5);
+            let a = &r * r.transpose() + Mat::<f64>::identity(n, n);
+            let mut l = a.clone();
+            assert!(cholesky_lower(l.as_mut()));
+            let lower = Mat::<f64>::from_fn(n, n, |i, j| if i >= j { l[(i, j)] } else { 0.0 });
+            let back = &lower * lower.transpose();
+            for i in 0..n {
+                for j in 0..n {
+                    assert!(
+                        (back[(i, j)] - a[(i, j)]).abs() < 1e-12 * n as f64,
+                        "n = {n}: ({i}, {j})"
+                    );
+                }
+            }
+            let mut indefinite = a.clone();
+            indefinite[(n - 1, n - 1)] = -1.0;
+            assert!(!cholesky_lower(indefinite.as_mut()));
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    mod avx2 {
+        use super::super::*;
+
+        /// A random SPD matrix (column-major, ld), its exact-arithmetic-free reference factor from
+        /// the plain algorithm.
+        fn spd(n: usize, ld: usize, seed: u64) -> Vec<f64> {
+            let mut s = seed;
+            let mut rnd = || {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+            };
+            let x: Vec<f64> = (0..n * n).map(|_| rnd()).collect();
+            let mut g = vec![f64::NAN; ld * n];
+            for j in 0..n {
+                for i in j..n {
+                    let v: f64 = (0..n).map(|k| x[i * n + k] * x[j * n + k]).sum();
+                    g[j * ld + i] = v + if i == j { 0.5 } else { 0.0 };
+                }
+            }
+            g
+        }
+
+        fn reference(g: &[f64], n: usize, ld: usize) -> Vec<f64> {
+            let mut l = vec![0.0; n * n];
+            for j in 0..n {
+                let mut d = g[j * ld + j];
+                for k in 0..j {
+                    d -= l[j * n + k] * l[j * n + k];
+                }
+                let d = d.sqrt();
+                l[j * n + j] = d;
+                for i in j + 1..n {
+                    let mut v = g[j * ld + i];
+                    for k in 0..j {
+                        v -= l[i * n + k] * l[j * n + k];
+                    }
+                    l[i * n + j] = v / d;
+                }
+            }
+            l
+        }
+
+        #[test]
+        fn matches_the_plain_algorithm_at_awkward_sizes() {
+            if !crate::recon::simd::has_avx2_fma() {
+                return;
+            }
+            let mut pack = Vec::new();
+            // Sizes around the panel width, the strip height and the group width, with padding
+            // rows (ld > n) poisoned with NaN: the factor must neither read nor write past n rows.
+            for &(n, ld) in &[
+                (1, 1),
+                (3, 5),
+                (7, 8),
+                (8, 8),
+                (13, 13),
+                (97, 97),
+                (100, 104),
+                (203, 208),
+                (250, 250),
+            ] {
+                let g = spd(n, ld, n as u64);
+                let want = reference(&g, n, ld);
+                let mut a = g.clone();
+                // SAFETY: AVX2 and FMA checked above.
+                assert!(
+                    unsafe { cholesky_lower_avx2(&mut a, n, ld, &mut pack) },
+                    "n = {n}"
+                );
+                let scale = (0..n).map(|j| want[j * n + j]).fold(0.0f64, f64::max);
+                for j in 0..n {
+                    for i in j..n {
+                        let (got, w) = (a[j * ld + i], want[i * n + j]);
+                        assert!(
+                            (got - w).abs() <= 1e-11 * scale,
+                            "n = {n}, L[{i}][{j}] = {got} against {w}"
+                        );
+                    }
+                    for i in n..ld {
+                        assert!(
+                            a[j * ld + i].is_nan(),
+                            "n = {n}: padding row {i} of column {j} written"
+                        );
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn reports_a_matrix_that_is_not_positive_definite() {
+            if !crate::recon::simd::has_avx2_fma() {
+                return;
+            }
+            let n = 150;
+            let mut g = spd(n, n, 7);
+            // Make the trailing 2 x 2 block of the last panel indefinite through a large negative
+            // diagonal entry late in the matrix.
+            g[120 * n + 120] = -1.0;
+            let mut pack = Vec::new();
+            // SAFETY: AVX2 and FMA checked above.
+            assert!(!unsafe { cholesky_lower_avx2(&mut g, n, n, &mut pack) });
+            let mut nan = spd(20, 20, 3);
+            nan[5 * 20 + 9] = f64::NAN;
+            nan[9 * 20 + 9] = f64::NAN;
+            // SAFETY: as above.
+            assert!(!unsafe { cholesky_lower_avx2(&mut nan, 20, 20, &mut pack) });
+        }
+    }
+}
