@@ -25,13 +25,14 @@ use faer::{Accum, MatMut, MatRef, Par};
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
-/// Columns per panel (a multiple of 8). Measured at m = 600 on Zen 3 (best of 100, with an
-/// 8 x 6 tile): 48 1.79 ms, 96 1.77, 144 1.79, 192 1.83. `csmetro bench chol` times both routes.
+/// Columns per panel (a multiple of 8). Measured at m = 600 on Zen 3 with `csmetro bench chol`
+/// (best of 201, the width from a temporary environment variable): 64 1.73 ms, 80 1.68, 96
+/// 1.71-1.72, 112 1.71, 128 1.72-1.74: flat.
 const NB: usize = 96;
 
 /// G = LLᵀ in place on the lower triangle of the column-major `l` (m x m, columns `ld` apart):
-/// [`cholesky_lower_avx2`] where the CPU has them (at m = 600 on Zen 3, best of 100:
-/// 1.74-1.78 ms against 2.09-2.11 for [`cholesky_lower`] through faer), else faer's.
+/// [`cholesky_lower_avx2`] where the CPU has AVX2 and FMA (`csmetro bench chol` at m = 600 on
+/// Zen 3, best of 101: 1.64-1.73 ms against 1.95-2.11 for [`cholesky_lower`]), else faer's.
 pub fn factor_lower(l: &mut [f64], m: usize, ld: usize) -> bool {
     #[cfg(target_arch = "x86_64")]
     if super::simd::has_avx2_fma() {
@@ -337,14 +338,12 @@ unsafe fn trailing_update(
     pk: *const f64,
     stride: usize,
 ) {
-    let first = b / 8;
     let strips = (r + b).div_ceil(8);
     for t in (0..r).step_by(4) {
         let w = 4.min(r - t);
         // Trailing row t is panel row b + t: strip (b + t) / 8, lane t % 8 ∈ {0, 4}.
         let bp = pk.add(((b + t) / 8) * stride + t % 8);
         for s in (b + t) / 8..strips {
-            debug_assert!(s >= first);
             let row0 = 8 * s - b;
             let rows = 8.min(r - row0);
             let acc = tile(pk.add(s * stride), bp, 8, b);
@@ -396,8 +395,8 @@ mod tests {
     mod avx2 {
         use super::super::*;
 
-        /// A random SPD matrix (column-major, ld), its exact-arithmetic-free reference factor from
-        /// the plain algorithm.
+        /// A random SPD matrix XXᵀ + I/2 (column-major, columns `ld` apart): its lower triangle,
+        /// the rest of each column NaN (the factor must not read it into the lower triangle).
         fn spd(n: usize, ld: usize, seed: u64) -> Vec<f64> {
             let mut s = seed;
             let mut rnd = || {
@@ -417,6 +416,7 @@ mod tests {
             g
         }
 
+        /// The plain (unblocked) Cholesky of `g`'s lower triangle, row-major n x n.
         fn reference(g: &[f64], n: usize, ld: usize) -> Vec<f64> {
             let mut l = vec![0.0; n * n];
             for j in 0..n {
@@ -490,8 +490,8 @@ mod tests {
             }
             let n = 150;
             let mut g = spd(n, n, 7);
-            // Make the trailing 2 x 2 block of the last panel indefinite through a large negative
-            // diagonal entry late in the matrix.
+            // A negative diagonal entry in the second panel (columns 96..150): the first panel
+            // factors, the failure shows in a later one.
             g[120 * n + 120] = -1.0;
             let mut pack = Vec::new();
             // SAFETY: AVX2 and FMA checked above.
