@@ -42,13 +42,18 @@ enum What {
         clarabel_m: Option<usize>,
     },
     /// The BP exact finish's dense Cholesky (a random SPD m x m matrix), ms: the AVX2 route
-    /// against faer's recursive one, best and median of `repeat`.
+    /// against faer's recursive one; then the solve G⁻¹X of a block of right-hand sides (the
+    /// simplex's first block) through faer's two triangular solves against the AVX2 row kernel.
+    /// Best and median of `repeat`.
     Chol {
         #[arg(long, default_value_t = 101)]
         repeat: usize,
         /// Comma-separated sizes.
         #[arg(long, default_value = "300,600,900")]
         m: String,
+        /// Right-hand sides of the block solve (a multiple of 8).
+        #[arg(long, default_value_t = 32)]
+        rhs: usize,
     },
     /// One orthonormal DCT pair (inverse + forward), µs: the real-FFT (Makhoul) path against
     /// rustdct, and the same path in f32, at the sizes the solvers meet.
@@ -171,9 +176,14 @@ pub fn run(a: Args) -> CliResult {
             );
         }
         What::Dct { repeat } => println!("{}", dct_pairs(repeat.max(1))),
-        What::Chol { repeat, m } => {
+        What::Chol { repeat, m, rhs } => {
             let ms: Vec<usize> = parse_list(&m, "m")?;
-            println!("{}", chol(&ms, repeat.max(1)));
+            if rhs == 0 || !rhs.is_multiple_of(8) {
+                return Err(CliError::input(format!(
+                    "--rhs {rhs}: a positive multiple of 8"
+                )));
+            }
+            println!("{}", chol(&ms, repeat.max(1), rhs));
         }
         What::Speed { repeat, clarabel_m } => {
             let out = speed(repeat, clarabel_m).map_err(CliError::failure)?;
@@ -183,8 +193,12 @@ pub fn run(a: Args) -> CliResult {
     Ok(ExitCode::SUCCESS)
 }
 
-fn chol(ms: &[usize], repeat: usize) -> serde_json::Value {
+fn chol(ms: &[usize], repeat: usize, rhs: usize) -> serde_json::Value {
     use crate::recon::chol;
+    use faer::linalg::triangular_solve::{
+        solve_lower_triangular_in_place, solve_upper_triangular_in_place,
+    };
+    use faer::Par;
     use rand::{Rng, SeedableRng};
     use std::time::Instant;
     let mut rows = Vec::new();
@@ -232,6 +246,48 @@ fn chol(ms: &[usize], repeat: usize) -> serde_json::Value {
             rows.push(
                 json!({"m": m, "route": "avx2_blocked", "best_ms": best, "median_ms": med,
                 "best_gflops": flop / best / 1e6, "repeat": repeat}),
+            );
+        }
+        // The block solve on the factor of G.
+        let mut l = src.clone();
+        assert!(
+            chol::factor_lower(&mut l, m, ld),
+            "the SPD test matrix factors"
+        );
+        let b: Vec<f64> = (0..m * rhs).map(|_| rng.random::<f64>() - 0.5).collect();
+        let flop = 2.0 * (m * m * rhs) as f64;
+        let time_solve = |f: &mut dyn FnMut(&mut [f64])| {
+            let mut x = b.clone();
+            let mut t = Vec::with_capacity(repeat);
+            for _ in 0..=repeat {
+                x.copy_from_slice(&b);
+                let t0 = Instant::now();
+                f(&mut x);
+                t.push(t0.elapsed().as_secs_f64() * 1e3);
+            }
+            t.remove(0); // warm-up
+            let best = t.iter().copied().fold(f64::INFINITY, f64::min);
+            (best, median(&mut t))
+        };
+        let lr = faer::MatRef::from_column_major_slice_with_stride(&l, m, m, ld);
+        let (best, med) = time_solve(&mut |x| {
+            // Column-major m x rhs.
+            let mut v = faer::MatMut::from_column_major_slice_mut(x, m, rhs);
+            solve_lower_triangular_in_place(lr, v.as_mut(), Par::Seq);
+            solve_upper_triangular_in_place(lr.transpose(), v, Par::Seq);
+        });
+        rows.push(
+            json!({"m": m, "route": "solve_faer", "rhs": rhs, "best_ms": best, "median_ms": med,
+            "best_gflops": flop / best / 1e6, "repeat": repeat}),
+        );
+        if crate::recon::simd::has_avx2_fma() {
+            let (best, med) = time_solve(&mut |x| {
+                // Row-major m x rhs. SAFETY: AVX2 and FMA are present (checked).
+                unsafe { chol::gram_solve_rows_avx2(&l, ld, m, x, rhs) }
+            });
+            rows.push(
+                json!({"m": m, "route": "solve_rows_avx2", "rhs": rhs, "best_ms": best,
+                "median_ms": med, "best_gflops": flop / best / 1e6, "repeat": repeat}),
             );
         }
     }

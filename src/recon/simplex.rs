@@ -269,11 +269,16 @@ impl Gram {
     /// something, on all n frequencies) also returns G⁻¹w_S, in the same order. Solved in place
     /// at the end of `out` (w's column taken off again after), which is T: the caller's buffer,
     /// kept from solve to solve (a fresh ~250 KB block at m = 600 came from mmap, and faulting
-    /// its pages in at every solve cost ~117 page faults).
+    /// its pages in at every solve cost ~117 page faults). From [`GRAM_KERNEL_COLS`] columns on
+    /// AVX2, through [`Gram::block_rows`].
     fn block(&self, ks: &[usize], w: Option<&[f64]>, out: &mut Vec<f64>) -> Option<Col<f64>> {
         let m = self.sorted.len();
         let k = ks.len();
         let nc = k + usize::from(w.is_some());
+        #[cfg(target_arch = "x86_64")]
+        if nc >= GRAM_KERNEL_COLS && super::simd::has_avx2_fma() {
+            return self.block_rows(ks, w, out);
+        }
         // Filled by extending, not zero-filled first: a memset of ~160 KB at the first block
         // was ~1 % of an m = 600 solve.
         let start = out.len();
@@ -291,6 +296,49 @@ impl Gram {
         ));
         let last = w.map(|_| Col::<f64>::from_fn(m, |r| out[start + k * m + r]));
         out.truncate(start + m * k);
+        last
+    }
+
+    /// [`Gram::block`] through [`super::chol::gram_solve_rows_avx2`]: the right-hand sides
+    /// filled row by row (padded with zero columns to a multiple of 8), solved, and appended to
+    /// `out` column after column. The first block at m = 600 (32 columns) took ~0.08 ms less per
+    /// BP solve than faer's solves on the same columns (hot harness, Zen 3: 4.40-4.48 ms against
+    /// 4.49-4.59).
+    #[cfg(target_arch = "x86_64")]
+    fn block_rows(&self, ks: &[usize], w: Option<&[f64]>, out: &mut Vec<f64>) -> Option<Col<f64>> {
+        let m = self.sorted.len();
+        let k = ks.len();
+        let nc = k + usize::from(w.is_some());
+        let wd = nc.next_multiple_of(8);
+        let mut x = ROWS_SPARE.take();
+        x.clear();
+        x.resize(m * wd, 0.0);
+        let hg = &self.half_g;
+        for (r, &j) in self.sorted.iter().enumerate() {
+            let row = &mut x[r * wd..r * wd + nc];
+            for (v, &kc) in row.iter_mut().zip(ks) {
+                *v = hg[j.abs_diff(kc)] + hg[j + kc];
+            }
+            if let Some(w) = w {
+                row[k] = w[j];
+            }
+        }
+        if let Some(c) = ks.iter().position(|&kc| kc == 0) {
+            (0..m).for_each(|r| x[r * wd + c] *= self.w0);
+        }
+        if self.sorted[0] == 0 {
+            x[..k].iter_mut().for_each(|v| *v *= self.w0);
+        }
+        let l = &self.l_buf[self.l_off..];
+        // SAFETY: AVX2 and FMA present (the caller checked); L holds m columns `l_ld` apart,
+        // x holds m rows of wd entries, wd a multiple of 8.
+        unsafe { super::chol::gram_solve_rows_avx2(l, self.l_ld, m, &mut x, wd) };
+        out.reserve(m * k);
+        for c in 0..k {
+            out.extend((0..m).map(|r| x[r * wd + c]));
+        }
+        let last = w.map(|_| Col::<f64>::from_fn(m, |r| x[r * wd + k]));
+        ROWS_SPARE.set(x);
         last
     }
 
@@ -319,10 +367,11 @@ impl Gram {
     }
 }
 
-/// Right-hand sides from which [`Gram::solve_gram`] takes faer's blocked triangular solves
-/// instead of [`gram_solve_columns_avx2`] (measured at m = 600 on Zen 3: level at 8 columns;
-/// with L's panels shared by the groups, the kernel for the first block of 33 columns still
-/// cost ~0.1 ms more per BP solve than faer).
+/// Right-hand sides from which [`Gram::block`] takes the row kernel
+/// ([`super::chol::gram_solve_rows_avx2`]; faer's blocked triangular solves without AVX2) and
+/// [`Gram::solve_gram`] faer's, instead of [`gram_solve_columns_avx2`] (measured at m = 600 on
+/// Zen 3: level with faer at 8 columns; with L's panels shared by the groups, that kernel for
+/// the first block of 33 columns still cost ~0.1 ms more per BP solve than faer).
 const GRAM_KERNEL_COLS: usize = 8;
 
 thread_local! {
@@ -330,6 +379,8 @@ thread_local! {
     static L_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
     /// The last restricted problem's T, for the next one on this thread (see [`Gram::block`]).
     static T_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
+    /// [`Gram::block_rows`]'s right-hand sides, for the next block on this thread.
+    static ROWS_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
 }
 
 impl Drop for Gram {
@@ -1783,17 +1834,9 @@ mod tests {
         let (mut xg, mut yg) = (rhs.clone(), rhs.clone());
         Anchor::solve(&gram, &mut dct, &idx, &mut xg);
         Anchor::solve_transpose(&gram, &mut dct, &idx, &mut yg);
-        let ks = [0usize, 3, 50, 95];
-        let (mut cols_lu, mut cols_g, mut cols_start) = (Vec::new(), Vec::new(), vec![7.0]);
-        Anchor::columns(&lu, &dct, &idx, &ks, &mut cols_lu);
-        Anchor::columns(&gram, &dct, &idx, &ks, &mut cols_g);
-        // Appended after what the vector held.
-        assert_eq!(cols_g.len(), m * ks.len());
         let h: Vec<f64> = (0..m).map(|r| rhs[r]).collect();
         let mut ath = vec![0.0; n];
         dct.adjoint(&idx, |r| h[r], &mut ath);
-        let theta0 = gram.start(&mut dct, &idx, &h, &ath, &ks, &mut cols_start);
-        assert_eq!(cols_start.remove(0), 7.0);
         for r in 0..m {
             assert!(
                 (xg[r] - x[r]).abs() < 1e-9 * (1.0 + x[r].abs()),
@@ -1803,17 +1846,39 @@ mod tests {
                 (yg[r] - y[r]).abs() < 1e-9 * (1.0 + y[r].abs()),
                 "transpose row {r}"
             );
-            assert!(
-                (theta0[r] - x[r]).abs() < 1e-9 * (1.0 + x[r].abs()),
-                "start row {r}"
-            );
-            for c in 0..ks.len() {
-                let want = cols_lu[c * m + r];
+        }
+        // Few columns (the one-column kernel's route) and a block of 8 or more (the row kernel
+        // on AVX2, faer's solves elsewhere), frequency 0 among them.
+        for ks in [
+            &[0usize, 3, 50, 95][..],
+            &[0, 1, 2, 3, 50, 60, 70, 80, 91, 93, 95],
+        ] {
+            let (mut cols_lu, mut cols_g, mut cols_start) = (Vec::new(), Vec::new(), vec![7.0]);
+            Anchor::columns(&lu, &dct, &idx, ks, &mut cols_lu);
+            Anchor::columns(&gram, &dct, &idx, ks, &mut cols_g);
+            // Appended after what the vector held.
+            assert_eq!(cols_g.len(), m * ks.len());
+            let theta0 = gram.start(&mut dct, &idx, &h, &ath, ks, &mut cols_start);
+            assert_eq!(cols_start.remove(0), 7.0);
+            for r in 0..m {
                 assert!(
-                    (cols_g[c * m + r] - want).abs() < 1e-9 * (1.0 + want.abs()),
-                    "({r}, {c})"
+                    (theta0[r] - x[r]).abs() < 1e-9 * (1.0 + x[r].abs()),
+                    "start row {r}"
                 );
-                assert_eq!(cols_start[c * m + r], cols_g[c * m + r]);
+                for c in 0..ks.len() {
+                    let want = cols_lu[c * m + r];
+                    let got = cols_g[c * m + r];
+                    assert!(
+                        (got - want).abs() < 1e-9 * (1.0 + want.abs()),
+                        "{} columns: ({r}, {c}) {got} against {want}",
+                        ks.len()
+                    );
+                    assert!(
+                        (cols_start[c * m + r] - got).abs() <= 1e-12 * (1.0 + got.abs()),
+                        "{} columns: start ({r}, {c})",
+                        ks.len()
+                    );
+                }
             }
         }
         // A repeated column makes G singular: refused.
