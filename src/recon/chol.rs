@@ -400,24 +400,17 @@ pub unsafe fn gram_solve_rows_avx2(l: &[f64], ld: usize, m: usize, x: &mut [f64]
             let inv = 1.0 / *lp.add(i * ld + i);
             rows_diag(b, ld, xp.add(k0 * w), xp.add(i * w), w, i - k0, inv);
         }
-        let mut i0 = k0 + kb;
-        while i0 < m {
-            let r = 4.min(m - i0);
-            for g in (0..w).step_by(8) {
-                // L[i0 + c][k0 + k]: column k0 + k, rows i0.., the columns ld apart.
-                rows_update(
-                    lp.add(k0 * ld + i0),
-                    1,
-                    ld,
-                    xp.add(k0 * w + g),
-                    xp.add(i0 * w + g),
-                    w,
-                    kb,
-                    r,
-                );
-            }
-            i0 += r;
-        }
+        // Rows below: L[i][k0 + k] in column k0 + k (ld apart), row i at + i.
+        rows_update_range(
+            lp.add(k0 * ld),
+            1,
+            ld,
+            xp.add(k0 * w),
+            xp,
+            w,
+            kb,
+            k0 + kb..m,
+        );
         k0 += kb;
     }
     // Lᵀ x = y, from the last block up.
@@ -438,25 +431,43 @@ pub unsafe fn gram_solve_rows_avx2(l: &[f64], ld: usize, m: usize, x: &mut [f64]
                 inv,
             );
         }
-        let mut i0 = 0;
-        while i0 < j0 {
-            let r = 4.min(j0 - i0);
-            for g in (0..w).step_by(8) {
-                // L[j0 + k][i0 + c]: column i0 + c (ld apart), rows j0.. (contiguous).
-                rows_update(
-                    lp.add(i0 * ld + j0),
-                    ld,
-                    1,
-                    xp.add(j0 * w + g),
-                    xp.add(i0 * w + g),
-                    w,
-                    kb,
-                    r,
-                );
-            }
-            i0 += r;
-        }
+        // Rows above: L[j0 + k][i] in column i (at + i·ld), rows j0.. contiguous.
+        rows_update_range(lp.add(j0), ld, 1, xp.add(j0 * w), xp, w, kb, 0..j0);
         j1 = j0;
+    }
+}
+
+/// Rows `rows` of X (at `xp`, w apart) −= Σ_k b[i·cs + k·ks]·x[k·w..] over k < kk, 4 rows and
+/// 8 columns per [`rows_update`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn rows_update_range(
+    b: *const f64,
+    cs: usize,
+    ks: usize,
+    x: *const f64,
+    xp: *mut f64,
+    w: usize,
+    kk: usize,
+    rows: std::ops::Range<usize>,
+) {
+    let mut i0 = rows.start;
+    while i0 < rows.end {
+        let r = 4.min(rows.end - i0);
+        for g in (0..w).step_by(8) {
+            rows_update(
+                b.add(i0 * cs),
+                cs,
+                ks,
+                x.add(g),
+                xp.add(i0 * w + g),
+                w,
+                kk,
+                r,
+            );
+        }
+        i0 += r;
     }
 }
 
