@@ -237,6 +237,7 @@ fn chol(ms: &[usize], repeat: usize, rhs: usize) -> serde_json::Value {
             json!({"m": m, "route": "faer_recursive", "best_ms": best, "median_ms": med,
             "best_gflops": flop / best / 1e6, "repeat": repeat}),
         );
+        #[cfg(target_arch = "x86_64")]
         if crate::recon::simd::has_avx2_fma() {
             let mut pack = Vec::new();
             let (best, med) = time(&mut |a| {
@@ -280,6 +281,7 @@ fn chol(ms: &[usize], repeat: usize, rhs: usize) -> serde_json::Value {
             json!({"m": m, "route": "solve_faer", "rhs": rhs, "best_ms": best, "median_ms": med,
             "best_gflops": flop / best / 1e6, "repeat": repeat}),
         );
+        #[cfg(target_arch = "x86_64")]
         if crate::recon::simd::has_avx2_fma() {
             let (best, med) = time_solve(&mut |x| {
                 // Row-major m x rhs. SAFETY: AVX2 and FMA are present (checked).

@@ -384,6 +384,7 @@ thread_local! {
     /// The last restricted problem's T, for the next one on this thread (see [`Gram::block`]).
     static T_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
     /// [`Gram::block_rows`]'s right-hand sides, for the next block on this thread.
+    #[cfg(target_arch = "x86_64")]
     static ROWS_SPARE: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
 }
 
