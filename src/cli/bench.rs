@@ -214,18 +214,22 @@ fn chol(ms: &[usize], repeat: usize, rhs: usize) -> serde_json::Value {
                 src[j * ld + i] = g[(i, j)];
             }
         }
-        let mut a = src.clone();
-        let mut time = |f: &mut dyn FnMut(&mut [f64]) -> bool| {
+        // Best and median ms of `repeat` runs of f on a fresh copy of `from` (plus a warm-up).
+        let time_on = |from: &[f64], f: &mut dyn FnMut(&mut [f64])| {
+            let mut a = from.to_vec();
             let mut t = Vec::with_capacity(repeat);
             for _ in 0..=repeat {
-                a.copy_from_slice(&src);
+                a.copy_from_slice(from);
                 let t0 = Instant::now();
-                assert!(f(&mut a), "the SPD test matrix factors");
+                f(&mut a);
                 t.push(t0.elapsed().as_secs_f64() * 1e3);
             }
             t.remove(0); // warm-up
             let best = t.iter().copied().fold(f64::INFINITY, f64::min);
             (best, median(&mut t))
+        };
+        let time = |f: &mut dyn FnMut(&mut [f64]) -> bool| {
+            time_on(&src, &mut |a| assert!(f(a), "the SPD test matrix factors"))
         };
         let flop = (m as f64).powi(3) / 3.0;
         let (best, med) = time(&mut |a| {
@@ -257,19 +261,7 @@ fn chol(ms: &[usize], repeat: usize, rhs: usize) -> serde_json::Value {
         );
         let b: Vec<f64> = (0..m * rhs).map(|_| rng.random::<f64>() - 0.5).collect();
         let flop = 2.0 * (m * m * rhs) as f64;
-        let time_solve = |f: &mut dyn FnMut(&mut [f64])| {
-            let mut x = b.clone();
-            let mut t = Vec::with_capacity(repeat);
-            for _ in 0..=repeat {
-                x.copy_from_slice(&b);
-                let t0 = Instant::now();
-                f(&mut x);
-                t.push(t0.elapsed().as_secs_f64() * 1e3);
-            }
-            t.remove(0); // warm-up
-            let best = t.iter().copied().fold(f64::INFINITY, f64::min);
-            (best, median(&mut t))
-        };
+        let time_solve = |f: &mut dyn FnMut(&mut [f64])| time_on(&b, f);
         let lr = faer::MatRef::from_column_major_slice_with_stride(&l, m, m, ld);
         let (best, med) = time_solve(&mut |x| {
             // Column-major m x rhs.
