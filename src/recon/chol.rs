@@ -131,6 +131,16 @@ thread_local! {
     static CHOL_PACK: std::cell::Cell<Vec<f64>> = const { std::cell::Cell::new(Vec::new()) };
 }
 
+/// Grows the kept scratch `buf` to hold `len` entries from its first 64-byte line and returns
+/// that line's offset: kernels that load 32 bytes at a time then split no cache lines (at the
+/// allocator's 16-byte offset every other load did). The buffer only grows.
+pub fn line_offset(buf: &mut Vec<f64>, len: usize) -> usize {
+    if buf.len() < len + 8 {
+        buf.resize(len + 8, 0.0);
+    }
+    buf.as_ptr().align_offset(64).min(8)
+}
+
 /// Factors the lower triangle of the column-major n x n matrix in `a` (columns `ld` ≥ n apart)
 /// in place; false when it is not numerically positive definite (a pivot ≤ 0 or NaN). `pack`
 /// is scratch, kept by the caller from call to call.
@@ -145,14 +155,10 @@ pub unsafe fn cholesky_lower_avx2(a: &mut [f64], n: usize, ld: usize, pack: &mut
     // The first panel's strips are the largest. Every entry read below is written first in this
     // call (see `panel`): the buffer only grows, never zeroed again (resizing it per panel
     // zero-filled ~0.4 MB per solve, ~0.6 % of a BP solve at m = 600).
-    // The strips start on a 64-byte line, so that each 8-entry row of a strip is one line
-    // and none of the kernel's 32-byte loads straddles two (at the allocator's 16-byte offset
-    // every other one did: the hot harness's BP m = 600 median of best was ~0.1 ms higher).
+    // The strips start on a 64-byte line: each 8-entry row of a strip is then one line.
     let need = n.div_ceil(8) * NB.min(n) * 8;
-    if pack.len() < need + 8 {
-        pack.resize(need + 8, 0.0);
-    }
-    let off = pack.as_ptr().align_offset(64).min(8);
+    // (The offset first: growing the buffer may move it.)
+    let off = line_offset(pack, need);
     let packed = pack.as_mut_ptr().add(off);
     let mut j = 0;
     while j < n {

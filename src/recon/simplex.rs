@@ -313,10 +313,7 @@ impl Gram {
         // ~150 KB per solve at m = 600). X starts on a 64-byte line like L, so that the
         // kernel's 32-byte loads split no lines (see [`Restricted::tmat`] for what that cost).
         let mut buf = ROWS_SPARE.take();
-        if buf.len() < m * wd + 8 {
-            buf.resize(m * wd + 8, 0.0);
-        }
-        let off = buf.as_ptr().align_offset(64).min(8);
+        let off = super::chol::line_offset(&mut buf, m * wd);
         let x = &mut buf[off..off + m * wd];
         for (r, &j) in self.sorted.iter().enumerate() {
             let row = &mut x[r * wd..(r + 1) * wd];
@@ -677,8 +674,7 @@ impl Gram {
         // the stale rest needs no zeroing (zeroing 2.9 MB was ~0.15 ms of a solve at m = 600).
         let ld = m.next_multiple_of(8);
         let mut l_buf = L_SPARE.take();
-        l_buf.resize(ld * m + 8, 0.0);
-        let l_off = l_buf.as_ptr().align_offset(64).min(8);
+        let l_off = super::chol::line_offset(&mut l_buf, ld * m);
         let l = &mut l_buf[l_off..];
         gram_lower(&half_g, &s32, l, ld);
         let r0 = w0 / wk;
@@ -941,8 +937,9 @@ impl Restricted {
     /// T's entries, column after column. They start on a 64-byte line when the buffer did not
     /// move since (its capacity is reserved up front): with m = 600 every column does, and
     /// the AVX2 kernels' loads split no lines. Measured on Zen 3 (hot harness, BP m = 600,
-    /// with the row kernel's buffer aligned likewise): median of best ~0.3 ms lower than with
-    /// the allocator's 16-byte offset, where every other 32-byte load straddled two lines.
+    /// together with the Cholesky's strips and the row kernel's buffer, not one by one): median
+    /// of best ~0.15-0.2 ms lower than at the allocator's 16-byte offset, where every other
+    /// 32-byte load straddled two lines.
     fn tmat(&self) -> &[f64] {
         &self.t[self.t_off..]
     }
