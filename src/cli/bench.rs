@@ -32,8 +32,9 @@ enum What {
         methods: String,
     },
     /// Solve times (median, p90; first_ms: the first solve, which plans the transforms;
-    /// median_best_of_3_ms: per curve the best of three solves, n = 1901 only) single-threaded:
-    /// fast BP at n = 1901, auto with its CV, scale runs.
+    /// median_best_of_3_ms: per curve the best of three solves, n = 1901 only; core_clock_ghz:
+    /// the core clock just before and just after the row) single-threaded: fast BP at
+    /// n = 1901, auto with its CV, scale runs.
     Speed {
         #[arg(long, default_value_t = 11)]
         repeat: usize,
@@ -146,6 +147,39 @@ pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> Result<Vec<Accu
         }
     }
     Ok(rows)
+}
+
+/// The core clock in GHz right now, from a chain of 40 M dependent adds (one per cycle on
+/// x86-64: ~15 ms). On this VM the clock follows the other tenants' load (2.8 GHz when they are
+/// busy, up to ~3.5 GHz otherwise) and every dense kernel's time follows it, so speed rows carry
+/// it. A busy SMT sibling slows the FMA units without slowing this chain: the clock explains
+/// part of the host's noise, not all of it. `None` off x86-64.
+fn core_clock_ghz() -> Option<f64> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        const ROUNDS: u64 = 10_000_000;
+        let t = std::time::Instant::now();
+        let mut x: u64 = 0;
+        // SAFETY: register-only arithmetic; no memory is touched.
+        unsafe {
+            std::arch::asm!(
+                "2:",
+                "add {x}, 1",
+                "add {x}, 1",
+                "add {x}, 1",
+                "add {x}, 1",
+                "sub {c}, 1",
+                "jnz 2b",
+                x = inout(reg) x,
+                c = inout(reg) ROUNDS => _,
+                options(nomem, nostack),
+            );
+        }
+        std::hint::black_box(x);
+        Some(4.0 * ROUNDS as f64 / t.elapsed().as_secs_f64() / 1e9)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    None
 }
 
 pub fn median(v: &mut [f64]) -> f64 {
@@ -369,6 +403,7 @@ fn time_method(
         travel_um: [grid.start_um, grid.end_um()],
         ..Default::default()
     };
+    let clock_before = core_clock_ghz();
     let mut times = Vec::new();
     let mut iters = Vec::new();
     let mut status = Vec::new();
@@ -412,6 +447,7 @@ fn time_method(
         }
         median(&mut best)
     });
+    let clock = clock_before.zip(core_clock_ghz()).map(|(a, b)| [a, b]);
     status.sort();
     status.dedup();
     // The first solve of a length plans its transforms; later ones reuse the thread's plans.
@@ -422,6 +458,7 @@ fn time_method(
         "first_ms": first, "median_best_of_3_ms": best_of_3,
         "median_iterations": median(&mut iters), "statuses": status,
         "max_relative_gap": max_gap.is_finite().then_some(max_gap),
+        "core_clock_ghz": clock,
     }))
 }
 
@@ -455,4 +492,16 @@ fn speed(repeat: usize, clarabel_m: Option<usize>) -> Result<serde_json::Value, 
         repeat.min(3),
     )?);
     Ok(json!({"benchmark": "speed", "threads": 1, "rows": rows}))
+}
+
+#[cfg(test)]
+mod tests {
+    /// The clock readout is a plausible core clock (a wrong count of adds per round, or a
+    /// chain the CPU could overlap, would land far outside).
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn core_clock_is_plausible() {
+        let ghz = super::core_clock_ghz().expect("x86-64 has the readout");
+        assert!((0.8..7.0).contains(&ghz), "{ghz} GHz");
+    }
 }
