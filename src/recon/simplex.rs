@@ -933,6 +933,11 @@ struct Restricted {
     small: Option<Basis<f64>>,
 }
 
+/// Column e of T (m entries each) in the buffer `t` whose entries start at `t_off`.
+fn t_column(t: &[f64], t_off: usize, m: usize, e: usize) -> &[f64] {
+    &t[t_off + e * m..t_off + (e + 1) * m]
+}
+
 impl Restricted {
     /// T's entries, column after column. They start on a 64-byte line when the buffer did not
     /// move since (its capacity is reserved up front): with m = 600 every column does, and
@@ -945,7 +950,7 @@ impl Restricted {
     }
 
     fn tcol(&self, e: usize) -> &[f64] {
-        &self.tmat()[e * self.m..(e + 1) * self.m]
+        t_column(&self.t, self.t_off, self.m, e)
     }
 
     fn tc_ref(&self) -> MatRef<'_, f64> {
@@ -1693,7 +1698,8 @@ fn run<T: Anchor>(
             let dst = dst
                 .expect("owned faer columns are contiguous")
                 .as_slice_mut();
-            dst.copy_from_slice(&lp.t[lp.t_off + j * m..lp.t_off + (j + 1) * m]);
+            // (T's fields directly, not `tcol`: `lp.tc` is borrowed mutably here.)
+            dst.copy_from_slice(t_column(&lp.t, lp.t_off, m, j));
             xc.resize_with(q + 1, |_| sj * t);
             xc[q] = sj * t;
         }
