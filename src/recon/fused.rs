@@ -192,25 +192,67 @@ struct Split {
     zi: Aligned,
     wr: Aligned,
     wi: Aligned,
-    /// p and q (see [`RaderAdmm`]) at bit-reversed positions.
-    pr: Aligned,
-    pi: Aligned,
-    qr: Aligned,
-    qi: Aligned,
-    /// The same for [`Split::convolve8`], interleaved by 8-lane vector (pr, pi, qr, qi of
-    /// vector v at 32·v): one pointer instead of four in its product loop.
-    pq8: Aligned,
     /// Vector 0 holds the octaves below 16, each mirrored within itself: its lane permutation.
     mirror0: [i32; 16],
 }
 
 /// The split-format FFT in the widest vectors the CPU has (one per projection state, so the
-/// variants' size difference costs nothing).
+/// variants' size difference costs nothing), with p and q (see [`RaderAdmm`]) at bit-reversed
+/// positions in the layout its product loop reads.
 #[cfg(target_arch = "x86_64")]
 #[allow(clippy::large_enum_variant)]
 enum Kernel {
-    Avx512(super::split_fft::SplitFft),
-    Avx2(super::split_fft::SplitFft8),
+    /// p and q as four arrays (re and im of each).
+    Avx512 {
+        fft: super::split_fft::SplitFft,
+        pr: Aligned,
+        pi: Aligned,
+        qr: Aligned,
+        qi: Aligned,
+    },
+    /// p and q interleaved by 8-lane vector (pr, pi, qr, qi of vector v at 32·v): one pointer
+    /// instead of four in [`Split::convolve8`]'s product loop, which spilled sixteen advancing
+    /// pointers to the stack with four arrays.
+    Avx2 {
+        fft: super::split_fft::SplitFft8,
+        pq8: Aligned,
+    },
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Kernel {
+    /// The AVX-512 kernel for p and q (of a power-of-two length ≥ 64).
+    fn avx512(p: &[C32], q: &[C32]) -> Option<Self> {
+        use super::split_fft::bit_reverse;
+        let len = p.len();
+        let br =
+            |v: &[C32], f: fn(&C32) -> f32| Aligned::from_fn(len, |i| f(&v[bit_reverse(i, len)]));
+        Some(Kernel::Avx512 {
+            fft: super::split_fft::SplitFft::new(len)?,
+            pr: br(p, |c| c.re),
+            pi: br(p, |c| c.im),
+            qr: br(q, |c| c.re),
+            qi: br(q, |c| c.im),
+        })
+    }
+
+    /// The AVX2 kernel for p and q (of a power-of-two length ≥ 32).
+    fn avx2(p: &[C32], q: &[C32]) -> Option<Self> {
+        use super::split_fft::bit_reverse;
+        let len = p.len();
+        Some(Kernel::Avx2 {
+            fft: super::split_fft::SplitFft8::new(len)?,
+            pq8: Aligned::from_fn(4 * len, |i| {
+                let (v, part, lane) = (i / 32, i / 8 % 4, i % 8);
+                let c = [p, q][part / 2][bit_reverse(8 * v + lane, len)];
+                if part % 2 == 0 {
+                    c.re
+                } else {
+                    c.im
+                }
+            }),
+        })
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -220,7 +262,14 @@ impl Split {
     #[target_feature(enable = "avx512f")]
     unsafe fn convolve(&mut self) -> f32 {
         use std::arch::x86_64::*;
-        let Kernel::Avx512(fft) = &self.fft else {
+        let Kernel::Avx512 {
+            fft,
+            pr: kpr,
+            pi: kpi,
+            qr: kqr,
+            qi: kqi,
+        } = &self.fft
+        else {
             unreachable!("the AVX-512 convolution on the AVX-512 kernel")
         };
         fft.forward(&mut self.zr, &mut self.zi, true);
@@ -239,12 +288,7 @@ impl Split {
             let (zr, zi) = (ld(&self.zr, v), ld(&self.zi, v));
             let mr = _mm512_permutexvar_ps(perm, ld(&self.zr, mv));
             let mi = _mm512_permutexvar_ps(perm, ld(&self.zi, mv));
-            let (pr, pi, qr, qi) = (
-                ld(&self.pr, v),
-                ld(&self.pi, v),
-                ld(&self.qr, v),
-                ld(&self.qi, v),
-            );
+            let (pr, pi, qr, qi) = (ld(kpr, v), ld(kpi, v), ld(kqr, v), ld(kqi, v));
             // Z·p + conj(M)·q.
             let re = _mm512_fmadd_ps(
                 mi,
@@ -271,7 +315,7 @@ impl Split {
     #[target_feature(enable = "avx2,fma")]
     unsafe fn convolve8(&mut self) -> f32 {
         use std::arch::x86_64::*;
-        let Kernel::Avx2(fft) = &self.fft else {
+        let Kernel::Avx2 { fft, pq8 } = &self.fft else {
             unreachable!("the AVX2 convolution on the AVX2 kernel")
         };
         fft.forward(&mut self.zr, &mut self.zi, true);
@@ -281,10 +325,10 @@ impl Split {
         let v0_idx = _mm256_setr_epi32(0, 1, 3, 2, 7, 6, 5, 4);
         let vecs = self.zr.len() / 8;
         let lens = [&self.zi, &self.wr, &self.wi];
-        assert!(lens.iter().all(|t| t.len() == 8 * vecs) && self.pq8.len() == 32 * vecs);
+        assert!(lens.iter().all(|t| t.len() == 8 * vecs) && pq8.len() == 32 * vecs);
         let (zr, zi) = (self.zr.as_ptr(), self.zi.as_ptr());
         let (wr, wi) = (self.wr.as_mut_ptr(), self.wi.as_mut_ptr());
-        let pq = self.pq8.as_ptr();
+        let pq = pq8.as_ptr();
         // W_v = Z_v·p_v + conj(M)·q_v with M the mirror vector, permuted.
         let out = |v: usize, zr_v: __m256, zi_v: __m256, mr: __m256, mi: __m256| {
             let k = pq.add(32 * v);
@@ -339,36 +383,21 @@ impl Split {
     }
 
     fn new(p: &[C32], q: &[C32]) -> Option<Self> {
-        use super::split_fft::{bit_reverse, mirror, SplitFft, SplitFft8};
+        use super::split_fft::mirror;
         let len = p.len();
         let fft = if super::simd::has_avx512f() {
-            Kernel::Avx512(SplitFft::new(len)?)
+            Kernel::avx512(p, q)?
         } else if super::simd::has_avx2_fma() {
-            Kernel::Avx2(SplitFft8::new(len)?)
+            Kernel::avx2(p, q)?
         } else {
             return None;
         };
-        let br =
-            |v: &[C32], f: fn(&C32) -> f32| Aligned::from_fn(len, |i| f(&v[bit_reverse(i, len)]));
         Some(Self {
             fft,
             zr: Aligned::zeros(len),
             zi: Aligned::zeros(len),
             wr: Aligned::zeros(len),
             wi: Aligned::zeros(len),
-            pr: br(p, |c| c.re),
-            pi: br(p, |c| c.im),
-            qr: br(q, |c| c.re),
-            qi: br(q, |c| c.im),
-            pq8: Aligned::from_fn(4 * len, |i| {
-                let (v, part, lane) = (i / 32, i / 8 % 4, i % 8);
-                let c = [p, q][part / 2][bit_reverse(8 * v + lane, len)];
-                if part % 2 == 0 {
-                    c.re
-                } else {
-                    c.im
-                }
-            }),
             mirror0: std::array::from_fn(|l| mirror(l) as i32),
         })
     }
@@ -551,10 +580,10 @@ impl RaderAdmm {
         #[cfg(target_arch = "x86_64")]
         match self.split.as_ref().map(|s| &s.fft) {
             // SAFETY: each kernel exists only when the CPU has its features.
-            Some(Kernel::Avx512(_)) => {
+            Some(Kernel::Avx512 { .. }) => {
                 return unsafe { self.project_avx512(v, &samples.paired, h, x) }
             }
-            Some(Kernel::Avx2(_)) => return unsafe { self.project_split8(v, samples, x) },
+            Some(Kernel::Avx2 { .. }) => return unsafe { self.project_split8(v, samples, x) },
             None => {}
         }
         self.project_impl(v, &samples.pos, h, x);
@@ -883,12 +912,10 @@ mod tests {
         }
         for n in [19usize, 37, 67, 101, 131, 383, 557, 1901, 4099] {
             let mut fused = RaderAdmm::new(n).expect("prime");
-            // The AVX2 kernel even where the CPU has AVX-512F (the split's buffers and tables do
-            // not depend on the kernel).
+            // The AVX2 kernel even where the CPU has AVX-512F (the split's buffers do not
+            // depend on the kernel).
             let split = fused.split.as_mut().expect("AVX2 present");
-            split.fft = Kernel::Avx2(
-                crate::recon::split_fft::SplitFft8::new(split.zr.len()).expect("power of two"),
-            );
+            split.fft = Kernel::avx2(&fused.p, &fused.q).expect("power of two");
             let v: Vec<f32> = (0..n).map(|i| ((i * 37 % 11) as f32 - 5.0) * 0.1).collect();
             let mut idx: Vec<usize> = (0..n).step_by(3).collect();
             idx.push(n - 1);
