@@ -33,8 +33,9 @@ enum What {
     },
     /// Solve times (median, p90; first_ms: the first solve, which plans the transforms;
     /// median_best_of_3_ms: per curve the best of three solves, n = 1901 only; core_clock_ghz:
-    /// the core clock just before and just after the row) single-threaded: fast BP at
-    /// n = 1901, auto with its CV, scale runs.
+    /// the core clock just before and just after the row; fma_gflops: the f64 FMA throughput
+    /// the core delivered just before and just after, which a busy SMT sibling lowers and the
+    /// clock does not show) single-threaded: fast BP at n = 1901, auto with its CV, scale runs.
     Speed {
         #[arg(long, default_value_t = 11)]
         repeat: usize,
@@ -179,6 +180,57 @@ fn core_clock_ghz() -> Option<f64> {
         Some(4.0 * ROUNDS as f64 / t.elapsed().as_secs_f64() / 1e9)
     }
     #[cfg(not(target_arch = "x86_64"))]
+    None
+}
+
+/// The f64 FMA throughput this core delivers right now, GF/s: 4 M rounds of ten independent
+/// 256-bit FMAs (~7 ms). The clock readout cannot see a busy SMT sibling, which shares the FMA
+/// pipes; this one does: its ratio to 16 flops per cycle at the clock readout (Zen 3: two
+/// 256-bit FMA pipes) is the share of the pipes the solver could have had. Every dense kernel of
+/// the BP finish is bound by these pipes. `None` without AVX2 and FMA.
+fn fma_gflops() -> Option<f64> {
+    #[cfg(target_arch = "x86_64")]
+    if crate::recon::simd::has_avx2_fma() {
+        const ROUNDS: u64 = 4_000_000;
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn chains() {
+            use std::arch::x86_64::*;
+            let z = _mm256_setzero_pd();
+            let (mut a0, mut a1, mut a2, mut a3, mut a4) = (z, z, z, z, z);
+            let (mut a5, mut a6, mut a7, mut a8, mut a9) = (z, z, z, z, z);
+            // SAFETY: register-only arithmetic (zeros: no denormals); no memory is touched.
+            unsafe {
+                std::arch::asm!(
+                    "2:",
+                    "vfmadd231pd {a0}, {x}, {x}",
+                    "vfmadd231pd {a1}, {x}, {x}",
+                    "vfmadd231pd {a2}, {x}, {x}",
+                    "vfmadd231pd {a3}, {x}, {x}",
+                    "vfmadd231pd {a4}, {x}, {x}",
+                    "vfmadd231pd {a5}, {x}, {x}",
+                    "vfmadd231pd {a6}, {x}, {x}",
+                    "vfmadd231pd {a7}, {x}, {x}",
+                    "vfmadd231pd {a8}, {x}, {x}",
+                    "vfmadd231pd {a9}, {x}, {x}",
+                    "sub {c}, 1",
+                    "jnz 2b",
+                    a0 = inout(ymm_reg) a0, a1 = inout(ymm_reg) a1, a2 = inout(ymm_reg) a2,
+                    a3 = inout(ymm_reg) a3, a4 = inout(ymm_reg) a4, a5 = inout(ymm_reg) a5,
+                    a6 = inout(ymm_reg) a6, a7 = inout(ymm_reg) a7, a8 = inout(ymm_reg) a8,
+                    a9 = inout(ymm_reg) a9,
+                    x = in(ymm_reg) z,
+                    c = inout(reg) ROUNDS => _,
+                    options(nomem, nostack),
+                );
+            }
+            std::hint::black_box([a0, a1, a2, a3, a4, a5, a6, a7, a8, a9]);
+        }
+        let t = std::time::Instant::now();
+        // SAFETY: AVX2 and FMA are present (checked).
+        unsafe { chains() };
+        // Ten FMAs of 4 lanes, 2 flops each, per round.
+        return Some(80.0 * ROUNDS as f64 / t.elapsed().as_secs_f64() / 1e9);
+    }
     None
 }
 
@@ -404,6 +456,7 @@ fn time_method(
         ..Default::default()
     };
     let clock_before = core_clock_ghz();
+    let fma_before = fma_gflops();
     let mut times = Vec::new();
     let mut iters = Vec::new();
     let mut status = Vec::new();
@@ -448,6 +501,7 @@ fn time_method(
         median(&mut best)
     });
     let clock = clock_before.zip(core_clock_ghz()).map(|(a, b)| [a, b]);
+    let fma = fma_before.zip(fma_gflops()).map(|(a, b)| [a, b]);
     status.sort();
     status.dedup();
     // The first solve of a length plans its transforms; later ones reuse the thread's plans.
@@ -458,7 +512,7 @@ fn time_method(
         "first_ms": first, "median_best_of_3_ms": best_of_3,
         "median_iterations": median(&mut iters), "statuses": status,
         "max_relative_gap": max_gap.is_finite().then_some(max_gap),
-        "core_clock_ghz": clock,
+        "core_clock_ghz": clock, "fma_gflops": fma,
     }))
 }
 
@@ -503,5 +557,25 @@ mod tests {
     fn core_clock_is_plausible() {
         let ghz = super::core_clock_ghz().expect("x86-64 has the readout");
         assert!((0.8..7.0).contains(&ghz), "{ghz} GHz");
+    }
+
+    /// The FMA readout is a plausible throughput: about 16 flops per cycle at most (two 256-bit
+    /// FMA pipes; the bound leaves room for the two readouts' noise), above a latency-bound
+    /// chain's 2 per cycle (a loop serialised, doubled or cut short would land outside).
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn fma_throughput_is_plausible() {
+        if !crate::recon::simd::has_avx2_fma() {
+            assert!(super::fma_gflops().is_none());
+            return;
+        }
+        // Best of three against the clock read between: the host's other tenants move both.
+        let (mut gf, mut ghz) = (0.0f64, 0.0f64);
+        for _ in 0..3 {
+            ghz = ghz.max(super::core_clock_ghz().expect("x86-64"));
+            gf = gf.max(super::fma_gflops().expect("AVX2 and FMA"));
+        }
+        let per_cycle = gf / ghz;
+        assert!((2.5..=20.0).contains(&per_cycle), "{gf} GF at {ghz} GHz");
     }
 }
