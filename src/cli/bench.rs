@@ -35,7 +35,9 @@ enum What {
     /// median_best_of_3_ms: per curve the best of three solves, n = 1901 only; core_clock_ghz:
     /// the core clock just before and just after the row; fma_gflops: the f64 FMA throughput
     /// the core delivered just before and just after, which a busy SMT sibling lowers and the
-    /// clock does not show) single-threaded: fast BP at n = 1901, auto with its CV, scale runs.
+    /// clock does not show; median_mcycles: the single pass in core cycles, each solve's ms
+    /// times the clock read just before and after it) single-threaded: fast BP at n = 1901, auto
+    /// with its CV, scale runs.
     Speed {
         #[arg(long, default_value_t = 11)]
         repeat: usize,
@@ -156,9 +158,13 @@ pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> Result<Vec<Accu
 /// it. A busy SMT sibling slows the FMA units without slowing this chain: the clock explains
 /// part of the host's noise, not all of it. `None` off x86-64.
 fn core_clock_ghz() -> Option<f64> {
+    clock_ghz(10_000_000)
+}
+
+/// The clock from `rounds` rounds of four dependent adds.
+fn clock_ghz(rounds: u64) -> Option<f64> {
     #[cfg(target_arch = "x86_64")]
     {
-        const ROUNDS: u64 = 10_000_000;
         let t = std::time::Instant::now();
         let mut x: u64 = 0;
         // SAFETY: register-only arithmetic; no memory is touched.
@@ -172,15 +178,18 @@ fn core_clock_ghz() -> Option<f64> {
                 "sub {c}, 1",
                 "jnz 2b",
                 x = inout(reg) x,
-                c = inout(reg) ROUNDS => _,
+                c = inout(reg) rounds => _,
                 options(nomem, nostack),
             );
         }
         std::hint::black_box(x);
-        Some(4.0 * ROUNDS as f64 / t.elapsed().as_secs_f64() / 1e9)
+        Some(4.0 * rounds as f64 / t.elapsed().as_secs_f64() / 1e9)
     }
     #[cfg(not(target_arch = "x86_64"))]
-    None
+    {
+        let _ = rounds;
+        None
+    }
 }
 
 /// The f64 FMA throughput this core delivers right now, GF/s: 4 M rounds of ten independent
@@ -233,6 +242,9 @@ fn fma_gflops() -> Option<f64> {
     }
     None
 }
+
+/// Rounds of [`clock_ghz`] around each solve of a speed row's single pass (1 M adds).
+const CLOCK_ROUNDS_PER_SOLVE: u64 = 250_000;
 
 pub fn median(v: &mut [f64]) -> f64 {
     percentile(v, 0.5)
@@ -458,6 +470,7 @@ fn time_method(
     let clock_before = core_clock_ghz();
     let fma_before = fma_gflops();
     let mut times = Vec::new();
+    let mut mcycles = Vec::new();
     let mut iters = Vec::new();
     let mut status = Vec::new();
     let mut solver_used = String::new();
@@ -476,7 +489,14 @@ fn time_method(
             solver,
             ..Default::default()
         };
+        // The clock just before and after (~0.3 ms each): on this VM it moves from 1.6 to
+        // 3.5 GHz with the other tenants' load, within a row, and a solve's time with it.
+        let c0 = clock_ghz(CLOCK_ROUNDS_PER_SOLVE);
         let out = recon::reconstruct(grid, &p.samples, &s)?;
+        let c1 = clock_ghz(CLOCK_ROUNDS_PER_SOLVE);
+        if let Some((c0, c1)) = c0.zip(c1) {
+            mcycles.push(out.solve_ms * 0.5 * (c0 + c1));
+        }
         times.push(out.solve_ms);
         solver_used = out.solver.clone();
         iters.push(out.iterations as f64);
@@ -513,6 +533,7 @@ fn time_method(
         "median_iterations": median(&mut iters), "statuses": status,
         "max_relative_gap": max_gap.is_finite().then_some(max_gap),
         "core_clock_ghz": clock, "fma_gflops": fma,
+        "median_mcycles": (!mcycles.is_empty()).then(|| median(&mut mcycles)),
     }))
 }
 
@@ -557,6 +578,30 @@ mod tests {
     fn core_clock_is_plausible() {
         let ghz = super::core_clock_ghz().expect("x86-64 has the readout");
         assert!((0.8..7.0).contains(&ghz), "{ghz} GHz");
+    }
+
+    /// A speed row carries the fields lab scripts read, and its cycle count is its times at a
+    /// plausible clock.
+    #[test]
+    fn speed_row_reports_times_clock_and_cycles() {
+        use crate::recon::{Method, Solver};
+        let grid: crate::grid::Grid = "0:5:9500".parse().unwrap();
+        let row = super::time_method(&grid, 100, Method::Bp, Solver::Fast, 3).unwrap();
+        let num = |k: &str| row[k].as_f64().unwrap_or_else(|| panic!("{k} in {row}"));
+        let ms = num("median_ms");
+        // Per curve the best of three is at most its first-pass time, so their medians too.
+        assert!(ms > 0.0 && num("median_best_of_3_ms") <= ms);
+        assert_eq!(row["statuses"], serde_json::json!(["Optimal"]));
+        assert_eq!((num("n"), num("m"), num("repeat")), (1901.0, 100.0, 3.0));
+        if cfg!(target_arch = "x86_64") {
+            // Mcycles / ms = GHz: the per-solve clock readouts.
+            let ghz = num("median_mcycles") / ms;
+            assert!((0.5..7.0).contains(&ghz), "{ghz} GHz");
+            assert_eq!(row["core_clock_ghz"].as_array().map(|a| a.len()), Some(2));
+        }
+        if crate::recon::simd::has_avx2_fma() {
+            assert_eq!(row["fma_gflops"].as_array().map(|a| a.len()), Some(2));
+        }
     }
 
     /// The FMA readout is a plausible throughput: about 16 flops per cycle at most (two 256-bit
