@@ -24,8 +24,12 @@ fn fixture() -> MutexGuard<'static, Option<FakeGvCamera>> {
         .lock()
         // A failed test must not take the others down with it.
         .unwrap_or_else(|e| e.into_inner());
-    if guard.is_none() {
-        *guard = Some(FakeGvCamera::start(blank_source()).expect("start fake GV camera"));
+    match guard.as_ref() {
+        None => *guard = Some(FakeGvCamera::start(blank_source()).expect("start fake GV camera")),
+        // The fake keeps drawing after a test's camera is gone: a source the last test left
+        // (Mono16's asserts two bytes per pixel) would fail on the next test's frames and count
+        // as a source panic there.
+        Some(fake) => fake.set_source(blank_source()),
     }
     guard
 }
