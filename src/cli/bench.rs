@@ -153,9 +153,8 @@ pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> Result<Vec<Accu
 }
 
 /// The core clock in GHz right now, from a chain of 40 M dependent adds (one per cycle on
-/// x86-64: ~15 ms). On this VM the clock follows the other tenants' load (2.8 GHz when they are
-/// busy, up to ~3.5 GHz otherwise) and every dense kernel's time follows it, so speed rows carry
-/// it. A busy SMT sibling slows the FMA units without slowing this chain: the clock explains
+/// x86-64: ~15 ms). On this VM the clock follows the other tenants' load (read between 1.6 and
+/// ~3.5 GHz) and every dense kernel's time follows it, so speed rows carry it. A busy SMT sibling slows the FMA units without slowing this chain: the clock explains
 /// part of the host's noise, not all of it. `None` off x86-64.
 fn core_clock_ghz() -> Option<f64> {
     clock_ghz(10_000_000)
