@@ -153,30 +153,35 @@ pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> Result<Vec<Accu
 }
 
 /// The core clock in GHz right now, from a chain of 40 M dependent adds (one per cycle on
-/// x86-64: ~15 ms). On this VM the clock follows the other tenants' load (read between 1.6 and
-/// ~3.5 GHz) and every dense kernel's time follows it, so speed rows carry it. A busy SMT sibling slows the FMA units without slowing this chain: the clock explains
-/// part of the host's noise, not all of it. `None` off x86-64.
+/// x86-64: ~15 ms). On the project's VMs the clock follows the other tenants' load (read
+/// between 1.6 and ~3.5 GHz on a Zen 3 EPYC) and every dense kernel's time follows it, so speed
+/// rows carry it. A busy SMT sibling slows the FMA units without slowing this chain: the clock
+/// explains part of the host's noise, not all of it. `None` off x86-64.
 fn core_clock_ghz() -> Option<f64> {
     clock_ghz(10_000_000)
 }
 
-/// The clock from `rounds` rounds of four dependent adds.
+/// The clock from `rounds` rounds of four dependent adds. The addend is a register: Intel's
+/// Golden Cove cores and their successors fold `add reg, imm` chains at rename, and an
+/// immediate addend read 5-10 GHz on a 3 GHz Xeon (Emerald Rapids, session 24).
 fn clock_ghz(rounds: u64) -> Option<f64> {
     #[cfg(target_arch = "x86_64")]
     {
+        let one: u64 = std::hint::black_box(1);
         let t = std::time::Instant::now();
         let mut x: u64 = 0;
         // SAFETY: register-only arithmetic; no memory is touched.
         unsafe {
             std::arch::asm!(
                 "2:",
-                "add {x}, 1",
-                "add {x}, 1",
-                "add {x}, 1",
-                "add {x}, 1",
+                "add {x}, {one}",
+                "add {x}, {one}",
+                "add {x}, {one}",
+                "add {x}, {one}",
                 "sub {c}, 1",
                 "jnz 2b",
                 x = inout(reg) x,
+                one = in(reg) one,
                 c = inout(reg) rounds => _,
                 options(nomem, nostack),
             );
@@ -350,6 +355,18 @@ fn chol(ms: &[usize], repeat: usize, rhs: usize) -> serde_json::Value {
                 "best_gflops": flop / best / 1e6, "repeat": repeat}),
             );
         }
+        #[cfg(target_arch = "x86_64")]
+        if crate::recon::simd::has_avx512f() {
+            let mut pack = Vec::new();
+            let (best, med) = time(&mut |a| {
+                // SAFETY: AVX-512F is present (checked).
+                unsafe { crate::recon::chol512::cholesky_lower_avx512(a, m, ld, &mut pack) }
+            });
+            rows.push(
+                json!({"m": m, "route": "avx512_blocked", "best_ms": best, "median_ms": med,
+                "best_gflops": flop / best / 1e6, "repeat": repeat}),
+            );
+        }
         // The block solve on the factor of G.
         let mut l = src.clone();
         assert!(
@@ -378,6 +395,17 @@ fn chol(ms: &[usize], repeat: usize, rhs: usize) -> serde_json::Value {
             });
             rows.push(
                 json!({"m": m, "route": "solve_rows_avx2", "rhs": rhs, "best_ms": best,
+                "median_ms": med, "best_gflops": flop / best / 1e6, "repeat": repeat}),
+            );
+        }
+        #[cfg(target_arch = "x86_64")]
+        if crate::recon::simd::has_avx512f() {
+            let (best, med) = time_solve(&mut |x| {
+                // Row-major m x rhs. SAFETY: AVX-512F is present (checked).
+                unsafe { crate::recon::chol512::gram_solve_rows_avx512(&l, ld, m, x, rhs) }
+            });
+            rows.push(
+                json!({"m": m, "route": "solve_rows_avx512", "rhs": rhs, "best_ms": best,
                 "median_ms": med, "best_gflops": flop / best / 1e6, "repeat": repeat}),
             );
         }

@@ -1,6 +1,7 @@
 //! Dense Cholesky factorization G = LLᵀ of the BP exact finish's Gram anchor (m x m, m ≈ 600 at
 //! the bench's m = 600) on AVX2 and FMA, and the solve G⁻¹X of a block of right-hand sides with
-//! its factor ([`gram_solve_rows_avx2`], the simplex's first block).
+//! its factor ([`gram_solve_rows_avx2`], the simplex's first block). Where the CPU has AVX-512F,
+//! [`super::chol512`] runs the same algorithms on 512-bit registers.
 //!
 //! faer's kernels reach ~90 % of the FMA peak on a large gemm, but its Cholesky of 600 x 600
 //! (recursive, through its triangular solve and products) reached 34-37 GF on the Zen 3 host
@@ -29,12 +30,21 @@ use std::arch::x86_64::*;
 /// Columns per panel (a multiple of 8). Measured at m = 600 on Zen 3 with `csmetro bench chol`
 /// (best of 201, the width from a temporary environment variable): 64 1.73 ms, 80 1.68, 96
 /// 1.71-1.72, 112 1.71, 128 1.72-1.74: flat.
-const NB: usize = 96;
+pub(super) const NB: usize = 96;
 
 /// G = LLᵀ in place on the lower triangle of the column-major `l` (m x m, columns `ld` apart):
-/// [`cholesky_lower_avx2`] where the CPU has AVX2 and FMA (`csmetro bench chol` at m = 600 on
-/// Zen 3, best of 101: 1.64-1.73 ms against 1.95-2.11 for [`cholesky_lower`]), else faer's.
+/// [`super::chol512::cholesky_lower_avx512`] where the CPU has AVX-512F, [`cholesky_lower_avx2`]
+/// where it has AVX2 and FMA (`csmetro bench chol` at m = 600 on Zen 3, best of 101: 1.64-1.73
+/// ms against 1.95-2.11 for [`cholesky_lower`]), else faer's.
 pub fn factor_lower(l: &mut [f64], m: usize, ld: usize) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if super::simd::has_avx512f() {
+        let mut pack = CHOL_PACK.take();
+        // SAFETY: AVX-512F is present (checked).
+        let ok = unsafe { super::chol512::cholesky_lower_avx512(l, m, ld, &mut pack) };
+        CHOL_PACK.set(pack);
+        return ok;
+    }
     #[cfg(target_arch = "x86_64")]
     if super::simd::has_avx2_fma() {
         let mut pack = CHOL_PACK.take();
@@ -374,7 +384,7 @@ unsafe fn trailing_update(
 
 /// Rows per diagonal block of [`gram_solve_rows_avx2`]. Measured at m = 600, 32 right-hand sides
 /// on Zen 3 (best of 300): 16 0.59 ms, 24-48 0.55, 64 0.59, 96 0.62.
-const ROW_BLOCK: usize = 32;
+pub(super) const ROW_BLOCK: usize = 32;
 
 /// X ← G⁻¹X = L⁻ᵀL⁻¹X with X stored row by row (m rows of `w` entries, w a multiple of 8) and L
 /// the lower triangle of the column-major `l` (m columns `ld` apart, only entries on and below

@@ -6,6 +6,8 @@
 //! reports that cross-validated error as the estimate of the reconstruction error.
 pub mod bp;
 pub mod chol;
+#[cfg(target_arch = "x86_64")]
+pub mod chol512;
 pub mod dct;
 pub mod fused;
 pub mod interp;

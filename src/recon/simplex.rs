@@ -326,9 +326,15 @@ impl Gram {
             row[nc..].fill(0.0);
         }
         let l = &self.l_buf[self.l_off..];
-        // SAFETY: AVX2 and FMA present (the caller checked); L holds m columns `l_ld` apart,
-        // x holds m rows of wd entries, wd a multiple of 8.
-        unsafe { super::chol::gram_solve_rows_avx2(l, self.l_ld, m, x, wd) };
+        // SAFETY: AVX2 and FMA present (the caller checked), AVX-512F where it is taken (checked
+        // here); L holds m columns `l_ld` apart, x holds m rows of wd entries, wd a multiple of 8.
+        unsafe {
+            if super::simd::has_avx512f() {
+                super::chol512::gram_solve_rows_avx512(l, self.l_ld, m, x, wd)
+            } else {
+                super::chol::gram_solve_rows_avx2(l, self.l_ld, m, x, wd)
+            }
+        };
         out.reserve(m * k);
         for c in 0..k {
             out.extend((0..m).map(|r| x[r * wd + c]));
