@@ -35,7 +35,8 @@ enum What {
     /// median_best_of_3_ms: per curve the best of three solves, n = 1901 only; core_clock_ghz:
     /// the core clock just before and just after the row; fma_gflops: the f64 FMA throughput
     /// the core delivered just before and just after, which a busy SMT sibling lowers and the
-    /// clock does not show; median_mcycles: the single pass in core cycles, each solve's ms
+    /// clock does not show, on 256-bit registers; fma512_gflops: the same on 512-bit ones, null
+    /// without AVX-512F; median_mcycles: the single pass in core cycles, each solve's ms
     /// times the clock read just before and after it) single-threaded: fast BP at n = 1901, auto
     /// with its CV, scale runs.
     Speed {
@@ -243,6 +244,56 @@ fn fma_gflops() -> Option<f64> {
         unsafe { chains() };
         // Ten FMAs of 4 lanes, 2 flops each, per round.
         return Some(80.0 * ROUNDS as f64 / t.elapsed().as_secs_f64() / 1e9);
+    }
+    None
+}
+
+/// [`fma_gflops`] on 512-bit registers: 2 M rounds of ten independent 512-bit FMAs. Where the
+/// CPU has AVX-512F the Cholesky and block solve of the BP finish run on these (`recon::chol512`);
+/// a core with two 512-bit FMA pipes gives 32 flops per cycle (87 GF at 3 GHz on the session-24
+/// Xeon), one that splits them into 256-bit halves (AMD Zen 4) 16. `None` without AVX-512F.
+fn fma512_gflops() -> Option<f64> {
+    #[cfg(target_arch = "x86_64")]
+    if crate::recon::simd::has_avx512f() {
+        const ROUNDS: u64 = 2_000_000;
+        #[target_feature(enable = "avx512f")]
+        unsafe fn chains() {
+            use std::arch::x86_64::*;
+            let z = _mm512_setzero_pd();
+            let (mut a0, mut a1, mut a2, mut a3, mut a4) = (z, z, z, z, z);
+            let (mut a5, mut a6, mut a7, mut a8, mut a9) = (z, z, z, z, z);
+            // SAFETY: register-only arithmetic (zeros: no denormals); no memory is touched.
+            unsafe {
+                std::arch::asm!(
+                    "2:",
+                    "vfmadd231pd {a0}, {x}, {x}",
+                    "vfmadd231pd {a1}, {x}, {x}",
+                    "vfmadd231pd {a2}, {x}, {x}",
+                    "vfmadd231pd {a3}, {x}, {x}",
+                    "vfmadd231pd {a4}, {x}, {x}",
+                    "vfmadd231pd {a5}, {x}, {x}",
+                    "vfmadd231pd {a6}, {x}, {x}",
+                    "vfmadd231pd {a7}, {x}, {x}",
+                    "vfmadd231pd {a8}, {x}, {x}",
+                    "vfmadd231pd {a9}, {x}, {x}",
+                    "sub {c}, 1",
+                    "jnz 2b",
+                    a0 = inout(zmm_reg) a0, a1 = inout(zmm_reg) a1, a2 = inout(zmm_reg) a2,
+                    a3 = inout(zmm_reg) a3, a4 = inout(zmm_reg) a4, a5 = inout(zmm_reg) a5,
+                    a6 = inout(zmm_reg) a6, a7 = inout(zmm_reg) a7, a8 = inout(zmm_reg) a8,
+                    a9 = inout(zmm_reg) a9,
+                    x = in(zmm_reg) z,
+                    c = inout(reg) ROUNDS => _,
+                    options(nomem, nostack),
+                );
+            }
+            std::hint::black_box([a0, a1, a2, a3, a4, a5, a6, a7, a8, a9]);
+        }
+        let t = std::time::Instant::now();
+        // SAFETY: AVX-512F is present (checked).
+        unsafe { chains() };
+        // Ten FMAs of 8 lanes, 2 flops each, per round.
+        return Some(160.0 * ROUNDS as f64 / t.elapsed().as_secs_f64() / 1e9);
     }
     None
 }
@@ -496,6 +547,7 @@ fn time_method(
     };
     let clock_before = core_clock_ghz();
     let fma_before = fma_gflops();
+    let fma512_before = fma512_gflops();
     let mut times = Vec::new();
     let mut mcycles = Vec::new();
     let mut iters = Vec::new();
@@ -549,6 +601,7 @@ fn time_method(
     });
     let clock = clock_before.zip(core_clock_ghz()).map(|(a, b)| [a, b]);
     let fma = fma_before.zip(fma_gflops()).map(|(a, b)| [a, b]);
+    let fma512 = fma512_before.zip(fma512_gflops()).map(|(a, b)| [a, b]);
     status.sort();
     status.dedup();
     // The first solve of a length plans its transforms; later ones reuse the thread's plans.
@@ -559,7 +612,7 @@ fn time_method(
         "first_ms": first, "median_best_of_3_ms": best_of_3,
         "median_iterations": median(&mut iters), "statuses": status,
         "max_relative_gap": max_gap.is_finite().then_some(max_gap),
-        "core_clock_ghz": clock, "fma_gflops": fma,
+        "core_clock_ghz": clock, "fma_gflops": fma, "fma512_gflops": fma512,
         "median_mcycles": (!mcycles.is_empty()).then(|| median(&mut mcycles)),
     }))
 }
@@ -629,6 +682,8 @@ mod tests {
         if crate::recon::simd::has_avx2_fma() {
             assert_eq!(row["fma_gflops"].as_array().map(|a| a.len()), Some(2));
         }
+        let fma512 = row["fma512_gflops"].as_array().map(|a| a.len());
+        assert_eq!(fma512, crate::recon::simd::has_avx512f().then_some(2));
     }
 
     /// The FMA readout is a plausible throughput: about 16 flops per cycle at most (two 256-bit
@@ -649,5 +704,19 @@ mod tests {
         }
         let per_cycle = gf / ghz;
         assert!((2.5..=20.0).contains(&per_cycle), "{gf} GF at {ghz} GHz");
+        // 512-bit: above a serial chain's 4 flops per cycle, at most two 512-bit pipes' 32
+        // (with the same room for the readouts' noise).
+        if crate::recon::simd::has_avx512f() {
+            let gf = (0..3)
+                .filter_map(|_| super::fma512_gflops())
+                .fold(0.0, f64::max);
+            let per_cycle = gf / ghz;
+            assert!(
+                (5.0..=40.0).contains(&per_cycle),
+                "{gf} GF (512-bit) at {ghz} GHz"
+            );
+        } else {
+            assert!(super::fma512_gflops().is_none());
+        }
     }
 }
