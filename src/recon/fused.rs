@@ -385,12 +385,14 @@ impl Split {
     fn new(p: &[C32], q: &[C32]) -> Option<Self> {
         use super::split_fft::mirror;
         let len = p.len();
-        let fft = if super::simd::has_avx512f() {
-            Kernel::avx512(p, q)?
-        } else if super::simd::has_avx2_fma() {
-            Kernel::avx2(p, q)?
-        } else {
-            return None;
+        // The AVX-512 kernel needs a length ≥ 64; shorter ones (primes below ~32) take AVX2's.
+        let fft = match super::simd::has_avx512f()
+            .then(|| Kernel::avx512(p, q))
+            .flatten()
+        {
+            Some(k) => k,
+            None if super::simd::has_avx2_fma() => Kernel::avx2(p, q)?,
+            None => return None,
         };
         Some(Self {
             fft,
