@@ -30,7 +30,7 @@ use std::arch::x86_64::*;
 /// Columns per panel (a multiple of 8). Measured at m = 600 on Zen 3 with `csmetro bench chol`
 /// (best of 201, the width from a temporary environment variable): 64 1.73 ms, 80 1.68, 96
 /// 1.71-1.72, 112 1.71, 128 1.72-1.74: flat.
-pub(super) const NB: usize = 96;
+const NB: usize = 96;
 
 /// G = LLᵀ in place on the lower triangle of the column-major `l` (m x m, columns `ld` apart):
 /// [`super::chol512::cholesky_lower_avx512`] where the CPU has AVX-512F, [`cholesky_lower_avx2`]
@@ -160,6 +160,30 @@ pub fn line_offset(buf: &mut Vec<f64>, len: usize) -> usize {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 pub unsafe fn cholesky_lower_avx2(a: &mut [f64], n: usize, ld: usize, pack: &mut Vec<f64>) -> bool {
+    blocked_cholesky(a, n, ld, pack, panel, trailing_update)
+}
+
+/// A panel kernel of the blocked Cholesky: see [`panel`].
+#[cfg(target_arch = "x86_64")]
+pub(super) type PanelKernel = unsafe fn(*mut f64, usize, usize, usize, *mut f64, usize) -> bool;
+/// A trailing-update kernel of the blocked Cholesky: see [`trailing_update`].
+#[cfg(target_arch = "x86_64")]
+pub(super) type TrailingKernel = unsafe fn(*mut f64, usize, usize, usize, *const f64, usize);
+
+/// The right-looking blocked Cholesky over panels of [`NB`] columns, on the given kernels (the
+/// AVX2 ones here, the AVX-512 ones in [`super::chol512`]).
+///
+/// # Safety
+/// The kernels' instruction sets must be present.
+#[cfg(target_arch = "x86_64")]
+pub(super) unsafe fn blocked_cholesky(
+    a: &mut [f64],
+    n: usize,
+    ld: usize,
+    pack: &mut Vec<f64>,
+    panel: PanelKernel,
+    trailing_update: TrailingKernel,
+) -> bool {
     assert!(ld >= n && (n == 0 || a.len() >= (n - 1) * ld + n));
     let base = a.as_mut_ptr();
     // The first panel's strips are the largest. Every entry read below is written first in this
@@ -384,7 +408,7 @@ unsafe fn trailing_update(
 
 /// Rows per diagonal block of [`gram_solve_rows_avx2`]. Measured at m = 600, 32 right-hand sides
 /// on Zen 3 (best of 300): 16 0.59 ms, 24-48 0.55, 64 0.59, 96 0.62.
-pub(super) const ROW_BLOCK: usize = 32;
+const ROW_BLOCK: usize = 32;
 
 /// X ← G⁻¹X = L⁻ᵀL⁻¹X with X stored row by row (m rows of `w` entries, w a multiple of 8) and L
 /// the lower triangle of the column-major `l` (m columns `ld` apart, only entries on and below
@@ -405,6 +429,32 @@ pub(super) const ROW_BLOCK: usize = 32;
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 pub unsafe fn gram_solve_rows_avx2(l: &[f64], ld: usize, m: usize, x: &mut [f64], w: usize) {
+    row_sweeps(l, ld, m, x, w, rows_diag, rows_update_range)
+}
+
+/// The diagonal-row kernel of the block solve: see [`rows_diag`].
+#[cfg(target_arch = "x86_64")]
+pub(super) type RowsDiag = unsafe fn(*const f64, usize, *const f64, *mut f64, usize, usize, f64);
+/// The update kernel of the block solve: see [`rows_update_range`].
+#[cfg(target_arch = "x86_64")]
+pub(super) type RowsUpdate =
+    unsafe fn(*const f64, usize, usize, *const f64, *mut f64, usize, usize, std::ops::Range<usize>);
+
+/// The two sweeps of [`gram_solve_rows_avx2`] a block of [`ROW_BLOCK`] rows at a time, on the
+/// given kernels (the AVX2 ones here, the AVX-512 ones in [`super::chol512`]).
+///
+/// # Safety
+/// The kernels' instruction sets must be present.
+#[cfg(target_arch = "x86_64")]
+pub(super) unsafe fn row_sweeps(
+    l: &[f64],
+    ld: usize,
+    m: usize,
+    x: &mut [f64],
+    w: usize,
+    rows_diag: RowsDiag,
+    rows_update_range: RowsUpdate,
+) {
     assert!(
         w.is_multiple_of(8) && x.len() >= m * w,
         "m rows of a multiple of 8 entries"

@@ -15,8 +15,6 @@
 
 use std::arch::x86_64::*;
 
-use super::chol::{line_offset, NB};
-
 /// The lanes of the first `rows` (≤ 8, more means all) entries.
 #[inline]
 fn mask(rows: usize) -> __mmask8 {
@@ -40,27 +38,7 @@ pub unsafe fn cholesky_lower_avx512(
     ld: usize,
     pack: &mut Vec<f64>,
 ) -> bool {
-    assert!(ld >= n && (n == 0 || a.len() >= (n - 1) * ld + n));
-    let base = a.as_mut_ptr();
-    let need = n.div_ceil(8) * NB.min(n) * 8;
-    let off = line_offset(pack, need);
-    let packed = pack.as_mut_ptr().add(off);
-    let mut j = 0;
-    while j < n {
-        let b = NB.min(n - j);
-        let r = n - j;
-        let stride = b * 8;
-        let p = base.add(j * ld + j);
-        if !panel(p, ld, r, b, packed, stride) {
-            return false;
-        }
-        if r > b {
-            // b = NB here, a multiple of 8: the trailing rows' groups start on strip lane 0.
-            trailing_update(p.add(b * ld + b), ld, r - b, b, packed, stride);
-        }
-        j += b;
-    }
-    true
+    super::chol::blocked_cholesky(a, n, ld, pack, panel, trailing_update)
 }
 
 /// acc[c][s] = Σ_kk a_s[kk][0..8]·b[8·kk + c] for c < C, strips s < S (strip s at a + s·ss):
@@ -90,6 +68,31 @@ unsafe fn tile<const S: usize, const C: usize>(
         b = b.add(8);
     }
     acc
+}
+
+/// f(s, acc) for each strip s of `strips`, acc its 8 x 8 tile against the 8 columns at `bp`
+/// over k steps ([`tile`]): two strips per tile (16 accumulators), the last one alone.
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn strip_tiles(
+    pk: *const f64,
+    stride: usize,
+    bp: *const f64,
+    k: usize,
+    strips: std::ops::Range<usize>,
+    mut f: impl FnMut(usize, [__m512d; 8]),
+) {
+    let mut s = strips.start;
+    while s + 1 < strips.end {
+        let acc = tile::<2, 8>(pk.add(s * stride), stride, bp, k);
+        f(s, acc.map(|a| a[0]));
+        f(s + 1, acc.map(|a| a[1]));
+        s += 2;
+    }
+    if s < strips.end {
+        let acc = tile::<1, 8>(pk.add(s * stride), stride, bp, k);
+        f(s, acc.map(|a| a[0]));
+    }
 }
 
 /// [`super::chol`]'s panel step in groups of 8 columns instead of 4: factors the panel of rows
@@ -155,17 +158,7 @@ unsafe fn panel(p: *mut f64, ld: usize, r: usize, b: usize, pk: *mut f64, stride
             _mm512_mask_storeu_pd(col, m0, x);
             _mm512_storeu_pd(pk.add(s0 * stride + (c0 + c) * 8), x);
         }
-        let mut s = s0 + 1;
-        while s + 1 < strips {
-            let acc = tile::<2, 8>(pk.add(s * stride), stride, bp, c0);
-            solve(s, acc.map(|a| a[0]));
-            solve(s + 1, acc.map(|a| a[1]));
-            s += 2;
-        }
-        if s < strips {
-            let acc = tile::<1, 8>(pk.add(s * stride), stride, bp, c0);
-            solve(s, acc.map(|a| a[0]));
-        }
+        strip_tiles(pk, stride, bp, c0, s0 + 1..strips, solve);
     }
     true
 }
@@ -197,17 +190,7 @@ unsafe fn trailing_update(
                 _mm512_mask_storeu_pd(col, mk, _mm512_sub_pd(v, *acc));
             }
         };
-        let mut s = (b + t) / 8;
-        while s + 1 < strips {
-            let acc = tile::<2, 8>(pk.add(s * stride), stride, bp, b);
-            apply(s, acc.map(|a| a[0]));
-            apply(s + 1, acc.map(|a| a[1]));
-            s += 2;
-        }
-        if s < strips {
-            let acc = tile::<1, 8>(pk.add(s * stride), stride, bp, b);
-            apply(s, acc.map(|a| a[0]));
-        }
+        strip_tiles(pk, stride, bp, b, (b + t) / 8..strips, apply);
     }
 }
 
@@ -218,61 +201,7 @@ unsafe fn trailing_update(
 /// AVX-512F must be present.
 #[target_feature(enable = "avx512f")]
 pub unsafe fn gram_solve_rows_avx512(l: &[f64], ld: usize, m: usize, x: &mut [f64], w: usize) {
-    assert!(
-        w.is_multiple_of(8) && x.len() >= m * w,
-        "m rows of a multiple of 8 entries"
-    );
-    assert!(ld >= m && (m == 0 || l.len() >= (m - 1) * ld + m));
-    let row_block = super::chol::ROW_BLOCK;
-    let (lp, xp) = (l.as_ptr(), x.as_mut_ptr());
-    // L y = x.
-    let mut k0 = 0;
-    while k0 < m {
-        let kb = row_block.min(m - k0);
-        for i in k0..k0 + kb {
-            let inv = 1.0 / *lp.add(i * ld + i);
-            rows_diag(
-                lp.add(k0 * ld + i),
-                ld,
-                xp.add(k0 * w),
-                xp.add(i * w),
-                w,
-                i - k0,
-                inv,
-            );
-        }
-        rows_update_range(
-            lp.add(k0 * ld),
-            1,
-            ld,
-            xp.add(k0 * w),
-            xp,
-            w,
-            kb,
-            k0 + kb..m,
-        );
-        k0 += kb;
-    }
-    // Lᵀ x = y, from the last block up.
-    let mut j1 = m;
-    while j1 > 0 {
-        let kb = row_block.min(j1);
-        let j0 = j1 - kb;
-        for j in (j0..j1).rev() {
-            let inv = 1.0 / *lp.add(j * ld + j);
-            rows_diag(
-                lp.add(j * ld + j + 1),
-                1,
-                xp.add((j + 1) * w),
-                xp.add(j * w),
-                w,
-                j1 - j - 1,
-                inv,
-            );
-        }
-        rows_update_range(lp.add(j0), ld, 1, xp.add(j0 * w), xp, w, kb, 0..j0);
-        j1 = j0;
-    }
+    super::chol::row_sweeps(l, ld, m, x, w, rows_diag, rows_update_range)
 }
 
 /// Rows `rows` of X (at `xp`, w apart) −= Σ_k b[i·cs + k·ks]·x[k·w..] over k < kk: 8 rows and
