@@ -197,19 +197,16 @@ fn clock_ghz(rounds: u64) -> Option<f64> {
     }
 }
 
-/// The f64 FMA throughput this core delivers right now, GF/s: 4 M rounds of ten independent
-/// 256-bit FMAs (~7 ms). The clock readout cannot see a busy SMT sibling, which shares the FMA
-/// pipes; this one does: its ratio to 16 flops per cycle at the clock readout (Zen 3: two
-/// 256-bit FMA pipes) is the share of the pipes the solver could have had. Every dense kernel of
-/// the BP finish is bound by these pipes. `None` without AVX2 and FMA.
-fn fma_gflops() -> Option<f64> {
-    #[cfg(target_arch = "x86_64")]
-    if crate::recon::simd::has_avx2_fma() {
-        const ROUNDS: u64 = 4_000_000;
-        #[target_feature(enable = "avx2,fma")]
+/// GF/s of `rounds` rounds of ten independent FMAs on `lanes`-wide f64 registers of asm class
+/// `class` (zeros: no denormals; no memory touched), in an `unsafe` function enabling `feature`.
+/// The readouts at both widths are this one loop.
+#[cfg(target_arch = "x86_64")]
+macro_rules! fma_chains {
+    ($feature:literal, $class:ident, $zero:ident, $lanes:literal, $rounds:literal) => {{
+        #[target_feature(enable = $feature)]
         unsafe fn chains() {
             use std::arch::x86_64::*;
-            let z = _mm256_setzero_pd();
+            let z = $zero();
             let (mut a0, mut a1, mut a2, mut a3, mut a4) = (z, z, z, z, z);
             let (mut a5, mut a6, mut a7, mut a8, mut a9) = (z, z, z, z, z);
             // SAFETY: register-only arithmetic (zeros: no denormals); no memory is touched.
@@ -228,22 +225,34 @@ fn fma_gflops() -> Option<f64> {
                     "vfmadd231pd {a9}, {x}, {x}",
                     "sub {c}, 1",
                     "jnz 2b",
-                    a0 = inout(ymm_reg) a0, a1 = inout(ymm_reg) a1, a2 = inout(ymm_reg) a2,
-                    a3 = inout(ymm_reg) a3, a4 = inout(ymm_reg) a4, a5 = inout(ymm_reg) a5,
-                    a6 = inout(ymm_reg) a6, a7 = inout(ymm_reg) a7, a8 = inout(ymm_reg) a8,
-                    a9 = inout(ymm_reg) a9,
-                    x = in(ymm_reg) z,
-                    c = inout(reg) ROUNDS => _,
+                    a0 = inout($class) a0, a1 = inout($class) a1, a2 = inout($class) a2,
+                    a3 = inout($class) a3, a4 = inout($class) a4, a5 = inout($class) a5,
+                    a6 = inout($class) a6, a7 = inout($class) a7, a8 = inout($class) a8,
+                    a9 = inout($class) a9,
+                    x = in($class) z,
+                    c = inout(reg) $rounds as u64 => _,
                     options(nomem, nostack),
                 );
             }
             std::hint::black_box([a0, a1, a2, a3, a4, a5, a6, a7, a8, a9]);
         }
         let t = std::time::Instant::now();
+        chains();
+        // Ten FMAs of `lanes` lanes, 2 flops each, per round.
+        (20 * $lanes) as f64 * $rounds as f64 / t.elapsed().as_secs_f64() / 1e9
+    }};
+}
+
+/// The f64 FMA throughput this core delivers right now, GF/s: 4 M rounds of ten independent
+/// 256-bit FMAs (~7 ms). The clock readout cannot see a busy SMT sibling, which shares the FMA
+/// pipes; this one does: its ratio to 16 flops per cycle at the clock readout (Zen 3: two
+/// 256-bit FMA pipes) is the share of the pipes the solver could have had. Every dense kernel of
+/// the BP finish is bound by these pipes. `None` without AVX2 and FMA.
+fn fma_gflops() -> Option<f64> {
+    #[cfg(target_arch = "x86_64")]
+    if crate::recon::simd::has_avx2_fma() {
         // SAFETY: AVX2 and FMA are present (checked).
-        unsafe { chains() };
-        // Ten FMAs of 4 lanes, 2 flops each, per round.
-        return Some(80.0 * ROUNDS as f64 / t.elapsed().as_secs_f64() / 1e9);
+        return Some(unsafe { fma_chains!("avx2,fma", ymm_reg, _mm256_setzero_pd, 4, 4_000_000) });
     }
     None
 }
@@ -255,45 +264,8 @@ fn fma_gflops() -> Option<f64> {
 fn fma512_gflops() -> Option<f64> {
     #[cfg(target_arch = "x86_64")]
     if crate::recon::simd::has_avx512f() {
-        const ROUNDS: u64 = 2_000_000;
-        #[target_feature(enable = "avx512f")]
-        unsafe fn chains() {
-            use std::arch::x86_64::*;
-            let z = _mm512_setzero_pd();
-            let (mut a0, mut a1, mut a2, mut a3, mut a4) = (z, z, z, z, z);
-            let (mut a5, mut a6, mut a7, mut a8, mut a9) = (z, z, z, z, z);
-            // SAFETY: register-only arithmetic (zeros: no denormals); no memory is touched.
-            unsafe {
-                std::arch::asm!(
-                    "2:",
-                    "vfmadd231pd {a0}, {x}, {x}",
-                    "vfmadd231pd {a1}, {x}, {x}",
-                    "vfmadd231pd {a2}, {x}, {x}",
-                    "vfmadd231pd {a3}, {x}, {x}",
-                    "vfmadd231pd {a4}, {x}, {x}",
-                    "vfmadd231pd {a5}, {x}, {x}",
-                    "vfmadd231pd {a6}, {x}, {x}",
-                    "vfmadd231pd {a7}, {x}, {x}",
-                    "vfmadd231pd {a8}, {x}, {x}",
-                    "vfmadd231pd {a9}, {x}, {x}",
-                    "sub {c}, 1",
-                    "jnz 2b",
-                    a0 = inout(zmm_reg) a0, a1 = inout(zmm_reg) a1, a2 = inout(zmm_reg) a2,
-                    a3 = inout(zmm_reg) a3, a4 = inout(zmm_reg) a4, a5 = inout(zmm_reg) a5,
-                    a6 = inout(zmm_reg) a6, a7 = inout(zmm_reg) a7, a8 = inout(zmm_reg) a8,
-                    a9 = inout(zmm_reg) a9,
-                    x = in(zmm_reg) z,
-                    c = inout(reg) ROUNDS => _,
-                    options(nomem, nostack),
-                );
-            }
-            std::hint::black_box([a0, a1, a2, a3, a4, a5, a6, a7, a8, a9]);
-        }
-        let t = std::time::Instant::now();
         // SAFETY: AVX-512F is present (checked).
-        unsafe { chains() };
-        // Ten FMAs of 8 lanes, 2 flops each, per round.
-        return Some(160.0 * ROUNDS as f64 / t.elapsed().as_secs_f64() / 1e9);
+        return Some(unsafe { fma_chains!("avx512f", zmm_reg, _mm512_setzero_pd, 8, 2_000_000) });
     }
     None
 }
