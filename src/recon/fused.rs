@@ -44,17 +44,17 @@ struct SamplePos {
 }
 
 /// The sampled grid points of a problem and their values, located for [`RaderAdmm::project`]:
-/// one entry per sample, the same samples grouped by inverse output ([`Paired`]), and spread
-/// over the forward inputs ([`ByInput`]).
+/// one entry per sample, and spread over the forward inputs ([`ByInput`]).
 pub struct Samples {
     pos: Vec<SamplePos>,
-    paired: Paired,
+    /// The sample at grid point 0 (no Rader index), if any.
+    zero: Option<usize>,
     by_input: ByInput,
     /// The values, in the order of the samples.
     h: Vec<f32>,
 }
 
-/// The sample values by forward input l, for the AVX2 projection: the grid points ±(Rader's j)
+/// The sample values by forward input l, for the split-format projections: the grid points ±(Rader's j)
 /// for j = −l mod H are members A (g_im = −2) and B (g_im = +2), each with its value and a weight
 /// of 1 where sampled, 0 elsewhere. Their corrections then enter the forward input in the same
 /// sequential pass that builds it, instead of one scattered update per sample (that scalar loop
@@ -65,6 +65,18 @@ struct ByInput {
 }
 
 impl ByInput {
+    /// Forward input l ≥ 1 (re, im) from a = Re W_j, b = Im W_j (j = −l mod H) with the
+    /// corrections d = w·(h − g) of members A and B, g = V₀ + 2a ∓ 2b their current values:
+    /// (2V₀ + 4a + d_A + d_B, 4b − d_A + d_B). At l = 0 the caller flips the sign of Im.
+    #[inline(always)]
+    fn forward_input(&self, l: usize, v0: f32, a: f32, b: f32) -> (f32, f32) {
+        let ([ha, hb], [wa, wb]) = (&self.h, &self.w);
+        let base = v0 + 2.0 * a;
+        let da = (ha[l] - (base - 2.0 * b)) * wa[l];
+        let db = (hb[l] - (base + 2.0 * b)) * wb[l];
+        (2.0 * v0 + 4.0 * a + da + db, 4.0 * b - da + db)
+    }
+
     fn new(pos: &[SamplePos], h: &[f32], len: usize) -> Self {
         let mut t = ByInput {
             h: [vec![0.0; len], vec![0.0; len]],
@@ -80,71 +92,6 @@ impl ByInput {
             t.w[member][s.l] = 1.0;
         }
         t
-    }
-}
-
-/// The samples grouped by inverse output j, for the split-format correction passes: grid points
-/// ±(Rader's j) share one j and one forward input l, so a group's correction is one update of
-/// z_l and the groups' l are distinct (gathers and scatters without conflicts). Struct of
-/// arrays padded to whole vectors with groups of weight 0 at l = H (the zero padding, which an
-/// added 0 leaves zero). Grid point 0 (no j) is `zero`.
-struct Paired {
-    j: Vec<i32>,
-    l: Vec<i32>,
-    /// Per member (second member absent: weight 0): index into h, g_im, f_im, weight.
-    k: [Vec<i32>; 2],
-    g: [Vec<f32>; 2],
-    f: [Vec<f32>; 2],
-    w: [Vec<f32>; 2],
-    zero: Option<usize>,
-}
-
-impl Paired {
-    fn new(pos: &[SamplePos], h: usize) -> Self {
-        let mut slot = vec![usize::MAX; h];
-        let mut p = Paired {
-            j: Vec::new(),
-            l: Vec::new(),
-            k: Default::default(),
-            g: Default::default(),
-            f: Default::default(),
-            w: Default::default(),
-            zero: None,
-        };
-        let push = |p: &mut Paired, j: usize, l: usize, k: usize, g: f32, f: f32, w: f32| {
-            p.j.push(j as i32);
-            p.l.push(l as i32);
-            p.k[0].push(k as i32);
-            p.g[0].push(g);
-            p.f[0].push(f);
-            p.w[0].push(w);
-            p.k[1].push(k as i32);
-            p.g[1].push(0.0);
-            p.f[1].push(0.0);
-            p.w[1].push(0.0);
-        };
-        for (k, s) in pos.iter().enumerate() {
-            if s.j == usize::MAX {
-                p.zero = Some(k);
-                continue;
-            }
-            match slot[s.j] {
-                usize::MAX => {
-                    slot[s.j] = p.j.len();
-                    push(&mut p, s.j, s.l, k, s.g_im, s.f_im, 1.0);
-                }
-                q => {
-                    p.k[1][q] = k as i32;
-                    p.g[1][q] = s.g_im;
-                    p.f[1][q] = s.f_im;
-                    p.w[1][q] = 1.0;
-                }
-            }
-        }
-        while !p.j.len().is_multiple_of(16) {
-            push(&mut p, 0, h, 0, 0.0, 0.0, 0.0);
-        }
-        p
     }
 }
 
@@ -515,11 +462,11 @@ impl RaderAdmm {
     pub fn samples(&self, idx: &[usize], h: &[f32]) -> Samples {
         assert_eq!(idx.len(), h.len(), "one value per sample");
         let pos: Vec<SamplePos> = idx.iter().map(|&i| self.sig[i]).collect();
-        let paired = Paired::new(&pos, self.h);
+        let zero = pos.iter().position(|s| s.j == usize::MAX);
         let by_input = ByInput::new(&pos, h, self.h);
         Samples {
             pos,
-            paired,
+            zero,
             by_input,
             h: h.to_vec(),
         }
@@ -582,9 +529,7 @@ impl RaderAdmm {
         #[cfg(target_arch = "x86_64")]
         match self.split.as_ref().map(|s| &s.fft) {
             // SAFETY: each kernel exists only when the CPU has its features.
-            Some(Kernel::Avx512 { .. }) => {
-                return unsafe { self.project_avx512(v, &samples.paired, h, x) }
-            }
+            Some(Kernel::Avx512 { .. }) => return unsafe { self.project_avx512(v, samples, x) },
             Some(Kernel::Avx2 { .. }) => return unsafe { self.project_split8(v, samples, x) },
             None => {}
         }
@@ -594,11 +539,14 @@ impl RaderAdmm {
     /// [`RaderAdmm::project`] on the split-format AVX-512 FFT ([`super::split_fft`]): every pass
     /// in 16-lane vectors without the complex interleaving's shuffles, the spectra left in
     /// bit-reversed order, the zero upper half of each convolution's input and the unused upper
-    /// half of its output skipped, the sample corrections as gathers and scatters. At n = 1901
-    /// (`bench dct`): 15.1-15.5 → 9.5-9.6 µs against the AVX2 path.
+    /// half of its output skipped. At n = 1901 (`bench dct`): 15.1-15.5 → 9.5-9.6 µs against the
+    /// AVX2 path. The sample corrections enter in the pass that builds the forward input, as in
+    /// [`RaderAdmm::project_split8`]; gathers and scatters of one update per pair of samples
+    /// were slower on the Intel Xeon (Emerald Rapids) of session 25, whose gathers are slow
+    /// (m = 600, best of 2000 x 10 projections: 7.31-7.42 µs against 6.80-6.85).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
-    unsafe fn project_avx512(&mut self, v: &[f32], samples: &Paired, h: &[f32], x: &mut [f32]) {
+    unsafe fn project_avx512(&mut self, v: &[f32], samples: &Samples, x: &mut [f32]) {
         use std::arch::x86_64::*;
         let hh = self.h;
         let (a0, s0) = (self.a0, self.s0);
@@ -632,59 +580,7 @@ impl RaderAdmm {
         sp.zr[hh..half].fill(0.0);
         sp.zi[hh..half].fill(0.0);
         let dc = sp.convolve();
-        // Forward input: re_l = 2V₀ + 4 Re W_(−l), im_l = 4 Im W_(−l) (l ≥ 1), im_0 = −4 Im W_0.
-        {
-            sp.zr[0] = 2.0 * v0 + 4.0 * sp.wr[0];
-            sp.zi[0] = -4.0 * sp.wi[0];
-            let four = _mm512_set1_ps(4.0);
-            let shift = _mm512_set1_ps(2.0 * v0);
-            let mut l = 16;
-            while l + 16 <= hh {
-                let wr =
-                    _mm512_permutexvar_ps(rev, _mm512_loadu_ps(sp.wr.as_ptr().add(hh - l - 15)));
-                let wi =
-                    _mm512_permutexvar_ps(rev, _mm512_loadu_ps(sp.wi.as_ptr().add(hh - l - 15)));
-                _mm512_storeu_ps(sp.zr.as_mut_ptr().add(l), _mm512_fmadd_ps(wr, four, shift));
-                _mm512_storeu_ps(sp.zi.as_mut_ptr().add(l), _mm512_mul_ps(wi, four));
-                l += 16;
-            }
-            // The first line and the tail, as in the pack.
-            for l in (1..16.min(hh)).chain(l..hh) {
-                sp.zr[l] = 2.0 * v0 + 4.0 * sp.wr[hh - l];
-                sp.zi[l] = 4.0 * sp.wi[hh - l];
-            }
-            sp.zr[hh..half].fill(0.0);
-            sp.zi[hh..half].fill(0.0);
-        }
-        // The samples set to h: per group, d = h − (V₀ + 2 Re W_j + g_im·Im W_j) for each
-        // member, z_l += (d₁ + d₂, f₁d₁ + f₂d₂).
-        let first = samples.zero.map_or(v0 + 2.0 * dc, |k| h[k]);
-        {
-            let g = samples;
-            let vv0 = _mm512_set1_ps(v0);
-            let two = _mm512_set1_ps(2.0);
-            let (zr, zi) = (sp.zr.as_mut_ptr(), sp.zi.as_mut_ptr());
-            for c in (0..g.j.len()).step_by(16) {
-                let ldi = |t: &Vec<i32>| _mm512_loadu_si512(t.as_ptr().add(c) as *const _);
-                let ldf = |t: &Vec<f32>| _mm512_loadu_ps(t.as_ptr().add(c));
-                let (j, l) = (ldi(&g.j), ldi(&g.l));
-                let wr = _mm512_i32gather_ps::<4>(j, sp.wr.as_ptr());
-                let wi = _mm512_i32gather_ps::<4>(j, sp.wi.as_ptr());
-                let base = _mm512_fmadd_ps(two, wr, vv0);
-                let d = |m: usize| {
-                    let hv = _mm512_i32gather_ps::<4>(ldi(&g.k[m]), h.as_ptr());
-                    let d = _mm512_sub_ps(hv, _mm512_fmadd_ps(ldf(&g.g[m]), wi, base));
-                    _mm512_mul_ps(d, ldf(&g.w[m]))
-                };
-                let (d1, d2) = (d(0), d(1));
-                let add_r = _mm512_add_ps(d1, d2);
-                let add_i = _mm512_fmadd_ps(ldf(&g.f[0]), d1, _mm512_mul_ps(ldf(&g.f[1]), d2));
-                let old_r = _mm512_i32gather_ps::<4>(l, zr);
-                let old_i = _mm512_i32gather_ps::<4>(l, zi);
-                _mm512_i32scatter_ps::<4>(zr, l, _mm512_add_ps(old_r, add_r));
-                _mm512_i32scatter_ps::<4>(zi, l, _mm512_add_ps(old_i, add_i));
-            }
-        }
+        let first = Self::forward_input_avx512(sp, hh, v0, dc, samples);
         let dc = sp.convolve();
         x[0] = s0 * (first + dc);
         // Unpack: P = u0·a + u1·Im W_l, Q = u2·a + u3·Im W_l with a = first + Re W_l.
@@ -706,6 +602,57 @@ impl RaderAdmm {
             xp[l] = u0[l] * a + u1[l] * sp.wi[l];
             xq[l] = u2[l] * a + u3[l] * sp.wi[l];
         }
+    }
+
+    /// [`RaderAdmm::project_avx512`]'s forward input with the samples set to their values, in
+    /// one sequential pass (see [`RaderAdmm::project_split8`]); returns the value at grid
+    /// point 0.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn forward_input_avx512(
+        sp: &mut Split,
+        hh: usize,
+        v0: f32,
+        dc: f32,
+        samples: &Samples,
+    ) -> f32 {
+        use std::arch::x86_64::*;
+        let half = sp.zr.len() / 2;
+        let rev = _mm512_set_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        let first = samples.zero.map_or(v0 + 2.0 * dc, |k| samples.h[k]);
+        let t = &samples.by_input;
+        let ([ha, hb], [wa, wb]) = (&t.h, &t.w);
+        assert!(ha.len() == hh && hb.len() == hh && wa.len() == hh && wb.len() == hh);
+        let one = |l: usize, a: f32, b: f32| t.forward_input(l, v0, a, b);
+        let (re0, im0) = one(0, sp.wr[0], sp.wi[0]);
+        (sp.zr[0], sp.zi[0]) = (re0, -im0);
+        let two = _mm512_set1_ps(2.0);
+        let four = _mm512_set1_ps(4.0);
+        let vv0 = _mm512_set1_ps(v0);
+        let shift = _mm512_set1_ps(2.0 * v0);
+        let mut l = 16;
+        while l + 16 <= hh {
+            let a = _mm512_permutexvar_ps(rev, _mm512_loadu_ps(sp.wr.as_ptr().add(hh - l - 15)));
+            let b = _mm512_permutexvar_ps(rev, _mm512_loadu_ps(sp.wi.as_ptr().add(hh - l - 15)));
+            let ld = |t: &Vec<f32>| _mm512_loadu_ps(t.as_ptr().add(l));
+            let base = _mm512_fmadd_ps(two, a, vv0);
+            let da = _mm512_mul_ps(
+                _mm512_sub_ps(ld(ha), _mm512_fnmadd_ps(two, b, base)),
+                ld(wa),
+            );
+            let db = _mm512_mul_ps(_mm512_sub_ps(ld(hb), _mm512_fmadd_ps(two, b, base)), ld(wb));
+            let re = _mm512_add_ps(_mm512_fmadd_ps(a, four, shift), _mm512_add_ps(da, db));
+            let im = _mm512_add_ps(_mm512_fmsub_ps(b, four, da), db);
+            _mm512_storeu_ps(sp.zr.as_mut_ptr().add(l), re);
+            _mm512_storeu_ps(sp.zi.as_mut_ptr().add(l), im);
+            l += 16;
+        }
+        for l in (1..16.min(hh)).chain(l..hh) {
+            (sp.zr[l], sp.zi[l]) = one(l, sp.wr[hh - l], sp.wi[hh - l]);
+        }
+        sp.zr[hh..half].fill(0.0);
+        sp.zi[hh..half].fill(0.0);
+        first
     }
 
     /// [`RaderAdmm::project_avx512`] in AVX2 (8 lanes) on [`super::split_fft::SplitFft8`], the
@@ -752,17 +699,12 @@ impl RaderAdmm {
         // (j = −l mod H): re_l = 2V₀ + 4 Re W_j + d_A + d_B, im_l = 4 Im W_j − d_A + d_B (l ≥ 1;
         // at l = 0 the signs of Im flip), where d = w·(h − g) is member A's or B's correction,
         // g = V₀ + 2 Re W_j ∓ 2 Im W_j its current value.
-        let first = samples.paired.zero.map_or(v0 + 2.0 * dc, |k| samples.h[k]);
+        let first = samples.zero.map_or(v0 + 2.0 * dc, |k| samples.h[k]);
         {
             let t = &samples.by_input;
             let ([ha, hb], [wa, wb]) = (&t.h, &t.w);
             assert!(ha.len() == hh && hb.len() == hh && wa.len() == hh && wb.len() == hh);
-            let one = |l: usize, a: f32, b: f32| {
-                let base = v0 + 2.0 * a;
-                let da = (ha[l] - (base - 2.0 * b)) * wa[l];
-                let db = (hb[l] - (base + 2.0 * b)) * wb[l];
-                (2.0 * v0 + 4.0 * a + da + db, 4.0 * b - da + db)
-            };
+            let one = |l: usize, a: f32, b: f32| t.forward_input(l, v0, a, b);
             let (re0, im0) = one(0, sp.wr[0], sp.wi[0]);
             // At l = 0: im = −4 Im W₀ + d_A − d_B.
             (sp.zr[0], sp.zi[0]) = (re0, -im0);
@@ -889,7 +831,7 @@ mod tests {
             // Twice: the second call sees the buffers the first left behind.
             for _ in 0..2 {
                 // SAFETY: AVX-512F is present (checked).
-                unsafe { fused.project_avx512(&v, &samples.paired, &h, &mut b) };
+                unsafe { fused.project_avx512(&v, &samples, &mut b) };
                 let scale = a.iter().map(|v| v.abs()).fold(0.0, f32::max);
                 for k in 0..n {
                     assert!(

@@ -27,22 +27,3 @@ pub fn has_avx512f() -> bool {
         false
     }
 }
-
-/// Whether the CPU's vector gathers are fast (Intel), rather than microcoded and slower than
-/// scalar loads (AMD's Zen: measured on an EPYC (Zen 4), the Gram fill's AVX2 gathers took
-/// 0.16-0.20 ms at m = 600 against 0.10-0.17 ms for the scalar loop).
-pub fn fast_gathers() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        static INTEL: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *INTEL.get_or_init(|| {
-            let r = std::arch::x86_64::__cpuid(0);
-            // "GenuineIntel": ebx, edx, ecx.
-            (r.ebx, r.edx, r.ecx) == (0x756e_6547, 0x4965_6e69, 0x6c65_746e)
-        })
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
