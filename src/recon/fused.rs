@@ -54,6 +54,13 @@ pub struct Samples {
     h: Vec<f32>,
 }
 
+impl Samples {
+    /// The value at grid point 0 after the samples are set: its sample, or V₀ + 2·Σ (`dc`).
+    fn first(&self, v0: f32, dc: f32) -> f32 {
+        self.zero.map_or(v0 + 2.0 * dc, |k| self.h[k])
+    }
+}
+
 /// The sample values by forward input l, for the split-format projections: the grid points ±(Rader's j)
 /// for j = −l mod H are members A (g_im = −2) and B (g_im = +2), each with its value and a weight
 /// of 1 where sampled, 0 elsewhere. Their corrections then enter the forward input in the same
@@ -75,6 +82,34 @@ impl ByInput {
         let da = (ha[l] - (base - 2.0 * b)) * wa[l];
         let db = (hb[l] - (base + 2.0 * b)) * wb[l];
         (2.0 * v0 + 4.0 * a + da + db, 4.0 * b - da + db)
+    }
+
+    /// h_A, h_B, w_A, w_B, each of length `hh` (asserted: the vector passes load them
+    /// unchecked).
+    fn arrays(&self, hh: usize) -> [&[f32]; 4] {
+        let a = [
+            &self.h[0][..],
+            &self.h[1][..],
+            &self.w[0][..],
+            &self.w[1][..],
+        ];
+        assert!(a.iter().all(|t| t.len() == hh));
+        a
+    }
+
+    /// The forward input's entries a vector pass of `lanes` leaves to scalars: l = 0 (where the
+    /// sign of Im flips), the first line (1..lanes, so that the vector stores start on one) and
+    /// the tail from `tail`; then the zero padding up to half the FFT length.
+    fn scalar_entries(&self, sp: &mut Split, hh: usize, v0: f32, lanes: usize, tail: usize) {
+        let (re0, im0) = self.forward_input(0, v0, sp.wr[0], sp.wi[0]);
+        // At l = 0: im = −4 Im W₀ + d_A − d_B.
+        (sp.zr[0], sp.zi[0]) = (re0, -im0);
+        for l in (1..lanes.min(hh)).chain(tail..hh) {
+            (sp.zr[l], sp.zi[l]) = self.forward_input(l, v0, sp.wr[hh - l], sp.wi[hh - l]);
+        }
+        let half = sp.zr.len() / 2;
+        sp.zr[hh..half].fill(0.0);
+        sp.zi[hh..half].fill(0.0);
     }
 
     fn new(pos: &[SamplePos], h: &[f32], len: usize) -> Self {
@@ -617,15 +652,9 @@ impl RaderAdmm {
         samples: &Samples,
     ) -> f32 {
         use std::arch::x86_64::*;
-        let half = sp.zr.len() / 2;
         let rev = _mm512_set_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-        let first = samples.zero.map_or(v0 + 2.0 * dc, |k| samples.h[k]);
         let t = &samples.by_input;
-        let ([ha, hb], [wa, wb]) = (&t.h, &t.w);
-        assert!(ha.len() == hh && hb.len() == hh && wa.len() == hh && wb.len() == hh);
-        let one = |l: usize, a: f32, b: f32| t.forward_input(l, v0, a, b);
-        let (re0, im0) = one(0, sp.wr[0], sp.wi[0]);
-        (sp.zr[0], sp.zi[0]) = (re0, -im0);
+        let [ha, hb, wa, wb] = t.arrays(hh);
         let two = _mm512_set1_ps(2.0);
         let four = _mm512_set1_ps(4.0);
         let vv0 = _mm512_set1_ps(v0);
@@ -634,7 +663,7 @@ impl RaderAdmm {
         while l + 16 <= hh {
             let a = _mm512_permutexvar_ps(rev, _mm512_loadu_ps(sp.wr.as_ptr().add(hh - l - 15)));
             let b = _mm512_permutexvar_ps(rev, _mm512_loadu_ps(sp.wi.as_ptr().add(hh - l - 15)));
-            let ld = |t: &Vec<f32>| _mm512_loadu_ps(t.as_ptr().add(l));
+            let ld = |t: &[f32]| _mm512_loadu_ps(t.as_ptr().add(l));
             let base = _mm512_fmadd_ps(two, a, vv0);
             let da = _mm512_mul_ps(
                 _mm512_sub_ps(ld(ha), _mm512_fnmadd_ps(two, b, base)),
@@ -647,12 +676,8 @@ impl RaderAdmm {
             _mm512_storeu_ps(sp.zi.as_mut_ptr().add(l), im);
             l += 16;
         }
-        for l in (1..16.min(hh)).chain(l..hh) {
-            (sp.zr[l], sp.zi[l]) = one(l, sp.wr[hh - l], sp.wi[hh - l]);
-        }
-        sp.zr[hh..half].fill(0.0);
-        sp.zi[hh..half].fill(0.0);
-        first
+        t.scalar_entries(sp, hh, v0, 16, l);
+        samples.first(v0, dc)
     }
 
     /// [`RaderAdmm::project_avx512`] in AVX2 (8 lanes) on [`super::split_fft::SplitFft8`], the
@@ -699,15 +724,10 @@ impl RaderAdmm {
         // (j = −l mod H): re_l = 2V₀ + 4 Re W_j + d_A + d_B, im_l = 4 Im W_j − d_A + d_B (l ≥ 1;
         // at l = 0 the signs of Im flip), where d = w·(h − g) is member A's or B's correction,
         // g = V₀ + 2 Re W_j ∓ 2 Im W_j its current value.
-        let first = samples.zero.map_or(v0 + 2.0 * dc, |k| samples.h[k]);
+        let first = samples.first(v0, dc);
         {
             let t = &samples.by_input;
-            let ([ha, hb], [wa, wb]) = (&t.h, &t.w);
-            assert!(ha.len() == hh && hb.len() == hh && wa.len() == hh && wb.len() == hh);
-            let one = |l: usize, a: f32, b: f32| t.forward_input(l, v0, a, b);
-            let (re0, im0) = one(0, sp.wr[0], sp.wi[0]);
-            // At l = 0: im = −4 Im W₀ + d_A − d_B.
-            (sp.zr[0], sp.zi[0]) = (re0, -im0);
+            let [ha, hb, wa, wb] = t.arrays(hh);
             let two = _mm256_set1_ps(2.0);
             let four = _mm256_set1_ps(4.0);
             let vv0 = _mm256_set1_ps(v0);
@@ -718,7 +738,7 @@ impl RaderAdmm {
                     _mm256_permutevar8x32_ps(_mm256_loadu_ps(sp.wr.as_ptr().add(hh - l - 7)), rev);
                 let b =
                     _mm256_permutevar8x32_ps(_mm256_loadu_ps(sp.wi.as_ptr().add(hh - l - 7)), rev);
-                let ld = |t: &Vec<f32>| _mm256_loadu_ps(t.as_ptr().add(l));
+                let ld = |t: &[f32]| _mm256_loadu_ps(t.as_ptr().add(l));
                 let base = _mm256_fmadd_ps(two, a, vv0);
                 let da = _mm256_mul_ps(
                     _mm256_sub_ps(ld(ha), _mm256_fnmadd_ps(two, b, base)),
@@ -732,11 +752,7 @@ impl RaderAdmm {
                 _mm256_storeu_ps(sp.zi.as_mut_ptr().add(l), im);
                 l += 8;
             }
-            for l in (1..8.min(hh)).chain(l..hh) {
-                (sp.zr[l], sp.zi[l]) = one(l, sp.wr[hh - l], sp.wi[hh - l]);
-            }
-            sp.zr[hh..half].fill(0.0);
-            sp.zi[hh..half].fill(0.0);
+            t.scalar_entries(sp, hh, v0, 8, l);
         }
         let dc = sp.convolve8();
         x[0] = s0 * (first + dc);
