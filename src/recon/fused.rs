@@ -61,11 +61,11 @@ impl Samples {
     }
 }
 
-/// The sample values by forward input l, for the split-format projections: the grid points ±(Rader's j)
-/// for j = −l mod H are members A (g_im = −2) and B (g_im = +2), each with its value and a weight
-/// of 1 where sampled, 0 elsewhere. Their corrections then enter the forward input in the same
-/// sequential pass that builds it, instead of one scattered update per sample (that scalar loop
-/// was about half of the AVX2 projection's time outside the FFTs).
+/// The sample values by forward input l, for the split-format projections: the grid points
+/// ±(Rader's j) for j = −l mod H are members A (g_im = −2) and B (g_im = +2), each with its value
+/// and a weight of 1 where sampled, 0 elsewhere. Their corrections then enter the forward input
+/// in the same sequential pass that builds it, instead of one scattered update per sample (that
+/// scalar loop was about half of the AVX2 projection's time outside the FFTs).
 struct ByInput {
     h: [Vec<f32>; 2],
     w: [Vec<f32>; 2],
