@@ -1871,7 +1871,7 @@ mod tests {
 
     /// The Gram fill writes G's lower triangle exactly, and nothing above it.
     #[test]
-    fn gram_fills_agree_with_the_formula() {
+    fn gram_fill_agrees_with_the_formula() {
         let hg: Vec<f64> = (0..200)
             .map(|d| (d as f64 * 0.61).cos() / (1.0 + d as f64))
             .collect();
