@@ -452,3 +452,54 @@ fn one_process_per_stage_a_second_run_and_a_starting_service_keep_off() {
     assert!(server.log().contains("left to the process that runs it"));
     assert!(server.terminate().success());
 }
+
+/// A foreground run killed (-9) while the service runs on the same store: within seconds the
+/// service shows the campaign `interrupted` (not `running` forever, with resume and abort
+/// refused), and a resume through the API finishes it without measuring a target twice.
+#[test]
+fn a_foreground_run_killed_beside_the_service_becomes_resumable_through_it() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("var")).unwrap();
+    let db = dir.path().join("var/csmetro.db");
+    common::write_config(dir.path(), "127.0.0.1:0", None);
+    let mut server = common::Server::start(dir.path(), None);
+    assert_eq!(server.db(), db);
+    let c = campaign(dir.path(), 2000.0, 60);
+    let mut child = spawn_run(&c, &db);
+    wait_for_samples(&mut child, &db, 20);
+    // Alive: the service leaves it alone through several checks.
+    std::thread::sleep(Duration::from_secs(5));
+    assert_eq!(server.status(1)["state"], "running");
+    child.kill().unwrap(); // SIGKILL: the run cannot store an end state
+    child.wait().unwrap();
+    let stored = store(&db).sample_count(1).unwrap();
+    let planned = store(&db).campaign(1).unwrap().unwrap().planned;
+    assert!(stored < planned, "killed mid-run");
+
+    let st = server.wait_for(1, 15.0, |s| s["state"] == "interrupted");
+    let msg = st["message"].as_str().unwrap_or("");
+    assert!(msg.contains("exited without finishing"), "{st}");
+    assert!(
+        msg.contains(&format!("{stored} of {planned} samples")),
+        "{st}"
+    );
+    let (code, v) = server.post("/campaigns/1/resume", None);
+    assert_eq!(code, 200, "{v}");
+    let st = server.wait_for(1, 60.0, |s| s["state"] == "done");
+    assert_eq!(st["stored"], st["planned"]);
+    let mut seqs = common::stored_seqs(&db, 1);
+    let n = seqs.len();
+    seqs.sort();
+    seqs.dedup();
+    assert_eq!(
+        (n as u64, seqs.len() as u64),
+        (planned, planned),
+        "no target twice"
+    );
+    let events = store(&db).events_after(1, 0).unwrap();
+    assert!(events
+        .iter()
+        .any(|e| e.kind == "interrupted"
+            && e.data["reason"] == "its process exited without finishing"));
+    assert!(server.terminate().success());
+}

@@ -6,8 +6,9 @@
 //! left `running`/`paused`/`interrupted`/`queued` by a killed service is queued again by
 //! [`Manager::start`] and resumed by `session::execute`, which skips the stored targets.
 //! Liveness comes from a lock file per stage ([`crate::campaign::stagelock`]): a campaign still
-//! run by a live process (a foreground `csmetro run` on the same store) is left to it, and a
-//! queued campaign waits while another process holds its stage.
+//! run by a live process (a foreground `csmetro run` on the same store) is left to it, a queued
+//! campaign waits while another process holds its stage, and a campaign whose process died
+//! without finishing is marked `interrupted` (resumable through the API) within seconds.
 //!
 //! Shutdown: [`Manager::shutdown`] sends `Control::Stop`: the engine stops motion and the session
 //! ends the campaign `interrupted`, which the next start resumes. Only an operator's abort
@@ -197,11 +198,87 @@ impl Manager {
             ids.push(row.id);
         }
         self.follow_pauses();
+        self.watch_orphans();
         let stages: Vec<String> = self.inner().queues.keys().cloned().collect();
         for s in stages {
             self.schedule(&s);
         }
         Ok(ids)
+    }
+
+    /// Campaigns that a foreground process (`csmetro run`/`resume` on this store) left
+    /// `running` or `paused` when it died without finishing (kill -9, a crash): nobody holds
+    /// their stage any more and nobody will finish them. Marked `interrupted` (checked every
+    /// [`STAGE_RETRY`]), so that resume and abort take them through the API instead of refusing
+    /// a campaign that looks alive until the next service start.
+    fn watch_orphans(self: &Arc<Self>) {
+        let Some(db_path) = self.db().path().map(Path::to_path_buf) else {
+            return;
+        };
+        let me = Arc::downgrade(self);
+        let mut stop = self.shutdown_signal();
+        tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    _ = tokio::time::sleep(STAGE_RETRY) => {}
+                    _ = stop.changed() => return,
+                }
+                let Some(m) = me.upgrade() else { return };
+                if m.shutting_down() {
+                    return;
+                }
+                m.sweep_orphans(&db_path);
+            }
+        });
+    }
+
+    /// One pass of [`Manager::watch_orphans`].
+    fn sweep_orphans(&self, db_path: &Path) {
+        let rows = match self.db().unfinished() {
+            Ok(rows) => rows,
+            Err(e) => {
+                tracing::warn!(error = %e, "orphan check: cannot read the store");
+                return;
+            }
+        };
+        let live = |s: CampaignState| matches!(s, CampaignState::Running | CampaignState::Paused);
+        for row in rows {
+            if !live(row.state) || self.inner().active(row.id).is_some() {
+                continue;
+            }
+            // A held stage means its process is alive (or the service drives the stage and will
+            // look again later). The lock is kept while the state is read again and changed: no
+            // process can take the campaign up in between, and one that finished it released
+            // the stage only after storing its final state.
+            let Ok(_stage) = stagelock::try_lock(db_path, &row.stage) else {
+                continue;
+            };
+            let now = self.db().campaign(row.id).ok().flatten();
+            let Some(now) = now.filter(|r| live(r.state)) else {
+                continue;
+            };
+            let stored = self.db().sample_count(row.id).unwrap_or(0);
+            let msg = format!(
+                "the process that ran it exited without finishing (was {}); {stored} of {} \
+                 samples are stored and a resume continues from there",
+                now.state.as_str(),
+                now.planned
+            );
+            tracing::warn!(campaign = row.id, stage = %row.stage, "{msg}");
+            if let Err(e) = self
+                .db()
+                .set_state(row.id, CampaignState::Interrupted, Some(&msg))
+            {
+                tracing::warn!(campaign = row.id, error = %e, "orphan check: state not stored");
+                continue;
+            }
+            self.emit(
+                row.id,
+                "interrupted",
+                json!({"reason": "its process exited without finishing",
+                       "previous_state": now.state.as_str(), "stored": stored, "resumable": true}),
+            );
+        }
     }
 
     /// A pause asked for while a campaign was starting is overwritten by the session's
