@@ -464,11 +464,12 @@ fn a_foreground_run_killed_beside_the_service_becomes_resumable_through_it() {
     common::write_config(dir.path(), "127.0.0.1:0", None);
     let mut server = common::Server::start(dir.path(), None);
     assert_eq!(server.db(), db);
-    let c = campaign(dir.path(), 2000.0, 60);
+    // Long enough (~1700 targets) that it is still running after the wait below on a fast machine.
+    let c = campaign(dir.path(), 4000.0, 60);
     let mut child = spawn_run(&c, &db);
     wait_for_samples(&mut child, &db, 20);
-    // Alive: the service leaves it alone through several checks.
-    std::thread::sleep(Duration::from_secs(5));
+    // Alive: the service leaves it alone through a check (one every 2 s).
+    std::thread::sleep(Duration::from_secs(3));
     assert_eq!(server.status(1)["state"], "running");
     child.kill().unwrap(); // SIGKILL: the run cannot store an end state
     child.wait().unwrap();
@@ -485,7 +486,7 @@ fn a_foreground_run_killed_beside_the_service_becomes_resumable_through_it() {
     );
     let (code, v) = server.post("/campaigns/1/resume", None);
     assert_eq!(code, 200, "{v}");
-    let st = server.wait_for(1, 60.0, |s| s["state"] == "done");
+    let st = server.wait_for(1, 180.0, |s| s["state"] == "done");
     assert_eq!(st["stored"], st["planned"]);
     let mut seqs = common::stored_seqs(&db, 1);
     let n = seqs.len();
