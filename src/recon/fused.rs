@@ -615,7 +615,8 @@ impl RaderAdmm {
         sp.zr[hh..half].fill(0.0);
         sp.zi[hh..half].fill(0.0);
         let dc = sp.convolve();
-        let first = Self::forward_input_avx512(sp, hh, v0, dc, samples);
+        let first = samples.first(v0, dc);
+        Self::forward_input_avx512(sp, hh, v0, samples);
         let dc = sp.convolve();
         x[0] = s0 * (first + dc);
         // Unpack: P = u0·a + u1·Im W_l, Q = u2·a + u3·Im W_l with a = first + Re W_l.
@@ -640,17 +641,10 @@ impl RaderAdmm {
     }
 
     /// [`RaderAdmm::project_avx512`]'s forward input with the samples set to their values, in
-    /// one sequential pass (see [`RaderAdmm::project_split8`]); returns the value at grid
-    /// point 0.
+    /// one sequential pass (see [`RaderAdmm::project_split8`]).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
-    unsafe fn forward_input_avx512(
-        sp: &mut Split,
-        hh: usize,
-        v0: f32,
-        dc: f32,
-        samples: &Samples,
-    ) -> f32 {
+    unsafe fn forward_input_avx512(sp: &mut Split, hh: usize, v0: f32, samples: &Samples) {
         use std::arch::x86_64::*;
         let rev = _mm512_set_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
         let t = &samples.by_input;
@@ -677,7 +671,6 @@ impl RaderAdmm {
             l += 16;
         }
         t.scalar_entries(sp, hh, v0, 16, l);
-        samples.first(v0, dc)
     }
 
     /// [`RaderAdmm::project_avx512`] in AVX2 (8 lanes) on [`super::split_fft::SplitFft8`], the
