@@ -520,6 +520,22 @@ fn dct_pairs(repeat: usize) -> serde_json::Value {
     json!({"benchmark": "dct", "threads": 1, "rows": rows})
 }
 
+/// Curve `r` of the speed rows: the paper-like curve of seed r over the grid, m random samples
+/// (design seed 2000 + r), 0.01 µm noise. The sustained row solves the same curves as the others.
+fn speed_problem(grid: &Grid, m: usize, r: u64) -> Result<synth::SynthProblem, String> {
+    let params = ReferenceCurveParams {
+        travel_um: [grid.start_um, grid.end_um()],
+        ..Default::default()
+    };
+    synth::problem(
+        grid,
+        r,
+        &params,
+        &Design::new(DesignKind::Random, m, 2000 + r),
+        0.01,
+    )
+}
+
 fn time_method(
     grid: &Grid,
     m: usize,
@@ -527,10 +543,6 @@ fn time_method(
     solver: Solver,
     repeat: usize,
 ) -> Result<serde_json::Value, String> {
-    let params = ReferenceCurveParams {
-        travel_um: [grid.start_um, grid.end_um()],
-        ..Default::default()
-    };
     let clock_before = core_clock_ghz();
     let fma_before = fma_gflops();
     let fma512_before = fma512_gflops();
@@ -542,13 +554,7 @@ fn time_method(
     let mut max_gap = f64::NAN;
     let mut problems = Vec::new();
     for r in 0..repeat {
-        let p = synth::problem(
-            grid,
-            r as u64,
-            &params,
-            &Design::new(DesignKind::Random, m, 2000 + r as u64),
-            0.01,
-        )?;
+        let p = speed_problem(grid, m, r as u64)?;
         let s = ReconSettings {
             method,
             solver,
@@ -604,26 +610,14 @@ fn time_method(
 }
 
 /// Fast BP at `m` solved without pause for `secs` seconds, the `repeat` curves of
-/// [`time_method`] in turn. A row of [`time_method`] takes its 20 solves within a second or two,
+/// [`speed_problem`] in turn. A row of [`time_method`] takes its 20 solves within a second or two,
 /// all inside whatever spell the shared host's other tenants are in (a busy SMT sibling slowed
 /// every kernel 1.35-1.69x in session 25); this median is over thousands of solves spread over
 /// minutes, and the window medians show the spells.
 fn sustained(grid: &Grid, m: usize, repeat: usize, secs: f64) -> Result<serde_json::Value, String> {
     const WINDOWS: usize = 10;
-    let params = ReferenceCurveParams {
-        travel_um: [grid.start_um, grid.end_um()],
-        ..Default::default()
-    };
     let problems = (0..repeat.max(1) as u64)
-        .map(|r| {
-            synth::problem(
-                grid,
-                r,
-                &params,
-                &Design::new(DesignKind::Random, m, 2000 + r),
-                0.01,
-            )
-        })
+        .map(|r| speed_problem(grid, m, r))
         .collect::<Result<Vec<_>, _>>()?;
     let s = ReconSettings {
         method: Method::Bp,
