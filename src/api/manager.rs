@@ -169,7 +169,7 @@ impl Manager {
         for row in rows {
             // Running or paused in a process that is still alive (a foreground `csmetro run` on
             // this store): that process owns it; do not drive the stage a second time.
-            if matches!(row.state, CampaignState::Running | CampaignState::Paused) {
+            if row.state.is_in_progress() {
                 if let Some(e) = db_path
                     .as_deref()
                     .and_then(|p| stagelock::held_elsewhere(p, &row.stage))
@@ -241,9 +241,8 @@ impl Manager {
                 return;
             }
         };
-        let live = |s: CampaignState| matches!(s, CampaignState::Running | CampaignState::Paused);
         for row in rows {
-            if !live(row.state) || self.inner().active(row.id).is_some() {
+            if !row.state.is_in_progress() || self.inner().active(row.id).is_some() {
                 continue;
             }
             // A held stage means its process is alive (or the service drives the stage and will
@@ -254,7 +253,7 @@ impl Manager {
                 continue;
             };
             let now = self.db().campaign(row.id).ok().flatten();
-            let Some(now) = now.filter(|r| live(r.state)) else {
+            let Some(now) = now.filter(|r| r.state.is_in_progress()) else {
                 continue;
             };
             let stored = self.db().sample_count(row.id).unwrap_or(0);

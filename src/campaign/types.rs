@@ -203,6 +203,12 @@ impl CampaignState {
         .into_iter()
         .find(|c| c.as_str() == s)
     }
+    /// In the hands of a process (the service or a foreground run): running, or paused between
+    /// two points. Left so by a process that died, nobody finishes it.
+    pub fn is_in_progress(self) -> bool {
+        matches!(self, CampaignState::Running | CampaignState::Paused)
+    }
+
     /// Finished for good (no resume).
     pub fn is_final(self) -> bool {
         matches!(
