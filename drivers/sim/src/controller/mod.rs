@@ -75,6 +75,55 @@ pub struct ControllerConfig {
     pub address: u8,
     /// Faults to inject, each after a number of received commands.
     pub faults: Vec<FaultSpec>,
+    /// Faults drawn at random per command (`[controller.random_faults]`), for soaks.
+    pub random_faults: Option<RandomFaults>,
+}
+
+/// Faults that strike at random: before each reply, each kind strikes with its probability,
+/// drawn from a generator seeded by `seed` (same seed, same commands: same faults).
+///
+/// ```toml
+/// [controller.random_faults]
+/// seed = 7
+/// delay_rate = 0.01      # reply sent late, by a time drawn in delay_ms
+/// delay_ms = [50, 800]
+/// drop_rate = 0.005      # reply never sent
+/// garbage_rate = 0.005   # reply replaced by garbage bytes
+/// error_rate = 0.0       # controller latches error `error_code`
+/// error_code = 1024
+/// vanish_rate = 0.0      # the port vanishes for vanish_ms
+/// vanish_ms = 200
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RandomFaults {
+    pub seed: u64,
+    pub delay_rate: f64,
+    /// Range of the delay, real milliseconds.
+    pub delay_ms: [u64; 2],
+    pub drop_rate: f64,
+    pub garbage_rate: f64,
+    pub error_rate: f64,
+    pub error_code: i32,
+    pub vanish_rate: f64,
+    /// How long the port stays away, real milliseconds.
+    pub vanish_ms: u64,
+}
+
+impl Default for RandomFaults {
+    fn default() -> Self {
+        Self {
+            seed: 0,
+            delay_rate: 0.0,
+            delay_ms: [50, 800],
+            drop_rate: 0.0,
+            garbage_rate: 0.0,
+            error_rate: 0.0,
+            error_code: 1024,
+            vanish_rate: 0.0,
+            vanish_ms: 200,
+        }
+    }
 }
 
 impl Default for ControllerConfig {
@@ -97,6 +146,7 @@ impl Default for ControllerConfig {
             settle_time_s: 0.01,
             address: 1,
             faults: Vec::new(),
+            random_faults: None,
         }
     }
 }
