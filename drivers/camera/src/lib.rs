@@ -1,7 +1,4 @@
-//! csmetro-camera: camera configuration, an in-process simulated camera ([`SourceCamera`]) and,
-//! behind the `aravis` feature, a GigE Vision / USB3 Vision driver ([`AravisCamera`]) plus a
-//! fake GigE Vision camera on 127.0.0.1 ([`FakeGvCamera`]) whose frames our code draws, so
-//! tests go through the real Aravis client path.
+#![doc = include_str!("../README.md")]
 pub mod config;
 pub mod source;
 

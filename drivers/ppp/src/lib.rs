@@ -1,15 +1,4 @@
-//! csmetro-ppp: the pseudo-periodic encoded pattern (PPP) that the camera sees on the stage.
-//!
-//! - [`pattern`]: the LFSR-coded dot lattice ([`PatternConfig`], [`Pattern`]).
-//! - [`render`]: simulated camera frames ([`Optics`], [`Pose`], [`render::render`]).
-//! - [`decode`]: absolute (x, y, θ) from a frame, with quality figures and rejection
-//!   ([`Decoder`], [`DecodeConfig`], [`DecodeResult`]).
-//! - [`io`]: 8/16-bit grayscale PNG frames.
-//!
-//! Sign convention (shared by renderer and decoder): the stage position (x_um, y_um) is the
-//! pattern point imaged at the image centre, relative to `PatternConfig::origin_um`; pattern X
-//! runs along image columns (+u, right), Y along image rows (+v, down) at θ = 0, and a pixel
-//! offset d from the centre sees the pattern point `origin + (x, y) + s·R(θ)·d`.
+#![doc = include_str!("../README.md")]
 pub mod decode;
 pub mod io;
 pub mod pattern;

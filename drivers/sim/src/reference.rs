@@ -1,4 +1,5 @@
-//! Paper-like reference error curves (`shared/notes/reference-curve.md`), built from the stage
+//! Paper-like reference error curves (the shape of the paper's Fig. 6 X-forward driving error:
+//! slow trend, leadscrew cyclic error with harmonics, roughness and noise), built from the stage
 //! model's effects so that the generator, the simulated devices and the gap diagnosis share one model.
 use std::f64::consts::PI;
 
@@ -8,7 +9,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::model::{AxisId, Component, Effect, EffectKind, SampleContext, StageModel};
 
-/// Recipe of a paper-like X-forward driving error; every amplitude in µm. Defaults follow the note.
+/// Recipe of a paper-like X-forward driving error; every amplitude in µm. The defaults give curves
+/// of the paper's Fig. 6 scale (a few µm peak-to-peak, 400 µm leadscrew period).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReferenceCurveParams {
