@@ -30,6 +30,7 @@ const GVBS_CCP: u64 = 0x0a00;
 static DEVICE_LIST: Mutex<()> = Mutex::new(());
 
 /// A camera driven through Aravis. See the module docs for the grab and reconnect policy.
+#[allow(missing_debug_implementations)] // holds GObject handles only
 pub struct AravisCamera {
     config: CameraConfig,
     session: Option<Session>,
@@ -105,6 +106,7 @@ impl AravisCamera {
         })
     }
 
+    /// The configuration it was opened with.
     pub fn config(&self) -> &CameraConfig {
         &self.config
     }
@@ -112,6 +114,7 @@ impl AravisCamera {
     pub fn limits(&self) -> &CameraLimits {
         &self.limits
     }
+    /// The camera's serial number.
     pub fn serial(&self) -> &str {
         &self.identity.serial
     }

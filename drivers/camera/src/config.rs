@@ -39,8 +39,11 @@ impl fmt::Display for CameraId {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum PixelFormat {
+    /// 8 bits per pixel.
     Mono8,
+    /// 12 significant bits in a little-endian 16-bit word.
     Mono12,
+    /// 16 bits, little-endian.
     Mono16,
 }
 
@@ -74,9 +77,13 @@ impl PixelFormat {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Roi {
+    /// Left column (OffsetX).
     pub x: u32,
+    /// Top row (OffsetY).
     pub y: u32,
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
 }
 
@@ -84,7 +91,9 @@ pub struct Roi {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraConfig {
+    /// How to find the camera.
     pub id: CameraId,
+    /// Pixel format asked of the camera.
     #[serde(default = "default_pixel_format")]
     pub pixel_format: PixelFormat,
     /// Exposure time, µs.
@@ -129,29 +138,35 @@ fn default_packet_size() -> u32 {
 }
 
 /// Longest frame timeout accepted: a grab must never look like a hang.
-pub const MAX_FRAME_TIMEOUT_MS: u64 = 60_000;
+pub(crate) const MAX_FRAME_TIMEOUT_MS: u64 = 60_000;
 /// Most reconnect attempts accepted (bounds the time a dropped camera can block a grab).
-pub const MAX_RECONNECT_ATTEMPTS: u32 = 20;
+pub(crate) const MAX_RECONNECT_ATTEMPTS: u32 = 20;
 /// Longest base backoff accepted, ms.
-pub const MAX_RECONNECT_BACKOFF_MS: u64 = 10_000;
+pub(crate) const MAX_RECONNECT_BACKOFF_MS: u64 = 10_000;
 /// GigE Vision packet sizes accepted, bytes (576: minimum IPv4 datagram; 9000: jumbo frame).
-pub const PACKET_SIZE_RANGE: (u32, u32) = (576, 9000);
+pub(crate) const PACKET_SIZE_RANGE: (u32, u32) = (576, 9000);
 
 /// Largest stream socket buffer accepted, bytes.
-pub const MAX_SOCKET_BUFFER_BYTES: u32 = 256 << 20;
+pub(crate) const MAX_SOCKET_BUFFER_BYTES: u32 = 256 << 20;
 
 /// Feature bounds read from a camera, against which a configuration is checked.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraLimits {
+    /// Sensor size, pixels (`SensorWidth`, `SensorHeight`).
     pub sensor_width: u32,
+    /// See `sensor_width`.
     pub sensor_height: u32,
     /// (min, max) of the `Width` / `Height` features.
     pub width_bounds: (u32, u32),
+    /// See `width_bounds`.
     pub height_bounds: (u32, u32),
     /// Increments of OffsetX, OffsetY, Width, Height (1 where the camera does not say).
     pub x_increment: u32,
+    /// See `x_increment`.
     pub y_increment: u32,
+    /// See `x_increment`.
     pub width_increment: u32,
+    /// See `x_increment`.
     pub height_increment: u32,
     /// (min, max) exposure, µs.
     pub exposure_bounds_us: (f64, f64),
@@ -186,6 +201,7 @@ impl CameraConfig {
         }
     }
 
+    /// Longest wait for one frame after its trigger.
     pub fn frame_timeout(&self) -> Duration {
         Duration::from_millis(self.frame_timeout_ms)
     }

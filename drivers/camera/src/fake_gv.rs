@@ -50,7 +50,9 @@ pub struct FakeGvOptions {
     pub ip: Ipv4Addr,
     /// Serial number (at most 15 characters); the device id becomes `Aravis-Fake-<serial>`.
     pub serial: String,
+    /// Sensor width, pixels.
     pub sensor_width: u32,
+    /// Sensor height, pixels.
     pub sensor_height: u32,
     /// How often the fake camera polls for a software trigger. Aravis's default of 25 Hz adds
     /// up to 40 ms of latency to every triggered frame.
@@ -81,6 +83,7 @@ struct FillState {
 }
 
 /// A fake GigE Vision camera on loopback. Dropping it stops the camera.
+#[allow(missing_debug_implementations)] // holds GObject handles only
 pub struct FakeGvCamera {
     gv: GvFakeCamera,
     fake: FakeCamera,
@@ -89,6 +92,7 @@ pub struct FakeGvCamera {
 }
 
 impl FakeGvCamera {
+    /// Serial of a camera started with the default options.
     pub const DEFAULT_SERIAL: &'static str = "CSMFAKE01";
 
     /// Start serving with the default options (127.0.0.1, [`Self::DEFAULT_SERIAL`], 1024x768).
@@ -96,6 +100,7 @@ impl FakeGvCamera {
         Self::start_with(FakeGvOptions::default(), source)
     }
 
+    /// Start serving with these options (the address must be a loopback one).
     pub fn start_with(options: FakeGvOptions, source: FrameSource) -> Result<Self, CameraError> {
         if !options.ip.is_loopback() {
             return Err(CameraError::Setting(format!(
@@ -176,9 +181,11 @@ impl FakeGvCamera {
         })
     }
 
+    /// Address it serves on.
     pub fn ip(&self) -> Ipv4Addr {
         self.options.ip
     }
+    /// Its serial number.
     pub fn serial(&self) -> &str {
         &self.options.serial
     }
@@ -186,6 +193,7 @@ impl FakeGvCamera {
     pub fn device_id(&self) -> String {
         format!("Aravis-Fake-{}", self.options.serial)
     }
+    /// The options it was started with.
     pub fn options(&self) -> &FakeGvOptions {
         &self.options
     }
@@ -222,6 +230,8 @@ impl Drop for FakeGvCamera {
     fn drop(&mut self) {
         // Back to Aravis's own pattern before `state` can be freed; this takes the fill mutex,
         // so it also waits for a frame being drawn right now.
+        // SAFETY: `self.fake` is a live ArvFakeCamera (owned by `self`); a null callback and
+        // data are what Aravis documents for "no fill pattern".
         unsafe {
             aravis_sys::arv_fake_camera_set_fill_pattern(
                 self.fake.to_glib_none().0,
@@ -252,6 +262,7 @@ unsafe extern "C" fn fill_callback(
     // SAFETY: `data` is the FillState registered in `start_with`, alive until Drop resets it.
     let state = unsafe { &*(data as *const FillState) };
     // A panic must not unwind into C (that aborts the whole process).
+    // SAFETY: `buffer` is non-null and is the fake camera's buffer for this call; `state` is live.
     let outcome = catch_unwind(AssertUnwindSafe(|| unsafe {
         draw(state, buffer, pixel_format)
     }))
@@ -279,6 +290,7 @@ unsafe fn draw(
     // The buffer reports no size yet (its received size is set from what the default pattern
     // writes); the fake camera allocated it with, and checked it against, its payload size
     // before calling us, and sends exactly that many bytes.
+    // SAFETY: `buffer` is the live ArvBuffer of this call and `state.fake` the live fake camera.
     let (width, height, data, size) = unsafe {
         let mut unused: usize = 0;
         (

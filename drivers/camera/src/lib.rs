@@ -1,11 +1,17 @@
 #![doc = include_str!("../README.md")]
-pub mod config;
-pub mod source;
+// Lints: the workspace wall (Cargo.toml `[workspace.lints]`), plus docs on everything public.
+#![warn(missing_docs, missing_debug_implementations)]
 
+mod config;
+mod source;
+
+// The FFI boundary with libaravis: the only modules of this crate allowed `unsafe`.
 #[cfg(feature = "aravis")]
-pub mod aravis_camera;
+#[allow(unsafe_code)]
+mod aravis_camera;
 #[cfg(feature = "aravis")]
-pub mod fake_gv;
+#[allow(unsafe_code)]
+mod fake_gv;
 
 pub use config::{CameraConfig, CameraId, CameraLimits, ConfigError, PixelFormat, Roi};
 pub use source::{FrameSource, SourceCamera};

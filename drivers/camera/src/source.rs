@@ -25,6 +25,16 @@ pub struct SourceCamera {
     name: String,
 }
 
+impl std::fmt::Debug for SourceCamera {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SourceCamera")
+            .field("name", &self.name)
+            .field("frames", &self.frames)
+            .field("queued_faults", &self.faults.len())
+            .finish_non_exhaustive()
+    }
+}
+
 impl SourceCamera {
     /// A `width` x `height` camera delivering `format` frames drawn by `source`.
     pub fn new(width: usize, height: usize, format: PixelFormat, source: FrameSource) -> Self {

@@ -47,6 +47,7 @@ pub struct DecodeConfig {
     pub max_phase_rms_rad: f64,
     /// Maximum non-orthogonality of the two carriers, mrad, and period anisotropy (relative).
     pub max_skew_mrad: f64,
+    /// Maximum period anisotropy of the two carriers (relative).
     pub max_anisotropy: f64,
     /// Maximum corner-class level relative to the always-present dots.
     pub max_corner_level: f64,
@@ -55,7 +56,9 @@ pub struct DecodeConfig {
     /// y put the nearest other window only ~4 bits away, so at most 1 error is corrected and
     /// a wrong window needs ≥ 3 coincident misreads that all survive the erasure threshold.
     pub min_bits: usize,
+    /// Maximum disagreeing bits (see `min_bits`).
     pub max_bit_errors: usize,
+    /// Minimum margin (see `min_bits`).
     pub min_margin: usize,
     /// A bit whose line ratio is within this of 0.5 (times 2) is an erasure, not a vote.
     pub min_bit_confidence: f64,
@@ -108,21 +111,28 @@ pub struct Quality {
     /// Reliable code bits read, bits disagreeing with the matched window, and margin
     /// (second-best window's disagreements minus the best's), along x and y.
     pub bits_x: usize,
+    /// See `bits_x`.
     pub bit_errors_x: usize,
+    /// See `bits_x`.
     pub margin_x: usize,
+    /// See `bits_x`.
     pub bits_y: usize,
+    /// See `bits_x`.
     pub bit_errors_y: usize,
+    /// See `bits_x`.
     pub margin_y: usize,
 }
 
 /// Outcome of decoding one frame. Positions are NaN (JSON null) when `ok` is false.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DecodeResult {
+    /// Whether the frame gave a position that can be trusted.
     pub ok: bool,
     /// Why the frame was rejected.
     pub reason: Option<String>,
     /// Stage position (pattern point at the image centre minus the pattern origin), µm.
     pub x_um: f64,
+    /// See `x_um`.
     pub y_um: f64,
     /// In-plane angle, mrad (same sign convention as the renderer).
     pub theta_mrad: f64,
@@ -131,6 +141,7 @@ pub struct DecodeResult {
     /// Wall time of the decode, ms.
     pub decode_ms: f64,
     #[serde(flatten)]
+    /// Quality figures of the decode.
     pub quality: Quality,
 }
 
@@ -244,6 +255,7 @@ fn match_code(code: &[u8], bits: &[Option<u8>]) -> Match {
 }
 
 impl Decoder {
+    /// A decoder of `pattern` with these thresholds.
     pub fn new(pattern: Pattern, cfg: DecodeConfig) -> Self {
         let fft_n = 256;
         let fft = FftPlanner::<f32>::new().plan_fft_forward(fft_n);
@@ -255,10 +267,12 @@ impl Decoder {
         }
     }
 
+    /// Its thresholds.
     pub fn config(&self) -> &DecodeConfig {
         &self.cfg
     }
 
+    /// The pattern it decodes.
     pub fn pattern(&self) -> &Pattern {
         &self.pattern
     }

@@ -16,8 +16,11 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PppConfig {
+    /// The pattern on the stage.
     pub pattern: PatternConfig,
+    /// The camera optics.
     pub optics: Optics,
+    /// Decoder thresholds; `None`: defaults scaled from the optics.
     pub decode: Option<DecodeConfig>,
 }
 

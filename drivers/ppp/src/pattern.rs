@@ -43,10 +43,13 @@ impl Default for PatternConfig {
 #[derive(Debug, thiserror::Error)]
 pub enum PatternError {
     #[error("code_bits must be in 4..=16, got {0}")]
+    /// Code length out of range.
     CodeBits(u32),
     #[error("period_um must be positive and finite, got {0}")]
+    /// Period not positive and finite.
     Period(f64),
     #[error("dot_fraction must be in [0.2, 0.8], got {0}")]
+    /// Dot fraction out of range.
     DotFraction(f64),
 }
 
@@ -87,6 +90,7 @@ pub fn m_sequence(n: u32) -> Vec<u8> {
 /// A pattern instance: config plus the expanded code.
 #[derive(Debug, Clone)]
 pub struct Pattern {
+    /// The definition it was built from.
     pub config: PatternConfig,
     /// Code bits (m-sequence extended by n - 1 bits): every n-bit window is unique.
     pub code: Vec<u8>,
@@ -97,6 +101,7 @@ pub struct Pattern {
 }
 
 impl Pattern {
+    /// Expands and checks a pattern definition.
     pub fn new(config: PatternConfig) -> Result<Self, PatternError> {
         if !(4..=16).contains(&config.code_bits) {
             return Err(PatternError::CodeBits(config.code_bits));

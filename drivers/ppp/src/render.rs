@@ -29,7 +29,9 @@ use crate::pattern::Pattern;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Optics {
+    /// Frame width, px.
     pub width: usize,
+    /// Frame height, px.
     pub height: usize,
     /// Sensor pixel pitch, µm.
     pub pixel_pitch_um: f64,
@@ -43,11 +45,13 @@ pub struct Optics {
     pub defocus_radius_px: f64,
     /// Level of the background and of a dot, fractions of full scale (their difference is the contrast).
     pub background: f64,
+    /// See `background`.
     pub foreground: f64,
     /// Relative illumination change across the full width and height (e.g. 0.2 = ±10 %).
     pub gradient: [f64; 2],
     /// Number of dust particles (dark discs) and their radius range, px.
     pub dust_count: usize,
+    /// See `dust_count`.
     pub dust_radius_px: [f64; 2],
     /// Exposure gain applied before clipping (> 1 saturates the dots).
     pub exposure: f64,
@@ -131,12 +135,16 @@ impl Optics {
 /// in-plane rotation (mrad).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Pose {
+    /// Stage x, µm.
     pub x_um: f64,
+    /// Stage y, µm.
     pub y_um: f64,
+    /// In-plane angle, mrad.
     pub theta_mrad: f64,
 }
 
 impl Pose {
+    /// A pose at (x, y) µm and θ mrad.
     pub fn new(x_um: f64, y_um: f64, theta_mrad: f64) -> Self {
         Self {
             x_um,

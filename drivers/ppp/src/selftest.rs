@@ -8,18 +8,25 @@ use crate::render::{render, Optics, Pose};
 
 /// Stage range that must decode, µm (the paper's pattern: 9.5 mm x 4.2 mm), and angle range.
 pub const RANGE_X_UM: f64 = 9500.0;
+/// See `RANGE_X_UM`.
 pub const RANGE_Y_UM: f64 = 4200.0;
+/// Largest in-plane angle that must decode, mrad.
 pub const MAX_THETA_MRAD: f64 = 20.0;
 
 /// Median and 99th percentile of decode time over repeated decodes of one frame (this thread).
 #[derive(Debug, Clone, Serialize)]
 pub struct Timing {
+    /// Decodes timed.
     pub frames: usize,
+    /// Median decode time, ms.
     pub median_ms: f64,
+    /// 99th percentile, ms.
     pub p99_ms: f64,
+    /// Fastest, ms.
     pub min_ms: f64,
 }
 
+/// Times `repeats` decodes of one rendered frame.
 pub fn timing(decoder: &Decoder, optics: &Optics, repeats: usize, seed: u64) -> Timing {
     let frame = render(
         decoder.pattern(),
@@ -44,13 +51,19 @@ pub fn timing(decoder: &Decoder, optics: &Optics, repeats: usize, seed: u64) -> 
 /// Standard deviation of decoded x, y over noise realisations at one pose, px.
 #[derive(Debug, Clone, Serialize)]
 pub struct Precision {
+    /// Frames rendered.
     pub frames: usize,
+    /// Frames the decoder rejected.
     pub rejected: usize,
+    /// Std of decoded x, px.
     pub std_x_px: f64,
+    /// Std of decoded y, px.
     pub std_y_px: f64,
+    /// Std of decoded θ, mrad.
     pub std_theta_mrad: f64,
     /// Mean decoded minus true position, px (accuracy at this pose, not precision).
     pub bias_x_px: f64,
+    /// See `bias_x_px`.
     pub bias_y_px: f64,
 }
 
@@ -61,6 +74,7 @@ fn std_mean(v: &[f64]) -> (f64, f64) {
     (var.sqrt(), m)
 }
 
+/// Precision over noise realisations of one pose.
 pub fn precision(
     decoder: &Decoder,
     optics: &Optics,
@@ -102,15 +116,23 @@ pub fn precision(
 /// displacement after removing an offset and a scale (linear fit), px.
 #[derive(Debug, Clone, Serialize)]
 pub struct Linearity {
+    /// Steps taken.
     pub steps: usize,
+    /// Step size, px.
     pub step_px: f64,
+    /// Frames rejected.
     pub rejected: usize,
+    /// Largest x residual, px.
     pub max_residual_x_px: f64,
+    /// Largest y residual, px.
     pub max_residual_y_px: f64,
+    /// RMS x residual, px.
     pub rms_residual_x_px: f64,
+    /// RMS y residual, px.
     pub rms_residual_y_px: f64,
     /// Fitted scale minus 1 (the decoder is self-calibrated by the known period).
     pub scale_error_x: f64,
+    /// See `scale_error_x`.
     pub scale_error_y: f64,
 }
 
@@ -129,6 +151,7 @@ fn line_residuals(t: &[f64], m: &[f64]) -> (Vec<f64>, f64) {
     )
 }
 
+/// Linearity of sub-pixel steps over one period.
 pub fn linearity(
     decoder: &Decoder,
     optics: &Optics,
@@ -179,10 +202,15 @@ pub fn linearity(
 /// truth on both axes; "wrong" = accepted but farther: the count that must be zero.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct Sweep {
+    /// Frames decoded.
     pub frames: usize,
+    /// Decoded right.
     pub right: usize,
+    /// Rejected.
     pub rejected: usize,
+    /// Accepted but wrong (must be zero).
     pub wrong: usize,
+    /// `right / frames`.
     pub success_rate: f64,
     /// Largest error among accepted frames, px.
     pub max_error_px: f64,
