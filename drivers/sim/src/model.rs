@@ -21,48 +21,12 @@
 //! (`camera_rotation`, `camera_scale`, `thermal_drift`), which act on every sample.
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
-use std::fmt;
 use std::path::Path;
 
 use toml::{Table, Value};
 
-/// A stage axis.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
-)]
-#[serde(rename_all = "lowercase")]
-pub enum AxisId {
-    X,
-    Y,
-}
-
-impl AxisId {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            AxisId::X => "x",
-            AxisId::Y => "y",
-        }
-    }
-    pub fn other(self) -> AxisId {
-        match self {
-            AxisId::X => AxisId::Y,
-            AxisId::Y => AxisId::X,
-        }
-    }
-    pub fn parse(s: &str) -> Option<AxisId> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "x" => Some(AxisId::X),
-            "y" => Some(AxisId::Y),
-            _ => None,
-        }
-    }
-}
-
-impl fmt::Display for AxisId {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
+// The axis and direction types live in the hardware seam; re-exported where they always were.
+pub use csmetro_hal::{AxisId, Direction};
 
 /// Everything the model needs to predict one measured sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
