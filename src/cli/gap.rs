@@ -102,13 +102,30 @@ pub fn run(args: Args) -> CliResult {
         .data
         .ok_or_else(|| CliError::input("gap: --data DATA.csv is required"))?;
     let model = load_model(&model_path)?;
+    if model.effects.is_empty() {
+        // An empty (or truncated) file would silently stand for an ideal 9.5 x 4.2 mm stage.
+        return Err(CliError::input(format!(
+            "{}:1: empty model: no [[effect]] tables (give the stage's model; an ideal stage is one `noise` effect)",
+            model_path.display()
+        )));
+    }
     let stored_id = data_path
         .to_str()
         .and_then(|t| t.parse::<i64>().ok())
         .filter(|_| !data_path.exists());
     let samples = match stored_id {
-        Some(id) => stored_samples(&args.db, id)?,
-        None => data::read_csv(&data_path).map_err(CliError::input)?,
+        Some(id) => {
+            let s = stored_samples(&args.db, id)?;
+            data::check_travel(&format!("campaign {id}"), &s, None, &model)
+                .map_err(CliError::input)?;
+            s
+        }
+        None => {
+            let (s, lines) = data::read_csv_lines(&data_path).map_err(CliError::input)?;
+            data::check_travel(&data_path.display().to_string(), &s, Some(&lines), &model)
+                .map_err(CliError::input)?;
+            s
+        }
     };
     let mut opts = gap::Options {
         kinds: args.kinds,

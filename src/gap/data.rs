@@ -1,5 +1,6 @@
 //! Measured line-campaign data: the CSV format `csmetro gap` reads, and a seeded generator that
 //! simulates the paper's line campaigns from a "real" stage model (for the benchmark and tests).
+use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -89,6 +90,11 @@ impl Sample {
 
 /// Parses campaign CSV text; errors are one line and name `origin` and the line number.
 pub fn parse_csv(origin: &str, text: &str) -> Result<Vec<Sample>, String> {
+    parse_csv_lines(origin, text).map(|(samples, _)| samples)
+}
+
+/// Same as [`parse_csv`], with the 1-based file line of every sample (for later checks).
+pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>), String> {
     let mut lines = text
         .lines()
         .enumerate()
@@ -123,6 +129,10 @@ pub fn parse_csv(origin: &str, text: &str) -> Result<Vec<Sample>, String> {
         ));
     }
     let mut out = Vec::new();
+    let mut at = Vec::new();
+    // One sample per (run, axis, direction, targets, time): a second is a copied row, which
+    // would pass for a repeat and shrink the repeatability σ.
+    let mut seen: HashMap<(i64, AxisId, bool, [u64; 3]), usize> = HashMap::new();
     for (i, line) in lines {
         let ln = i + 1;
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
@@ -151,6 +161,11 @@ pub fn parse_csv(origin: &str, text: &str) -> Result<Vec<Sample>, String> {
         let run: i64 = run_s
             .parse()
             .map_err(|_| format!("{origin}:{ln}: `run` = {run_s:?} is not an integer"))?;
+        if run < 0 {
+            return Err(format!(
+                "{origin}:{ln}: `run` = {run} is negative (runs are cycle numbers, >= 0)"
+            ));
+        }
         let moving = AxisId::parse(f[idx[1]])
             .ok_or_else(|| format!("{origin}:{ln}: `axis` = {:?} must be x or y", f[idx[1]]))?;
         let direction = match f[idx[2]].to_ascii_lowercase().as_str() {
@@ -162,7 +177,7 @@ pub fn parse_csv(origin: &str, text: &str) -> Result<Vec<Sample>, String> {
                 ))
             }
         };
-        out.push(Sample {
+        let sample = Sample {
             run,
             moving,
             direction,
@@ -171,16 +186,68 @@ pub fn parse_csv(origin: &str, text: &str) -> Result<Vec<Sample>, String> {
             time_s: num(5)?,
             meas_x_um: num(6)?,
             meas_y_um: num(7)?,
-        });
+        };
+        // `+ 0.0` makes -0 and 0 one key.
+        let bits = |v: f64| (v + 0.0).to_bits();
+        let key = (
+            run,
+            moving,
+            direction > 0.0,
+            [
+                bits(sample.target_x_um),
+                bits(sample.target_y_um),
+                bits(sample.time_s),
+            ],
+        );
+        if let Some(first) = seen.insert(key, ln) {
+            return Err(format!(
+                "{origin}:{ln}: duplicate row: same run, axis, direction, targets and time as line {first}"
+            ));
+        }
+        out.push(sample);
+        at.push(ln);
     }
     if out.is_empty() {
         return Err(format!("{origin}: no data rows"));
     }
-    Ok(out)
+    Ok((out, at))
+}
+
+/// Refuses samples whose targets lie outside the model's travel: the model's effects (and the
+/// maps of the diagnosis) say nothing there. `lines` are the file lines of the samples (CSV);
+/// without them a sample is named by its index. Tolerance: the CSV's 0.001 µm resolution.
+pub fn check_travel(
+    origin: &str,
+    samples: &[Sample],
+    lines: Option<&[usize]>,
+    model: &StageModel,
+) -> Result<(), String> {
+    const TOL_UM: f64 = 1e-3;
+    for (i, s) in samples.iter().enumerate() {
+        for (axis, key) in [(AxisId::X, "target_x_um"), (AxisId::Y, "target_y_um")] {
+            let [lo, hi] = model.travel(axis);
+            let v = s.target(axis);
+            if v < lo - TOL_UM || v > hi + TOL_UM {
+                let place = match lines.and_then(|l| l.get(i)) {
+                    Some(ln) => format!("{origin}:{ln}"),
+                    None => format!("{origin}: sample {}", i + 1),
+                };
+                return Err(format!(
+                    "{place}: `{key}` = {v} lies outside the model's travel [{lo}, {hi}] µm"
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Reads a campaign CSV file (campaign ids are not supported yet: there is no campaign storage).
 pub fn read_csv(path: &Path) -> Result<Vec<Sample>, String> {
+    read_csv_lines(path).map(|(samples, _)| samples)
+}
+
+/// Same as [`read_csv`], with the file line of every sample.
+pub fn read_csv_lines(path: &Path) -> Result<(Vec<Sample>, Vec<usize>), String> {
     if !path.is_file() {
         return Err(format!(
             "{}: not a file (only DATA.csv files are accepted for now: campaign storage does not exist yet, so campaign ids cannot be resolved)",
@@ -188,7 +255,7 @@ pub fn read_csv(path: &Path) -> Result<Vec<Sample>, String> {
         ));
     }
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    parse_csv(&path.display().to_string(), &text)
+    parse_csv_lines(&path.display().to_string(), &text)
 }
 
 pub fn to_csv_string(samples: &[Sample]) -> String {

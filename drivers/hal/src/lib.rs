@@ -8,6 +8,43 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+/// A stage axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AxisId {
+    X,
+    Y,
+}
+
+impl AxisId {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            AxisId::X => "x",
+            AxisId::Y => "y",
+        }
+    }
+    pub fn other(self) -> AxisId {
+        match self {
+            AxisId::X => AxisId::Y,
+            AxisId::Y => AxisId::X,
+        }
+    }
+    /// `x` or `y`, any case, surrounding blanks ignored.
+    pub fn parse(s: &str) -> Option<AxisId> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "x" => Some(AxisId::X),
+            "y" => Some(AxisId::Y),
+            _ => None,
+        }
+    }
+}
+
+impl std::fmt::Display for AxisId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// Direction of the last approach to a target: +1 forward (increasing position), -1 backward.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -1,0 +1,323 @@
+//! The stage model: one effect library for the error-curve generator, the simulated controller
+//! and camera, and `csmetro gap` (see `shared/notes/gap-contract.md`).
+//!
+//! A model is a list of effects, each an `[[effect]]` table in a TOML file:
+//!
+//! ```toml
+//! [stage]
+//! travel_x_um = [0.0, 9500.0]
+//! travel_y_um = [0.0, 4200.0]
+//!
+//! [[effect]]
+//! kind = "leadscrew_cyclic"
+//! axis = "x"
+//! period_um = 400.0
+//! cos_um = [1.0]
+//! sin_um = [0.0]
+//! ```
+//!
+//! Measured position = target + Σ deviations of the effects that act on the sample (+ noise).
+//! An effect acts on a sample when its `axis` is the moving axis, except the global kinds
+//! (`camera_rotation`, `camera_scale`, `thermal_drift`), which act on every sample.
+mod effect;
+mod file;
+
+pub use effect::{
+    legendre, map_to_unit, Component, Effect, EffectKind, LIBRARY_KINDS, SIM_ONLY_KINDS,
+};
+pub use file::{MAX_EFFECTS, MAX_TERMS, MAX_TRAVEL_UM};
+
+// The axis and direction types live in the hardware seam; re-exported where they always were.
+pub use csmetro_hal::{AxisId, Direction};
+
+/// Everything the model needs to predict one measured sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SampleContext {
+    /// The moving axis of this line.
+    pub moving: AxisId,
+    /// Approach direction: +1 forward, -1 backward.
+    pub direction: f64,
+    pub target_x_um: f64,
+    pub target_y_um: f64,
+    /// Seconds since the start of the data (campaign).
+    pub time_s: f64,
+}
+
+impl SampleContext {
+    pub fn target(&self, axis: AxisId) -> f64 {
+        match axis {
+            AxisId::X => self.target_x_um,
+            AxisId::Y => self.target_y_um,
+        }
+    }
+}
+
+/// A deviation vector (δx, δy) in µm.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Deviation {
+    pub x_um: f64,
+    pub y_um: f64,
+}
+
+impl Deviation {
+    pub(crate) fn add(&mut self, axis: AxisId, v: f64) {
+        match axis {
+            AxisId::X => self.x_um += v,
+            AxisId::Y => self.y_um += v,
+        }
+    }
+    pub fn get(&self, axis: AxisId) -> f64 {
+        match axis {
+            AxisId::X => self.x_um,
+            AxisId::Y => self.y_um,
+        }
+    }
+}
+
+/// Model-file errors, one line each, naming the line (and the file when read from one).
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// `path` is `FILE` or `FILE:LINE`.
+    #[error("{path}: {message}")]
+    File { path: String, message: String },
+    #[error("{0}")]
+    Invalid(String),
+    /// A problem at a line of the TOML text (1-based).
+    #[error("line {line}: {message}")]
+    Line { line: usize, message: String },
+}
+
+/// The stage model: axis ranges and effects.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StageModel {
+    pub travel_x_um: [f64; 2],
+    pub travel_y_um: [f64; 2],
+    pub effects: Vec<Effect>,
+}
+
+impl Default for StageModel {
+    /// An ideal stage over the paper's pattern range (9.5 mm x 4.2 mm).
+    fn default() -> Self {
+        Self {
+            travel_x_um: [0.0, 9500.0],
+            travel_y_um: [0.0, 4200.0],
+            effects: Vec::new(),
+        }
+    }
+}
+
+impl StageModel {
+    pub fn new(travel_x_um: [f64; 2], travel_y_um: [f64; 2]) -> Self {
+        Self {
+            travel_x_um,
+            travel_y_um,
+            effects: Vec::new(),
+        }
+    }
+
+    pub fn travel(&self, axis: AxisId) -> [f64; 2] {
+        match axis {
+            AxisId::X => self.travel_x_um,
+            AxisId::Y => self.travel_y_um,
+        }
+    }
+
+    /// Adds an effect (and builds its lookup table if it needs one).
+    pub fn push(&mut self, mut effect: Effect) {
+        effect.prepare(self.travel(effect.axis));
+        self.effects.push(effect);
+    }
+
+    pub fn with(mut self, effect: Effect) -> Self {
+        self.push(effect);
+        self
+    }
+
+    /// Sum of the deviations of the effects that act on this sample (no noise).
+    pub fn deviation(&self, c: &SampleContext) -> Deviation {
+        let mut total = Deviation::default();
+        for e in self.effects.iter().filter(|e| e.acts_on(c.moving)) {
+            let d = e.deviation(self, c);
+            total.x_um += d.x_um;
+            total.y_um += d.y_um;
+        }
+        total
+    }
+
+    /// Deviation of a single effect (index into `effects`), zero if it does not act on the sample.
+    pub fn effect_deviation(&self, index: usize, c: &SampleContext) -> Deviation {
+        let e = &self.effects[index];
+        if e.acts_on(c.moving) {
+            e.deviation(self, c)
+        } else {
+            Deviation::default()
+        }
+    }
+
+    /// Noise-free predicted measurement (x, y) in µm: target + deviations.
+    pub fn predict(&self, c: &SampleContext) -> (f64, f64) {
+        let d = self.deviation(c);
+        (c.target_x_um + d.x_um, c.target_y_um + d.y_um)
+    }
+
+    /// Total white measurement noise σ, µm (root sum of squares of `noise` effects).
+    pub fn noise_sigma_um(&self) -> f64 {
+        self.effects
+            .iter()
+            .filter_map(|e| match e.kind {
+                EffectKind::Noise { sigma_um } => Some(sigma_um * sigma_um),
+                _ => None,
+            })
+            .sum::<f64>()
+            .sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ctx(moving: AxisId, d: f64, x: f64, y: f64) -> SampleContext {
+        SampleContext {
+            moving,
+            direction: d,
+            target_x_um: x,
+            target_y_um: y,
+            time_s: 0.0,
+        }
+    }
+
+    /// The worked example of the gap contract, to the digit.
+    #[test]
+    fn gap_contract_worked_example() {
+        let m = StageModel::from_toml_str(
+            r#"
+            [[effect]]
+            kind = "leadscrew_cyclic"
+            axis = "x"
+            period_um = 400
+            cos_um = [1.0]
+            sin_um = [0.0]
+            [[effect]]
+            kind = "backlash"
+            axis = "x"
+            reversal_um = 2.0
+            [[effect]]
+            kind = "squareness"
+            axis = "y"
+            angle_urad = 100
+            "#,
+        )
+        .unwrap();
+        let (x, y) = m.predict(&ctx(AxisId::X, 1.0, 100.0, 2000.0));
+        assert!(
+            (x - 101.0).abs() < 1e-12 && (y - 2000.0).abs() < 1e-12,
+            "{x} {y}"
+        );
+        let (x, y) = m.predict(&ctx(AxisId::X, -1.0, 200.0, 2000.0));
+        assert!(
+            (x - 198.0).abs() < 1e-12 && (y - 2000.0).abs() < 1e-12,
+            "{x} {y}"
+        );
+        let (x, y) = m.predict(&ctx(AxisId::Y, 1.0, 4750.0, 1000.0));
+        assert!(
+            (x - 4750.1).abs() < 1e-9 && (y - 1000.0).abs() < 1e-12,
+            "{x} {y}"
+        );
+    }
+
+    #[test]
+    fn effects_of_static_axis_do_not_act_but_global_ones_do() {
+        let m = StageModel::default()
+            .with(Effect::new(
+                AxisId::Y,
+                EffectKind::Scale {
+                    ppm: 100.0,
+                    ref_um: 0.0,
+                },
+            ))
+            .with(Effect::new(
+                AxisId::X,
+                EffectKind::CameraRotation { angle_urad: 10.0 },
+            ));
+        let d = m.deviation(&ctx(AxisId::X, 1.0, 1000.0, 2000.0));
+        assert!((d.x_um - (-10e-6 * 2000.0)).abs() < 1e-12);
+        assert!((d.y_um - 10e-6 * 1000.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn toml_round_trip_keeps_every_parameter() {
+        let text = r#"
+            [stage]
+            travel_x_um = [0.0, 9500.0]
+            travel_y_um = [0.0, 4200.0]
+            [[effect]]
+            kind = "yaw_abbe"
+            axis = "x"
+            yaw_urad = [20.0, -5.0]
+            offset_um = 2100.0
+            [[effect]]
+            kind = "thermal_drift"
+            component = "y"
+            amp_um = 0.5
+            tau_s = 900
+            rate_um_per_h = 0.1
+            [[effect]]
+            kind = "roughness"
+            axis = "x"
+            sigma_um = 0.085
+            corr_um = 12
+            seed = 7
+        "#;
+        let m = StageModel::from_toml_str(text).unwrap();
+        let again = StageModel::from_toml_str(&m.to_toml_string()).unwrap();
+        assert_eq!(m, again);
+        let c = SampleContext {
+            time_s: 600.0,
+            ..ctx(AxisId::X, 1.0, 4321.0, 1234.0)
+        };
+        assert_eq!(m.deviation(&c), again.deviation(&c));
+    }
+
+    #[test]
+    fn bad_files_are_refused_with_the_key_named() {
+        let e =
+            StageModel::from_toml_str("[[effect]]\nkind = \"warp\"\naxis = \"x\"\n").unwrap_err();
+        assert!(e.to_string().contains("unknown kind `warp`"), "{e}");
+        let e = StageModel::from_toml_str(
+            "[[effect]]\nkind = \"scale\"\naxis = \"x\"\nppm = 1\nfoo = 2\n",
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("unknown parameter `foo`"), "{e}");
+        let e = StageModel::from_toml_str("[[effect]]\nkind = \"backlash\"\naxis = \"x\"\n")
+            .unwrap_err();
+        assert!(e.to_string().contains("reversal_um"), "{e}");
+    }
+
+    #[test]
+    fn legendre_matches_closed_forms() {
+        for &s in &[-1.0, -0.3, 0.0, 0.7, 1.0] {
+            assert!((legendre(2, s) - 0.5 * (3.0 * s * s - 1.0)).abs() < 1e-14);
+            assert!((legendre(3, s) - 0.5 * (5.0 * s * s * s - 3.0 * s)).abs() < 1e-14);
+        }
+    }
+
+    #[test]
+    fn roughness_has_the_requested_sigma() {
+        let m = StageModel::default().with(Effect::new(
+            AxisId::X,
+            EffectKind::Roughness {
+                component: Component::Axis,
+                sigma_um: 0.1,
+                corr_um: 12.0,
+                seed: 3,
+            },
+        ));
+        let v: Vec<f64> = (0..1900)
+            .map(|i| m.deviation(&ctx(AxisId::X, 1.0, i as f64 * 5.0, 0.0)).x_um)
+            .collect();
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+        assert!((sd - 0.1).abs() < 0.02, "sd {sd}");
+    }
+}

@@ -1,0 +1,344 @@
+//! What the diagnosis reports: accepted effects with their ties, where the gap lies, and the
+//! JSON and text forms of the result.
+use csmetro_sim::model::{AxisId, Effect, StageModel};
+use serde_json::{json, Value as Json};
+
+/// One tie: a candidate (or set) the data cannot tell apart from the pick.
+#[derive(Debug, Clone)]
+pub struct Tie {
+    pub members: Vec<(String, String)>,
+    pub heldout_rms_um: Option<f64>,
+    /// "score" (held-out score within noise) or "span" (reproduces the pick's fitted deviation).
+    pub reason: &'static str,
+}
+
+impl Tie {
+    pub fn label(&self) -> String {
+        self.members
+            .iter()
+            .map(|(k, a)| {
+                if a == "-" {
+                    k.clone()
+                } else {
+                    format!("{k} {a}")
+                }
+            })
+            .collect::<Vec<_>>()
+            .join(" + ")
+    }
+}
+
+/// One accepted effect group.
+#[derive(Debug, Clone)]
+pub struct Added {
+    pub kind: String,
+    /// x, y, or "-" for camera kinds (thermal drift: its component).
+    pub axis: String,
+    /// The fitted effect (what the data say the missing effect is), final joint fit.
+    pub effect: Effect,
+    pub heldout_rms_um: f64,
+    pub gap_closed: Option<f64>,
+    pub t_stat: f64,
+    pub ties: Vec<Tie>,
+}
+
+/// One significant interval of the residual.
+#[derive(Debug, Clone)]
+pub struct Where {
+    pub map: &'static str,
+    pub axis: Option<AxisId>,
+    pub direction: Option<&'static str>,
+    pub component: Option<AxisId>,
+    pub from: f64,
+    pub to: f64,
+    pub share: f64,
+    pub z: f64,
+    pub peak_um: f64,
+}
+
+#[derive(Debug, Clone)]
+pub struct Unexplained {
+    pub significant: bool,
+    pub rms_um: f64,
+    pub lack_of_fit_z: f64,
+    pub time_z: f64,
+    pub where_: Vec<Where>,
+    pub frequency: Vec<Peak>,
+}
+
+/// A significant periodogram peak of the residual over position.
+#[derive(Debug, Clone)]
+pub struct Peak {
+    pub axis: AxisId,
+    pub component: AxisId,
+    pub period_um: f64,
+    pub amplitude_um: f64,
+    /// False-alarm probability (Bonferroni over the frequency grid).
+    pub fap: f64,
+}
+
+impl Peak {
+    pub fn describe(&self) -> String {
+        format!(
+            "periodic: {} lines, {} component, period {:.2} µm, amplitude {:.3} µm (false-alarm p {:.1e})",
+            self.axis, self.component, self.period_um, self.amplitude_um, self.fap
+        )
+    }
+
+    pub fn to_json(&self) -> Json {
+        json!({
+            "axis": self.axis.as_str(),
+            "component": self.component.as_str(),
+            "period_um": self.period_um,
+            "amplitude_um": self.amplitude_um,
+            "fap": self.fap,
+        })
+    }
+}
+
+/// Other-axis map: systematic residual per line group (moving axis, static position, component).
+#[derive(Debug, Clone)]
+pub struct OtherAxis {
+    pub axis: AxisId,
+    pub component: AxisId,
+    /// Position of the static (other) axis, µm.
+    pub static_um: f64,
+    /// RMS of the systematic part (cell means in excess of the repeatability), µm.
+    pub rms_um: f64,
+    pub z: f64,
+}
+
+impl OtherAxis {
+    pub fn to_json(&self) -> Json {
+        json!({
+            "axis": self.axis.as_str(),
+            "component": self.component.as_str(),
+            "static_um": self.static_um,
+            "rms_um": self.rms_um,
+            "z": self.z,
+        })
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct Diagnosis {
+    pub n_samples: usize,
+    pub n_runs: usize,
+    pub n_lines: usize,
+    pub sigma_um: f64,
+    pub sigma_from_repeats: bool,
+    pub heldout_rms_before_um: f64,
+    pub heldout_rms_after_um: f64,
+    pub lack_of_fit_before_z: f64,
+    pub added: Vec<Added>,
+    pub where_: Vec<Where>,
+    pub frequency: Vec<Peak>,
+    pub other_axis: Vec<OtherAxis>,
+    pub unexplained: Unexplained,
+    pub model: StageModel,
+    pub candidates: Vec<String>,
+}
+
+pub(super) fn toml_to_json(v: &toml::Value) -> Json {
+    match v {
+        toml::Value::Float(f) => json!(f),
+        toml::Value::Integer(i) => json!(i),
+        toml::Value::String(s) => json!(s),
+        toml::Value::Boolean(b) => json!(b),
+        toml::Value::Array(a) => Json::Array(a.iter().map(toml_to_json).collect()),
+        other => json!(other.to_string()),
+    }
+}
+
+impl Where {
+    pub fn to_json(&self) -> Json {
+        let (from_um, to_um, from_s, to_s) = match self.map {
+            "time" => (None, None, Some(self.from), Some(self.to)),
+            _ => (Some(self.from), Some(self.to), None, None),
+        };
+        json!({
+            "map": self.map,
+            "axis": self.axis.map(|a| a.as_str()),
+            "direction": self.direction,
+            "component": self.component.map(|a| a.as_str()),
+            "from_um": from_um,
+            "to_um": to_um,
+            "from_s": from_s,
+            "to_s": to_s,
+            "share": self.share,
+            "z": self.z,
+            "peak_um": self.peak_um,
+        })
+    }
+
+    pub fn describe(&self) -> String {
+        match self.map {
+            "time" => format!(
+                "time {:.0}..{:.0} s (share {:.0} %, peak {:.3} µm)",
+                self.from,
+                self.to,
+                100.0 * self.share,
+                self.peak_um
+            ),
+            _ => format!(
+                "{} lines, {}, {} component, {:.0}..{:.0} µm (share {:.0} %, peak {:.3} µm)",
+                self.axis.map(|a| a.as_str()).unwrap_or("-"),
+                self.direction.unwrap_or("-"),
+                self.component.map(|a| a.as_str()).unwrap_or("-"),
+                self.from,
+                self.to,
+                100.0 * self.share,
+                self.peak_um
+            ),
+        }
+    }
+}
+
+impl Diagnosis {
+    pub fn to_json(&self) -> Json {
+        let added: Vec<Json> = self
+            .added
+            .iter()
+            .map(|a| {
+                let params: serde_json::Map<String, Json> = a
+                    .effect
+                    .params()
+                    .iter()
+                    .map(|(k, v)| (k.clone(), toml_to_json(v)))
+                    .collect();
+                json!({
+                    "kind": a.kind,
+                    "axis": a.axis,
+                    "params": params,
+                    "heldout_rms_um": a.heldout_rms_um,
+                    "gap_closed": a.gap_closed,
+                    "t_stat": if a.t_stat.is_finite() { a.t_stat } else { 1e9 },
+                    "ties": a.ties.iter().map(|t| json!({
+                        "label": t.label(),
+                        "members": t.members.iter().map(|(k, ax)| json!({"kind": k, "axis": ax})).collect::<Vec<_>>(),
+                        "heldout_rms_um": t.heldout_rms_um,
+                        "reason": t.reason,
+                    })).collect::<Vec<_>>(),
+                })
+            })
+            .collect();
+        json!({
+            "n_samples": self.n_samples,
+            "n_runs": self.n_runs,
+            "n_lines": self.n_lines,
+            "sigma_um": self.sigma_um,
+            "sigma_from_repeats": self.sigma_from_repeats,
+            "heldout_rms_before_um": self.heldout_rms_before_um,
+            "heldout_rms_after_um": self.heldout_rms_after_um,
+            "lack_of_fit_before_z": self.lack_of_fit_before_z,
+            "added": added,
+            "where": self.where_.iter().map(Where::to_json).collect::<Vec<_>>(),
+            "frequency": self.frequency.iter().map(Peak::to_json).collect::<Vec<_>>(),
+            "other_axis": self.other_axis.iter().map(OtherAxis::to_json).collect::<Vec<_>>(),
+            "unexplained": {
+                "significant": self.unexplained.significant,
+                "rms_um": self.unexplained.rms_um,
+                "lack_of_fit_z": self.unexplained.lack_of_fit_z,
+                "time_z": self.unexplained.time_z,
+                "where": self.unexplained.where_.iter().map(Where::to_json).collect::<Vec<_>>(),
+                "frequency": self.unexplained.frequency.iter().map(Peak::to_json).collect::<Vec<_>>(),
+            },
+            "candidates": self.candidates,
+        })
+    }
+
+    /// Human-readable report.
+    pub fn summary(&self) -> String {
+        use std::fmt::Write as _;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "data: {} samples, {} runs, {} lines; repeatability σ = {:.4} µm{}",
+            self.n_samples,
+            self.n_runs,
+            self.n_lines,
+            self.sigma_um,
+            if self.sigma_from_repeats {
+                " (pure error over repeated runs)"
+            } else {
+                " (no repeats: from the held-out residual)"
+            }
+        );
+        let _ = writeln!(
+            s,
+            "held-out RMS gap (leave-one-run-out): before {:.4} µm, after {:.4} µm",
+            self.heldout_rms_before_um, self.heldout_rms_after_um
+        );
+        if self.where_.is_empty() {
+            let _ = writeln!(
+                s,
+                "where: no interval significant against the repeatability"
+            );
+        } else {
+            let _ = writeln!(
+                s,
+                "where (data - model, significant against repeatability):"
+            );
+            for w in &self.where_ {
+                let _ = writeln!(s, "  {}", w.describe());
+            }
+        }
+        for p in &self.frequency {
+            let _ = writeln!(s, "  {}", p.describe());
+        }
+        if self.added.is_empty() {
+            let _ = writeln!(
+                s,
+                "which: no effect improves the held-out fit significantly"
+            );
+        }
+        for (i, a) in self.added.iter().enumerate() {
+            let params: Vec<String> = a
+                .effect
+                .params()
+                .iter()
+                .map(|(k, v)| format!("{k} = {v}"))
+                .collect();
+            let _ = writeln!(
+                s,
+                "{}. {} {}: held-out RMS {:.4} µm, gap closed {} ({})",
+                i + 1,
+                a.kind,
+                a.axis,
+                a.heldout_rms_um,
+                a.gap_closed
+                    .map(|g| format!("{:.0} %", 100.0 * g))
+                    .unwrap_or_else(|| "n/a".into()),
+                params.join(", ")
+            );
+            if !a.ties.is_empty() {
+                let t: Vec<String> = a
+                    .ties
+                    .iter()
+                    .map(|t| format!("{} ({})", t.label(), t.reason))
+                    .collect();
+                let _ = writeln!(s, "   tie, the data cannot tell apart: {}", t.join("; "));
+            }
+        }
+        if self.unexplained.significant {
+            let _ = writeln!(
+                s,
+                "unexplained: structure remains that no library effect explains (RMS {:.4} µm, lack-of-fit z {:.1}, time z {:.1})",
+                self.unexplained.rms_um, self.unexplained.lack_of_fit_z, self.unexplained.time_z
+            );
+            for w in &self.unexplained.where_ {
+                let _ = writeln!(s, "  {}", w.describe());
+            }
+            for p in &self.unexplained.frequency {
+                let _ = writeln!(s, "  {}", p.describe());
+            }
+        } else {
+            let _ = writeln!(
+                s,
+                "unexplained: nothing significant remains (lack-of-fit z {:.1}, time z {:.1})",
+                self.unexplained.lack_of_fit_z, self.unexplained.time_z
+            );
+        }
+        s
+    }
+}
