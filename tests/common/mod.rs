@@ -8,8 +8,26 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+/// The binary, with stage locks in a directory of this test only: tests run in parallel on the
+/// same stage names, which machine-wide locks would otherwise serialize.
 pub fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_csmetro"))
+    let mut c = Command::new(env!("CARGO_BIN_EXE_csmetro"));
+    c.env("CSMETRO_LOCK_DIR", test_lock_dir());
+    c
+}
+
+/// A lock directory per test (libtest names each test's thread after it).
+pub fn test_lock_dir() -> PathBuf {
+    let t = std::thread::current();
+    let name: String = t
+        .name()
+        .unwrap_or("main")
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect();
+    let d = std::env::temp_dir().join(format!("csmetro-test-locks-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
 }
 
 /// The single JSON object a successful `--json` command printed on stdout.
