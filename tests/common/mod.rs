@@ -58,7 +58,7 @@ kind = "sim"
 optics = {{ width = 640, height = 640 }}
 
 [hardware.sim]
-model = "{model}"
+model = "ideal.toml"
 time_scale = {time_scale}
 transport = "pty"
 frame_time_s = 0.1
@@ -80,8 +80,7 @@ settle_s = 0.2
 
 [outputs]
 dir = "{name}-{{id}}"
-"#,
-        model = repo("config/sim/ideal.toml").display()
+"#
     )
 }
 
@@ -100,6 +99,11 @@ pub fn write_config(dir: &Path, bind: &str, token: Option<&str>) -> PathBuf {
         t.push_str(&format!("token = \"{tok}\"\n"));
     }
     t.push_str("\n[storage]\ndb = \"var/csmetro.db\"\nresults_dir = \"var/results\"\n\n[log]\nfilter = \"info,csmetro=debug\"\n");
+    // Submitted campaigns name their stage model (`ideal.toml`) in the shipped models.
+    t.push_str(&format!(
+        "\n[campaigns]\nbase_dir = \"{}\"\n",
+        repo("config/sim").display()
+    ));
     let p = dir.join("csmetro.toml");
     std::fs::write(&p, t).unwrap();
     p
