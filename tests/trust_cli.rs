@@ -105,3 +105,35 @@ fn reconstruct_refuses_grids_too_large_to_solve() {
         assert!(took < Duration::from_secs(10), "{grid}: {took:?}");
     }
 }
+
+#[test]
+fn two_stores_cannot_drive_the_same_stage_at_once() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let f = campaign_file(dir.path(), |t| t);
+    let db = |n: &str| dir.path().join(n).display().to_string();
+    // Both processes share this test's lock directory (bin() sets it), as two processes on one
+    // machine share /run/lock.
+    let mut a = bin()
+        .args(["run", &f, "--db", &db("a.db"), "--quiet"])
+        .current_dir(dir.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Its first line: the campaign is stored, so the stage is taken.
+    let mut line = String::new();
+    BufReader::new(a.stderr.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    assert!(line.contains("stored in"), "{line}");
+    let small = campaign_file(dir.path(), |t| {
+        t.replace("full_scan = true", "full_scan = false")
+            .replace("settle_s = 2.0", "settle_s = 0.0")
+    });
+    let (o, _) = run(&["run", &small, "--db", &db("b.db"), "--quiet"], dir.path());
+    a.kill().unwrap();
+    a.wait().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("driven by another csmetro process"), "{err}");
+}
