@@ -19,11 +19,24 @@ impl GridSamples {
     }
 }
 
+/// Largest samples file read: a full grid of [`crate::grid::MAX_GRID_POINTS`] rows of ~40
+/// bytes fits.
+pub const MAX_SAMPLES_BYTES: u64 = 64 << 20;
+
 /// Reads `position_um,error_um` rows; every error is one line naming the file and line.
 pub fn read_samples_csv(path: &Path, grid: &Grid) -> Result<GridSamples, String> {
     let name = path.display();
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{name}: cannot read: {e}"))?;
+    let text = crate::tomlpos::read_bounded(path, MAX_SAMPLES_BYTES)
+        .map_err(|e| format!("{name}: cannot read: {e}"))?;
     parse_samples_csv(&text, grid).map_err(|(line, msg)| format!("{name}:{line}: {msg}"))
+}
+
+/// At most 40 characters of a field for an error message (a field may be megabytes long).
+fn clip(s: &str) -> String {
+    match s.char_indices().nth(40) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s.to_string(),
+    }
 }
 
 /// Parses sample CSV text; errors carry the 1-based line number.
@@ -49,7 +62,7 @@ pub fn parse_samples_csv(text: &str, grid: &Grid) -> Result<GridSamples, (usize,
                 hline + 1,
                 format!(
                     "missing header `position_um,error_um` (found {:?})",
-                    header.trim()
+                    clip(header.trim())
                 ),
             ))
         }
@@ -68,9 +81,12 @@ pub fn parse_samples_csv(text: &str, grid: &Grid) -> Result<GridSamples, (usize,
         let num = |s: &str, what: &str| -> Result<f64, (usize, String)> {
             let v: f64 = s
                 .parse()
-                .map_err(|_| (lineno, format!("{what} {s:?} is not a number")))?;
+                .map_err(|_| (lineno, format!("{what} {:?} is not a number", clip(s))))?;
             if !v.is_finite() {
-                return Err((lineno, format!("{what} is {s} (must be a finite number)")));
+                return Err((
+                    lineno,
+                    format!("{what} is {} (must be a finite number)", clip(s)),
+                ));
             }
             Ok(v)
         };

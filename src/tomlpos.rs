@@ -1,6 +1,81 @@
 //! Where a key sits in TOML text: lines and dotted key paths for error messages that name the
-//! file, the line and the key (campaign files, the service configuration).
+//! file, the line and the key (campaign files, the service configuration), the one error type
+//! both report with, and the bounded reading of the files they name.
+use std::io::Read;
 use std::ops::Range;
+use std::path::Path;
+
+/// An error pointing into a TOML file: `file:line: key: message` (line 0: the whole file).
+/// Campaign files ([`crate::campaign::spec::SpecError`]) and the service configuration
+/// ([`crate::api::ConfigError`]) both report with it.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{origin}:{line}: {key}: {message}")]
+pub struct TomlError {
+    pub origin: String,
+    pub line: usize,
+    pub key: String,
+    pub message: String,
+}
+
+impl TomlError {
+    /// The error of `toml::from_str` on `text`: its line and the key it sits on.
+    pub(crate) fn from_toml(text: &str, origin: &str, e: &toml::de::Error) -> TomlError {
+        let span = e.span();
+        TomlError {
+            origin: origin.into(),
+            line: span.clone().map(|s| line_of(text, s.start)).unwrap_or(0),
+            key: span
+                .and_then(|s| key_at(text, s))
+                .unwrap_or_else(|| "-".into()),
+            message: e.message().trim().to_string(),
+        }
+    }
+}
+
+/// Largest TOML file read (campaigns, stage models, the service configuration).
+pub const MAX_TOML_BYTES: u64 = 1 << 20;
+
+/// Reads a regular file of at most `limit` bytes as UTF-8. Devices, fifos, directories and
+/// kernel files (/proc, /sys) are refused before a byte is read (`/dev/zero` would never end),
+/// and the read stops one byte past the limit whatever the file's metadata claims.
+pub fn read_bounded(path: &Path, limit: u64) -> Result<String, String> {
+    // Before opening: opening a fifo blocks until someone writes to it.
+    let meta = std::fs::metadata(path).map_err(|e| io_reason(&e))?;
+    // Kernel files (/proc, /sys) pass for regular ones of size 0.
+    let kernel = path
+        .canonicalize()
+        .is_ok_and(|p| p.starts_with("/proc") || p.starts_with("/sys"));
+    if !meta.is_file() || kernel {
+        return Err("not a regular file".into());
+    }
+    let file = std::fs::File::open(path).map_err(|e| io_reason(&e))?;
+    let meta = file.metadata().map_err(|e| io_reason(&e))?;
+    if !meta.is_file() {
+        return Err("not a regular file".into());
+    }
+    if meta.len() > limit {
+        return Err(format!("larger than {limit} bytes"));
+    }
+    let mut bytes = Vec::new();
+    file.take(limit + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| io_reason(&e))?;
+    if bytes.len() as u64 > limit {
+        return Err(format!("larger than {limit} bytes"));
+    }
+    String::from_utf8(bytes).map_err(|_| "not UTF-8 text".into())
+}
+
+/// An I/O error without the path or the OS's wording beyond its kind.
+pub fn io_reason(e: &std::io::Error) -> String {
+    use std::io::ErrorKind as K;
+    match e.kind() {
+        K::NotFound => "no such file".into(),
+        K::PermissionDenied => "permission denied".into(),
+        K::IsADirectory => "not a regular file".into(),
+        _ => format!("cannot read ({})", e.kind()),
+    }
+}
 
 /// 1-based line of a byte offset.
 pub(crate) fn line_of(text: &str, offset: usize) -> usize {

@@ -160,3 +160,45 @@ fn bad_input_exits_2_with_one_line() {
     ]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[test]
+fn a_huge_png_is_refused_from_its_header_and_rejections_name_the_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    // A header claiming 20000 x 20000 px (the decoder would need 400 MB for it) and no pixels.
+    let huge = dir.path().join("huge.png");
+    let mut bytes = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut bytes, 20_000, 20_000);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header().unwrap();
+        w.write_chunk(png::chunk::IDAT, &[0x78, 0x9c, 0x03, 0x00])
+            .unwrap();
+    }
+    std::fs::write(&huge, bytes).unwrap();
+    let t0 = std::time::Instant::now();
+    let o = csmetro(&["ppp", "decode", huge.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("huge.png") && err.contains("20000 x 20000"),
+        "{err}"
+    );
+    assert!(t0.elapsed() < std::time::Duration::from_secs(10));
+
+    // A frame the decoder rejects: the text and the JSON name it.
+    let f = render(
+        dir.path(),
+        "blurred.png",
+        &["--x-um", "100", "--y-um", "200", "--blur-px", "6"],
+    );
+    let o = csmetro(&["ppp", "decode", &f]);
+    assert_eq!(o.status.code(), Some(3));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.starts_with("rejected: ") && out.contains("blurred.png"),
+        "{out}"
+    );
+    let (_, v) = decode_json(&f);
+    assert_eq!(v["frame"], f.as_str(), "{v}");
+}

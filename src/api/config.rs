@@ -12,33 +12,34 @@
 //!
 //! [campaigns]
 //! base_dir = "campaigns"         # relative paths in submitted campaigns (stage models) resolve here
+//! models_dir = "sim"             # optional: relative paths of submitted campaigns may also
+//!                                # lead here (`../sim/demo_xy.toml`)
 //!
 //! [log]
 //! filter = "info"                # tracing filter; RUST_LOG overrides it
 //! ```
 //!
 //! Relative paths resolve from the directory of the configuration file. Every error names the
-//! file, the line and the key.
+//! file, the line and the key. A submitted campaign reads files only inside `base_dir` and
+//! `models_dir` and writes only below `results_dir`.
 use std::net::SocketAddr;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::tomlpos::{key_at, line_of, span_of_deepest};
+use crate::campaign::spec::SubmitPolicy;
+use crate::tomlpos::{line_of, read_bounded, span_of_deepest, TomlError, MAX_TOML_BYTES};
 
 /// Port of the service when the configuration does not say.
 pub const DEFAULT_PORT: u16 = 8463;
 
-/// A configuration error pointing into the file: `file:line: key: message`.
-#[derive(Debug, Clone, thiserror::Error)]
-#[error("{origin}:{line}: {key}: {message}")]
-pub struct ConfigError {
-    pub origin: String,
-    pub line: usize,
-    pub key: String,
-    pub message: String,
-}
+/// A configuration error pointing into the file: `file:line: key: message` (the error type of
+/// campaign files too).
+pub type ConfigError = TomlError;
+
+/// Largest token file read.
+const MAX_TOKEN_FILE_BYTES: u64 = 4096;
 
 /// The validated service configuration, paths resolved.
 #[derive(Debug, Clone)]
@@ -52,6 +53,8 @@ pub struct ServiceConfig {
     pub results_dir: PathBuf,
     /// Where relative paths in submitted campaign files resolve.
     pub campaigns_dir: PathBuf,
+    /// Where else relative paths of submitted campaigns may lead (stage models).
+    pub models_dir: Option<PathBuf>,
     /// tracing-subscriber `EnvFilter` directives.
     pub log_filter: String,
 }
@@ -87,6 +90,7 @@ struct RawStorage {
 #[serde(deny_unknown_fields)]
 struct RawCampaigns {
     base_dir: Option<String>,
+    models_dir: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -112,7 +116,7 @@ impl ServiceConfig {
     /// Reads and validates a configuration file (reads `token_file` too).
     pub fn load(path: &Path) -> Result<ServiceConfig, ConfigError> {
         let origin = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        let text = read_bounded(path, MAX_TOML_BYTES).map_err(|e| ConfigError {
             origin: origin.clone(),
             line: 0,
             key: "-".into(),
@@ -131,14 +135,7 @@ impl ServiceConfig {
             key: key.into(),
             message,
         };
-        let raw: Raw = toml::from_str(text).map_err(|e| {
-            let span = e.span();
-            let key = span
-                .clone()
-                .and_then(|s| key_at(text, s))
-                .unwrap_or_else(|| "-".into());
-            err(span, &key, e.message().trim().to_string())
-        })?;
+        let raw: Raw = toml::from_str(text).map_err(|e| TomlError::from_toml(text, origin, &e))?;
         let fail = |key: &str, message: String| err(span_of_deepest(text, key), key, message);
         let resolve = |p: &str| {
             let p = Path::new(p);
@@ -169,7 +166,7 @@ impl ServiceConfig {
             (Some(t), None) => Some((t, "server.token")),
             (None, Some(f)) => {
                 let p = resolve(&f);
-                let t = std::fs::read_to_string(&p).map_err(|e| {
+                let t = read_bounded(&p, MAX_TOKEN_FILE_BYTES).map_err(|e| {
                     fail(
                         "server.token_file",
                         format!("cannot read {}: {e}", p.display()),
@@ -222,15 +219,34 @@ impl ServiceConfig {
             .as_deref()
             .map(resolve)
             .unwrap_or_else(|| base_dir.to_path_buf());
+        let db = resolve(&raw.storage.db);
+        let models_dir = match raw.campaigns.models_dir.as_deref() {
+            Some(d) if d.trim().is_empty() => {
+                return Err(fail("campaigns.models_dir", "must not be empty".into()))
+            }
+            d => d.map(resolve),
+        };
         Ok(ServiceConfig {
             path: PathBuf::from(origin),
             bind,
             token,
-            db: resolve(&raw.storage.db),
+            db,
             results_dir: resolve(&raw.storage.results_dir),
             campaigns_dir,
+            models_dir,
             log_filter: raw.log.filter,
         })
+    }
+
+    /// What campaigns submitted to this service may read and write.
+    pub fn submit_policy(&self) -> SubmitPolicy {
+        SubmitPolicy {
+            base_dir: self.campaigns_dir.clone(),
+            read_roots: std::iter::once(self.campaigns_dir.clone())
+                .chain(self.models_dir.clone())
+                .collect(),
+            results_dir: self.results_dir.clone(),
+        }
     }
 }
 
@@ -250,6 +266,10 @@ mod tests {
         assert_eq!(c.db, Path::new("/etc/csmetro/var/c.db"));
         assert_eq!(c.results_dir, Path::new("/etc/csmetro/var/results"));
         assert_eq!(c.campaigns_dir, Path::new("/etc/csmetro"));
+        assert_eq!(c.models_dir, None);
+        let p = c.submit_policy();
+        assert_eq!(p.read_roots, vec![PathBuf::from("/etc/csmetro")]);
+        assert_eq!(p.results_dir, Path::new("/etc/csmetro/var/results"));
         assert!(c.bind.ip().is_loopback());
         assert_eq!(c.token, None);
         assert_eq!(c.log_filter, "info");

@@ -130,7 +130,7 @@ pub async fn run(cfg: ServiceConfig) -> Result<(), String> {
         });
     }
 
-    let app = routes::router(manager.clone(), cfg.token.clone());
+    let app = routes::router(manager.clone(), cfg.token.clone(), cfg.submit_policy());
     let mut down = manager.shutdown_signal();
     let server = axum::serve(listener, app).with_graceful_shutdown(async move {
         let _ = down.wait_for(|d| *d).await;

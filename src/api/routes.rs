@@ -33,12 +33,15 @@ use tokio::sync::{broadcast, mpsc};
 
 use super::{ApiError, CampaignStatus, Manager};
 use crate::campaign::session::Event;
+use crate::campaign::spec::{Campaign, SubmitPolicy};
 use crate::campaign::types::CampaignState;
 
 #[derive(Clone)]
 struct App {
     manager: Arc<Manager>,
     token: Option<Arc<str>>,
+    /// What submitted campaigns may read and write.
+    policy: Arc<SubmitPolicy>,
 }
 
 impl IntoResponse for ApiError {
@@ -49,11 +52,13 @@ impl IntoResponse for ApiError {
 
 type ApiResult<T> = Result<T, ApiError>;
 
-/// The service's routes; `token`: the bearer token every request must carry, if any.
-pub fn router(manager: Arc<Manager>, token: Option<String>) -> Router {
+/// The service's routes; `token`: the bearer token every request must carry, if any;
+/// `policy`: what a submitted campaign may read and write.
+pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy) -> Router {
     let app = App {
         manager,
         token: token.map(Arc::from),
+        policy: Arc::new(policy),
     };
     Router::new()
         .route("/health", get(health))
@@ -147,15 +152,38 @@ async fn submit(
             .map_err(|_| ApiError::bad_request("body: the campaign file is not UTF-8"))?;
         (text, String::new())
     };
+    if name.len() > MAX_NAME_BYTES {
+        return Err(ApiError::bad_request(format!(
+            "name: at most {MAX_NAME_BYTES} bytes"
+        )));
+    }
     let m = app.manager.clone();
+    let policy = app.policy.clone();
     // `submit` schedules on the runtime: enter it from the blocking thread.
     let rt = tokio::runtime::Handle::current();
     let st = blocking(move || {
+        // The client's file is untrusted: it may name files only where the service allows and
+        // write only below the results directory. Errors name the client's file name only.
+        let origin = submitted_origin(&name);
+        Campaign::parse_submitted(&text, &origin, &policy)
+            .map_err(|e| ApiError::bad_request(e.to_string()))?;
         let _g = rt.enter();
         m.submit(&text, &name)
     })
     .await?;
     Ok((StatusCode::CREATED, Json(st)))
+}
+
+/// Longest file name a client may give its campaign.
+const MAX_NAME_BYTES: usize = 255;
+
+/// The name errors show for a submitted file: the base name the client gave.
+fn submitted_origin(name: &str) -> String {
+    std::path::Path::new(name)
+        .file_name()
+        .map(|f| f.to_string_lossy().into_owned())
+        .filter(|f| !f.is_empty())
+        .unwrap_or_else(|| "submitted.toml".into())
 }
 
 async fn status(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {

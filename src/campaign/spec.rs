@@ -2,7 +2,6 @@
 //! Parsed and validated completely before anything moves; every error names the file, the
 //! line and the key.
 use std::collections::BTreeMap;
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use csmetro_camera::CameraConfig;
@@ -14,7 +13,8 @@ use super::types::{AxisId, Direction};
 use crate::grid::Grid;
 use crate::recon::{Method, Solver};
 use crate::sampling::DesignKind;
-use crate::tomlpos::{key_at, line_of, span_of};
+pub use crate::tomlpos::TomlError;
+use crate::tomlpos::{io_reason, line_of, read_bounded, span_of, MAX_TOML_BYTES};
 
 /// A campaign file as written.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -155,6 +155,7 @@ impl Default for SimHardware {
 #[serde(deny_unknown_fields)]
 pub struct AxisSpec {
     /// Grid `[start, end]`, µm, and its step, µm.
+    #[serde(deserialize_with = "exactly_two")]
     pub range_um: [f64; 2],
     pub step_um: f64,
     /// Where the other axis stands while this one is characterized, µm.
@@ -270,14 +271,55 @@ impl Default for Outputs {
     }
 }
 
-/// A validation error pointing into the campaign file.
-#[derive(Debug, Clone, thiserror::Error)]
-#[error("{origin}:{line}: {key}: {message}")]
-pub struct SpecError {
-    pub origin: String,
-    pub line: usize,
-    pub key: String,
-    pub message: String,
+/// `[start, end]` and nothing else: a third number is a mistake, not something to drop.
+fn exactly_two<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
+    let v: Vec<f64> = Vec::deserialize(d)?;
+    <[f64; 2]>::try_from(v.as_slice())
+        .map_err(|_| serde::de::Error::invalid_length(v.len(), &"exactly 2 numbers [start, end]"))
+}
+
+/// A validation error pointing into the campaign file (`file:line: key: message`).
+pub type SpecError = TomlError;
+
+/// Longest campaign or stage name; both end up in file names (outputs, stage locks).
+pub const MAX_NAME_LEN: usize = 64;
+/// Longest description.
+pub const MAX_DESCRIPTION_LEN: usize = 4096;
+/// Most measurements one campaign may plan (all axes, directions, cycles, full scans).
+pub const MAX_PLANNED: u64 = 10_000_000;
+/// Longest path written in a campaign file.
+const MAX_PATH_LEN: usize = 1024;
+
+/// Who wrote a campaign file, and so what it may name.
+#[derive(Debug, Clone)]
+pub enum Trust {
+    /// `csmetro run FILE`: the operator's own file. Paths are local, relative ones resolve from
+    /// `base_dir` (the file's directory); files are still size-limited and regular-only.
+    Local { base_dir: PathBuf },
+    /// Sent to the service by a client: it names files only inside the directories the service
+    /// allows and writes only below its results directory; errors show neither server paths
+    /// nor file contents.
+    Submitted(SubmitPolicy),
+}
+
+/// What a submitted campaign may read and write (from the service configuration).
+#[derive(Debug, Clone)]
+pub struct SubmitPolicy {
+    /// Where relative paths in submitted files resolve (`[campaigns] base_dir`).
+    pub base_dir: PathBuf,
+    /// Directories a resolved path must stay inside (`base_dir`, `[campaigns] models_dir`).
+    pub read_roots: Vec<PathBuf>,
+    /// `[storage] results_dir`: every output directory is below it.
+    pub results_dir: PathBuf,
+}
+
+impl Trust {
+    fn base_dir(&self) -> &Path {
+        match self {
+            Trust::Local { base_dir } => base_dir,
+            Trust::Submitted(p) => &p.base_dir,
+        }
+    }
 }
 
 /// A validated campaign: the spec plus what it resolves to.
@@ -306,48 +348,91 @@ pub struct AxisPlan {
 }
 
 impl Campaign {
-    /// Reads and validates a campaign file.
+    /// Reads and validates a campaign file of the local operator (`csmetro run FILE`): at most
+    /// 1 MiB, a regular file; its output directory must be writable (checked by creating it and
+    /// writing a probe file, both removed again).
     pub fn load(path: &Path) -> Result<Campaign, SpecError> {
         let origin = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| SpecError {
+        let text = read_bounded(path, MAX_TOML_BYTES).map_err(|e| SpecError {
             origin: origin.clone(),
             line: 0,
             key: "-".into(),
             message: format!("cannot read: {e}"),
         })?;
         let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Campaign::parse(&text, &origin, &base)
+        let c = Campaign::parse(&text, &origin, &base)?;
+        let fail = |k: &str, m: String| c.error_at(k, m);
+        probe_outputs(&c.spec.outputs.dir, None, &fail)?;
+        Ok(c)
     }
 
-    /// Parses and validates campaign text; `origin` names it in errors.
+    /// Parses and validates campaign text of the local operator; `origin` names it in errors,
+    /// relative paths resolve from `base_dir`.
     pub fn parse(text: &str, origin: &str, base_dir: &Path) -> Result<Campaign, SpecError> {
-        let err = |span: Option<Range<usize>>, key: String, message: String| SpecError {
+        Campaign::parse_with(
+            text,
+            origin,
+            &Trust::Local {
+                base_dir: base_dir.to_path_buf(),
+            },
+        )
+    }
+
+    /// Validates a campaign a client submitted to the service: files only by name inside the
+    /// policy's directories, outputs below its results directory (created and probed).
+    pub fn parse_submitted(
+        text: &str,
+        origin: &str,
+        policy: &SubmitPolicy,
+    ) -> Result<Campaign, SpecError> {
+        let trust = Trust::Submitted(policy.clone());
+        let c = Campaign::parse_with(text, origin, &trust)?;
+        let fail = |k: &str, m: String| c.error_at(k, m);
+        probe_outputs(&c.spec.outputs.dir, Some(&policy.results_dir), &fail)?;
+        Ok(c)
+    }
+
+    /// Parses and validates campaign text in a trust context.
+    pub fn parse_with(text: &str, origin: &str, trust: &Trust) -> Result<Campaign, SpecError> {
+        if text.len() as u64 > MAX_TOML_BYTES {
+            return Err(SpecError {
+                origin: origin.into(),
+                line: 0,
+                key: "-".into(),
+                message: format!("larger than {MAX_TOML_BYTES} bytes"),
+            });
+        }
+        let spec: CampaignSpec =
+            toml::from_str(text).map_err(|e| TomlError::from_toml(text, origin, &e))?;
+        let fail = |path: &str, message: String| SpecError {
             origin: origin.into(),
-            line: span.map(|s| line_of(text, s.start)).unwrap_or(0),
-            key,
+            line: span_of(text, path)
+                .map(|s| line_of(text, s.start))
+                .unwrap_or(0),
+            key: path.to_string(),
             message,
         };
-        let spec: CampaignSpec = toml::from_str(text).map_err(|e| {
-            let span = e.span();
-            let key = span
-                .clone()
-                .and_then(|s| key_at(text, s))
-                .unwrap_or_else(|| "-".into());
-            err(span, key, e.message().trim().to_string())
-        })?;
-        let fail = |path: &str, message: String| {
-            let span = span_of(text, path);
-            err(span, path.to_string(), message)
-        };
-        validate(&spec, base_dir, &fail).map(|(axes, method, solver)| Campaign {
+        validate(&spec, trust, &fail).map(|(axes, method, solver)| Campaign {
             spec,
             text: text.to_string(),
             origin: origin.into(),
-            base_dir: base_dir.to_path_buf(),
+            base_dir: trust.base_dir().to_path_buf(),
             axes,
             method,
             solver,
         })
+    }
+
+    /// An error at `key` of this campaign's text.
+    fn error_at(&self, key: &str, message: String) -> SpecError {
+        SpecError {
+            origin: self.origin.clone(),
+            line: span_of(&self.text, key)
+                .map(|s| line_of(&self.text, s.start))
+                .unwrap_or(0),
+            key: key.into(),
+            message,
+        }
     }
 
     /// Resolves a path written in the campaign file.
@@ -367,15 +452,183 @@ impl Campaign {
 
 type Validated = (Vec<AxisPlan>, Method, Solver);
 
+/// A campaign or stage name: it becomes part of file names, so a short plain word.
+fn check_name(v: &str) -> Result<(), String> {
+    if v.trim().is_empty() {
+        return Err("must not be empty".into());
+    }
+    if v.len() > MAX_NAME_LEN {
+        return Err(format!("must be at most {MAX_NAME_LEN} characters"));
+    }
+    let plain = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.');
+    if !v.starts_with(|c: char| c.is_ascii_alphanumeric()) || !v.chars().all(plain) {
+        return Err(
+            "may hold only letters, digits, `-`, `_` and `.`, and starts with a letter or digit"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
+/// Resolves the stage model a campaign names and reads it (at most 1 MiB, a regular file).
+/// Submitted campaigns: the path resolves from the policy's base directory and must stay inside
+/// one of its read roots, symlinks followed; errors never show a server path or the file.
+fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::model::StageModel, String> {
+    if m.is_empty() || m.len() > MAX_PATH_LEN || m.contains('\0') {
+        return Err(format!("must be a file name of 1..={MAX_PATH_LEN} bytes"));
+    }
+    let policy = match trust {
+        Trust::Local { base_dir } => {
+            let p = if Path::new(m).is_absolute() {
+                PathBuf::from(m)
+            } else {
+                base_dir.join(m)
+            };
+            let text =
+                read_bounded(&p, MAX_TOML_BYTES).map_err(|e| format!("{}: {e}", p.display()))?;
+            return csmetro_sim::model::StageModel::from_toml_str(&text)
+                .map_err(|e| format!("{}: {e}", p.display()));
+        }
+        Trust::Submitted(p) => p,
+    };
+    // The value is not repeated: it may be a server path the client is probing for.
+    let shown = "the stage model";
+    let outside = || {
+        format!(
+            "{shown} must be a relative path inside the service's campaign or model directories \
+             (e.g. \"demo_xy.toml\")"
+        )
+    };
+    let rel = Path::new(m);
+    if rel.extension().is_none_or(|e| e != "toml") {
+        return Err(format!("{shown} must be a .toml file"));
+    }
+    use std::path::Component;
+    if rel
+        .components()
+        .any(|c| matches!(c, Component::RootDir | Component::Prefix(_)))
+    {
+        return Err(outside());
+    }
+    let joined = normalize(&policy.base_dir.join(rel));
+    let root = policy
+        .read_roots
+        .iter()
+        .map(|r| normalize(r))
+        .find(|r| joined.starts_with(r))
+        .ok_or_else(outside)?;
+    // Symlinks: what the OS opens must still be inside the root.
+    let real = joined
+        .canonicalize()
+        .map_err(|e| format!("{shown}: {}", io_reason(&e)))?;
+    let real_root = root.canonicalize().map_err(|_| outside())?;
+    if !real.starts_with(&real_root) {
+        return Err(outside());
+    }
+    let text = read_bounded(&real, MAX_TOML_BYTES).map_err(|e| format!("{shown}: {e}"))?;
+    // The TOML syntax error would quote the file's line: give only where it is.
+    if let Err(e) = toml::from_str::<toml::Table>(&text) {
+        let line = e.span().map(|s| line_of(&text, s.start)).unwrap_or(0);
+        return Err(format!(
+            "{shown}: not a stage model (TOML error at line {line})"
+        ));
+    }
+    csmetro_sim::model::StageModel::from_toml_str(&text).map_err(|e| format!("{shown}: {e}"))
+}
+
+/// `a/./b/../c` → `a/c`, without touching the file system.
+fn normalize(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            other => out.push(other.as_os_str()),
+        }
+    }
+    out
+}
+
+/// An output directory template a submitted campaign may use: relative, plain components.
+fn check_submitted_outputs(dir: &str) -> Result<(), String> {
+    use std::path::Component;
+    let p = Path::new(dir);
+    if dir.contains('\0')
+        || p.components()
+            .any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
+    {
+        return Err(
+            "a submitted campaign writes below the service's results directory: give \
+             a relative directory without `..`"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
+/// The output directory must be writable before anything moves: the fixed part of the template
+/// (before the first `{id}`/`{name}`) is created and a probe file written; what the probe
+/// created is removed again.
+fn probe_outputs(
+    template: &str,
+    root: Option<&Path>,
+    fail: &dyn Fn(&str, String) -> SpecError,
+) -> Result<(), SpecError> {
+    let fixed: PathBuf = Path::new(template)
+        .components()
+        .take_while(|c| !c.as_os_str().to_string_lossy().contains('{'))
+        .collect();
+    let dir = match root {
+        Some(r) => r.join(&fixed),
+        None if fixed.as_os_str().is_empty() => PathBuf::from("."),
+        None => fixed,
+    };
+    // Submitted campaigns: the error must not show the server's path.
+    let shown = |e: &std::io::Error| match root {
+        Some(_) => format!("the results directory is not writable ({})", io_reason(e)),
+        None => format!("{} is not writable: {}", dir.display(), io_reason(e)),
+    };
+    let mut created = Vec::new();
+    let mut d = dir.as_path();
+    while !d.as_os_str().is_empty() && !d.exists() {
+        created.push(d.to_path_buf());
+        match d.parent() {
+            Some(p) => d = p,
+            None => break,
+        }
+    }
+    let result = std::fs::create_dir_all(&dir).and_then(|()| {
+        let probe = dir.join(format!(".csmetro-probe-{}", std::process::id()));
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&probe)
+            .and_then(|mut f| std::io::Write::write_all(&mut f, b"probe"))?;
+        std::fs::remove_file(&probe)
+    });
+    for c in &created {
+        let _ = std::fs::remove_dir(c);
+    }
+    result.map_err(|e| fail("outputs.dir", shown(&e)))
+}
+
 fn validate(
     spec: &CampaignSpec,
-    base_dir: &Path,
+    trust: &Trust,
     fail: &dyn Fn(&str, String) -> SpecError,
 ) -> Result<Validated, SpecError> {
     let pos = |v: f64| v.is_finite() && v > 0.0;
     let nonneg = |v: f64| v.is_finite() && v >= 0.0;
-    if spec.campaign.name.trim().is_empty() {
-        return Err(fail("campaign.name", "must not be empty".into()));
+    check_name(&spec.campaign.name).map_err(|e| fail("campaign.name", e))?;
+    check_name(&spec.campaign.stage).map_err(|e| fail("campaign.stage", e))?;
+    if spec.campaign.description.len() > MAX_DESCRIPTION_LEN {
+        return Err(fail(
+            "campaign.description",
+            format!("must be at most {MAX_DESCRIPTION_LEN} bytes"),
+        ));
     }
     if spec.axes.is_empty() {
         return Err(fail(
@@ -445,13 +698,7 @@ fn validate(
                     .map_err(|e| fail("hardware.sim.render_optics", e))?;
             }
             if let Some(m) = &s.model {
-                let p = if Path::new(m).is_absolute() {
-                    PathBuf::from(m)
-                } else {
-                    base_dir.join(m)
-                };
-                csmetro_sim::model::StageModel::load(&p)
-                    .map_err(|e| fail("hardware.sim.model", format!("{}: {e}", p.display())))?;
+                load_model(m, trust).map_err(|e| fail("hardware.sim.model", e))?;
             }
             let [tlo, thi] = s.travel_mm;
             if !(tlo.is_finite() && thi.is_finite() && tlo < thi && thi - tlo <= 15.0) {
@@ -499,6 +746,20 @@ fn validate(
                         &format!("hardware.controllers.{name}.soft_limits_um"),
                         "must be [lo, hi] with lo < hi (µm)".into(),
                     ));
+                }
+                if let (Trust::Submitted(_), csmetro_gcs::Transport::Serial { port, .. }) =
+                    (trust, &c.transport)
+                {
+                    // A submitted file opens serial devices only, never other files.
+                    use std::os::unix::fs::FileTypeExt;
+                    let device = port.starts_with("/dev/")
+                        && std::fs::metadata(port).is_ok_and(|m| m.file_type().is_char_device());
+                    if !device {
+                        return Err(fail(
+                            &format!("hardware.controllers.{name}.transport"),
+                            format!("`{port}` is not a serial device under /dev"),
+                        ));
+                    }
                 }
             }
             match &h.camera {
@@ -587,8 +848,18 @@ fn validate(
     if spec.outputs.dir.trim().is_empty() {
         return Err(fail("outputs.dir", "must not be empty".into()));
     }
+    if spec.outputs.dir.len() > MAX_PATH_LEN {
+        return Err(fail(
+            "outputs.dir",
+            format!("must be at most {MAX_PATH_LEN} bytes"),
+        ));
+    }
+    if let Trust::Submitted(_) = trust {
+        check_submitted_outputs(&spec.outputs.dir).map_err(|e| fail("outputs.dir", e))?;
+    }
 
     let mut plans = Vec::new();
+    let mut planned = 0u64;
     for (name, ax) in &spec.axes {
         let key = |k: &str| format!("axes.{name}.{k}");
         let axis = AxisId::parse(name)
@@ -665,11 +936,22 @@ fn validate(
                 "adaptive sampling needs a random or jittered design".into(),
             ));
         }
+        let m = if s.design == DesignKind::Full { n } else { m };
+        crate::grid::check_solve_size(method, solver, n, m)
+            .map_err(|e| fail(&key("range_um"), e))?;
+        let per_run = m as u64 + if s.full_scan { n as u64 } else { 0 };
+        planned += per_run * a.directions.len() as u64 * u64::from(a.cycles);
+        if planned > MAX_PLANNED {
+            return Err(fail(
+                &mkey,
+                format!("the campaign would plan more than {MAX_PLANNED} measurements"),
+            ));
+        }
         plans.push(AxisPlan {
             axis,
             grid,
             other_at_um: ax.other_at_um,
-            m: if s.design == DesignKind::Full { n } else { m },
+            m,
             target_error_um,
         });
     }
@@ -780,6 +1062,154 @@ m = 300
         let e = parse(&t).unwrap_err();
         assert_eq!(e.key, "hardware.sim.model", "{e}");
         assert!(e.message.contains("nope.toml"), "{e}");
+    }
+
+    #[test]
+    fn range_um_takes_exactly_two_numbers() {
+        let t = GOOD.replace("[0.0, 9500.0]", "[0.0, 500.0, 1000.0]");
+        let e = parse(&t).unwrap_err();
+        assert_eq!(
+            (e.key.as_str(), e.line),
+            ("axes.x.range_um", line(&t, "1000.0")),
+            "{e}"
+        );
+        assert!(e.message.contains("exactly 2"), "{e}");
+        let t = GOOD.replace("[0.0, 9500.0]", "[0.0]");
+        assert_eq!(parse(&t).unwrap_err().key, "axes.x.range_um");
+    }
+
+    #[test]
+    fn a_huge_grid_is_refused_before_allocating() {
+        let t = GOOD.replace("step_um = 5.0", "step_um = 1e-7");
+        let e = parse(&t).unwrap_err();
+        assert_eq!(e.key, "axes.x.range_um", "{e}");
+        assert!(e.message.contains("more than"), "{e}");
+    }
+
+    #[test]
+    fn names_are_bounded_and_plain() {
+        for (find, bad, key) in [
+            (
+                "name = \"t\"",
+                format!("name = \"{}\"", "n".repeat(65)),
+                "campaign.name",
+            ),
+            ("name = \"t\"", "name = \"..\"".into(), "campaign.name"),
+            ("name = \"t\"", "name = \"a/b\"".into(), "campaign.name"),
+            (
+                "name = \"t\"",
+                format!("name = \"t\"\nstage = \"{}\"", "s".repeat(300)),
+                "campaign.stage",
+            ),
+            (
+                "name = \"t\"",
+                "name = \"t\"\nstage = \"a b\"".into(),
+                "campaign.stage",
+            ),
+        ] {
+            let t = GOOD.replace(find, &bad);
+            assert_eq!(parse(&t).unwrap_err().key, key, "{bad}");
+        }
+        let t = GOOD.replace(
+            "name = \"t\"",
+            "name = \"demo-sim_2.b\"\nstage = \"sim-xy\"",
+        );
+        parse(&t).unwrap();
+    }
+
+    #[test]
+    fn a_campaign_planning_billions_of_points_is_refused() {
+        let t = GOOD.replace("step_um = 5.0", "step_um = 0.01")
+            + "full_scan = true\n[acquisition]\ncycles = 1000\n";
+        let e = parse(&t).unwrap_err();
+        assert!(e.message.contains("would plan more than"), "{e}");
+    }
+
+    #[test]
+    fn model_files_are_regular_and_bounded() {
+        for dev in ["/dev/zero", "/proc/self/environ", "/"] {
+            let t = GOOD.replace(
+                "kind = \"sim\"",
+                &format!("kind = \"sim\"\n[hardware.sim]\nmodel = \"{dev}\""),
+            );
+            let e = parse(&t).unwrap_err();
+            assert_eq!(e.key, "hardware.sim.model", "{e}");
+            assert!(e.message.contains("not a regular file"), "{dev}: {e}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("big.toml"), vec![b'#'; 2 << 20]).unwrap();
+        let t = GOOD.replace(
+            "kind = \"sim\"",
+            "kind = \"sim\"\n[hardware.sim]\nmodel = \"big.toml\"",
+        );
+        let e = Campaign::parse(&t, "c.toml", dir.path()).unwrap_err();
+        assert!(e.message.contains("larger than"), "{e}");
+    }
+
+    fn policy(dir: &Path) -> SubmitPolicy {
+        SubmitPolicy {
+            base_dir: dir.join("campaigns"),
+            read_roots: vec![dir.join("campaigns"), dir.join("sim")],
+            results_dir: dir.join("results"),
+        }
+    }
+
+    #[test]
+    fn submitted_models_resolve_inside_the_roots_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        for sub in ["campaigns", "sim", "other"] {
+            std::fs::create_dir(d.join(sub)).unwrap();
+            std::fs::copy(
+                concat!(env!("CARGO_MANIFEST_DIR"), "/config/sim/ideal.toml"),
+                d.join(sub).join("m.toml"),
+            )
+            .unwrap();
+        }
+        let with = |m: &str| {
+            GOOD.replace(
+                "kind = \"sim\"",
+                &format!("kind = \"sim\"\n[hardware.sim]\nmodel = {m:?}"),
+            )
+        };
+        let p = policy(d);
+        for ok in ["m.toml", "../sim/m.toml", "./m.toml"] {
+            Campaign::parse_submitted(&with(ok), "s.toml", &p)
+                .unwrap_or_else(|e| panic!("{ok}: {e}"));
+        }
+        let abs = d.join("sim/m.toml").display().to_string();
+        for bad in ["../other/m.toml", "../../m.toml", abs.as_str(), "m.txt", ""] {
+            let e = Campaign::parse_submitted(&with(bad), "s.toml", &p).unwrap_err();
+            assert_eq!(e.key, "hardware.sim.model", "{bad}: {e}");
+            assert!(!e.to_string().contains(&d.display().to_string()), "{e}");
+        }
+        // A link out of the directory is refused even though its name is inside.
+        std::os::unix::fs::symlink(d.join("other/m.toml"), d.join("campaigns/l.toml")).unwrap();
+        let e = Campaign::parse_submitted(&with("l.toml"), "s.toml", &p).unwrap_err();
+        assert_eq!(e.key, "hardware.sim.model", "{e}");
+        // The local operator's own file may name what it likes.
+        Campaign::parse(&with(&abs), "c.toml", d).unwrap();
+        // Results were probed and left no trace.
+        assert!(!d.join("results").exists());
+    }
+
+    #[test]
+    fn outputs_must_be_writable_before_anything_runs() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("c.toml");
+        let t = format!("{GOOD}\n[outputs]\ndir = \"/proc/csmetro-{{name}}-{{id}}\"\n");
+        std::fs::write(&f, t).unwrap();
+        let e = Campaign::load(&f).unwrap_err();
+        assert_eq!(e.key, "outputs.dir", "{e}");
+        assert!(e.line > 0, "{e}");
+        let out = dir.path().join("r");
+        let t = format!(
+            "{GOOD}\n[outputs]\ndir = \"{}/{{name}}-{{id}}\"\n",
+            out.display()
+        );
+        std::fs::write(&f, t).unwrap();
+        Campaign::load(&f).unwrap();
+        assert!(!out.exists(), "the probe leaves nothing behind");
     }
 
     #[test]

@@ -44,7 +44,7 @@ impl ConfigArg {
         let Some(path) = &self.config else {
             return Ok(PppConfig::default());
         };
-        let text = std::fs::read_to_string(path)
+        let text = crate::tomlpos::read_bounded(path, crate::tomlpos::MAX_TOML_BYTES)
             .map_err(|e| CliError::input(format!("{}: {e}", path.display())))?;
         toml::from_str(&text).map_err(|e| CliError::input(format!("{}: {e}", path.display())))
     }
@@ -181,17 +181,21 @@ fn run_decode(a: DecodeArgs) -> CliResult {
     let frame = io::read_png(&a.frame).map_err(|e| CliError::input(e.to_string()))?;
     let r: DecodeResult = decoder.decode(&frame);
     if a.json {
-        println!(
-            "{}",
-            serde_json::to_string(&r).map_err(|e| CliError::failure(e.to_string()))?
-        );
+        let mut v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;
+        // Which frame this is about, for a rejection read among many.
+        v["frame"] = json!(a.frame.display().to_string());
+        println!("{v}");
     } else if r.ok {
         println!(
             "x_um {:.4} y_um {:.4} theta_mrad {:.4} period_px {:.5} decode_ms {:.2}",
             r.x_um, r.y_um, r.theta_mrad, r.period_px, r.decode_ms
         );
     } else {
-        println!("rejected: {}", r.reason.as_deref().unwrap_or("unknown"));
+        println!(
+            "rejected: {}: {}",
+            a.frame.display(),
+            r.reason.as_deref().unwrap_or("unknown")
+        );
     }
     Ok(if r.ok {
         ExitCode::SUCCESS

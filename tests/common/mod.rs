@@ -8,8 +8,26 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+/// The binary, with stage locks in a directory of this test only: tests run in parallel on the
+/// same stage names, which machine-wide locks would otherwise serialize.
 pub fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_csmetro"))
+    let mut c = Command::new(env!("CARGO_BIN_EXE_csmetro"));
+    c.env("CSMETRO_LOCK_DIR", test_lock_dir());
+    c
+}
+
+/// A lock directory per test (libtest names each test's thread after it).
+pub fn test_lock_dir() -> PathBuf {
+    let t = std::thread::current();
+    let name: String = t
+        .name()
+        .unwrap_or("main")
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect();
+    let d = std::env::temp_dir().join(format!("csmetro-test-locks-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
 }
 
 /// The single JSON object a successful `--json` command printed on stdout.
@@ -40,7 +58,7 @@ kind = "sim"
 optics = {{ width = 640, height = 640 }}
 
 [hardware.sim]
-model = "{model}"
+model = "ideal.toml"
 time_scale = {time_scale}
 transport = "pty"
 frame_time_s = 0.1
@@ -62,8 +80,7 @@ settle_s = 0.2
 
 [outputs]
 dir = "{name}-{{id}}"
-"#,
-        model = repo("config/sim/ideal.toml").display()
+"#
     )
 }
 
@@ -82,6 +99,11 @@ pub fn write_config(dir: &Path, bind: &str, token: Option<&str>) -> PathBuf {
         t.push_str(&format!("token = \"{tok}\"\n"));
     }
     t.push_str("\n[storage]\ndb = \"var/csmetro.db\"\nresults_dir = \"var/results\"\n\n[log]\nfilter = \"info,csmetro=debug\"\n");
+    // Submitted campaigns name their stage model (`ideal.toml`) in the shipped models.
+    t.push_str(&format!(
+        "\n[campaigns]\nbase_dir = \"{}\"\n",
+        repo("config/sim").display()
+    ));
     let p = dir.join("csmetro.toml");
     std::fs::write(&p, t).unwrap();
     p

@@ -19,7 +19,20 @@ pub enum IoError {
     Unsupported(String, String),
     #[error("frame has {got} pixels, expected {expected}")]
     Size { got: usize, expected: usize },
+    #[error("{path}: {width} x {height} px is larger than a frame may be ({MAX_FRAME_SIDE} px a side, {MAX_FRAME_PIXELS} px in all)")]
+    TooLarge {
+        path: String,
+        width: u32,
+        height: u32,
+    },
 }
+
+/// Largest frame side read, px (the paper's camera: 1024 x 768).
+pub const MAX_FRAME_SIDE: u32 = 8192;
+/// Largest frame read, px.
+pub const MAX_FRAME_PIXELS: u64 = 1 << 24;
+/// Most bytes the PNG decoder may allocate besides the frame (its own buffers).
+const PNG_DECODER_BYTES: usize = 64 << 20;
 
 /// Writes `frame` as a grayscale PNG.
 pub fn write_png(path: &Path, frame: &Frame) -> Result<(), IoError> {
@@ -84,8 +97,25 @@ pub fn read_png(path: &Path) -> Result<Frame, IoError> {
         path: ps.clone(),
         message: e.to_string(),
     };
-    let decoder = png::Decoder::new(BufReader::new(file));
+    let decoder = png::Decoder::new_with_limits(
+        BufReader::new(file),
+        png::Limits {
+            bytes: PNG_DECODER_BYTES,
+        },
+    );
     let mut reader = decoder.read_info().map_err(png_err)?;
+    // The header gives the size: refuse a huge frame before allocating its buffer.
+    let (width, height) = (reader.info().width, reader.info().height);
+    if width > MAX_FRAME_SIDE
+        || height > MAX_FRAME_SIDE
+        || u64::from(width) * u64::from(height) > MAX_FRAME_PIXELS
+    {
+        return Err(IoError::TooLarge {
+            path: ps,
+            width,
+            height,
+        });
+    }
     let (ct, bd) = reader.output_color_type();
     let sbit = reader.info().sbit.as_ref().and_then(|s| s.first().copied());
     let mut buf = vec![0u8; reader.output_buffer_size()];
@@ -129,5 +159,60 @@ pub fn read_png(path: &Path) -> Result<Frame, IoError> {
             })
         }
         other => Err(IoError::Unsupported(format!("bit depth {other:?}"), ps)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A PNG header claiming `w` x `h` 8-bit gray and no pixel data.
+    fn header_only(w: u32, h: u32) -> Vec<u8> {
+        let mut out = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut out, w, h);
+            enc.set_color(png::ColorType::Grayscale);
+            enc.set_depth(png::BitDepth::Eight);
+            let mut w = enc.write_header().unwrap();
+            // One IDAT chunk starts the image data: enough for the header to be read.
+            w.write_chunk(png::chunk::IDAT, &[0x78, 0x9c, 0x03, 0x00])
+                .unwrap();
+            drop(w);
+        }
+        out
+    }
+
+    #[test]
+    fn a_huge_frame_is_refused_from_its_header_naming_the_file() {
+        let dir = std::env::temp_dir().join(format!("csmetro-ppp-io-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("huge.png");
+        std::fs::write(&p, header_only(20_000, 20_000)).unwrap();
+        let e = read_png(&p).unwrap_err();
+        assert!(matches!(e, IoError::TooLarge { width: 20_000, .. }), "{e}");
+        assert!(e.to_string().contains("huge.png"), "{e}");
+        let p2 = dir.join("wide.png");
+        std::fs::write(&p2, header_only(MAX_FRAME_SIDE + 1, 1)).unwrap();
+        assert!(matches!(read_png(&p2), Err(IoError::TooLarge { .. })));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_frame_round_trips() {
+        let dir = std::env::temp_dir().join(format!("csmetro-ppp-rt-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("f.png");
+        let f = Frame {
+            width: 3,
+            height: 2,
+            bit_depth: 12,
+            pixels: Pixels::Mono16(vec![0, 1, 4095, 7, 100, 2048]),
+            timestamp_s: 0.0,
+        };
+        write_png(&p, &f).unwrap();
+        let g = read_png(&p).unwrap();
+        assert_eq!((g.width, g.height, g.bit_depth), (3, 2, 12));
+        assert_eq!(g.pixels, f.pixels);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
