@@ -3,12 +3,13 @@
 //! summary table `csmetro run` prints, and the files written to the output directory.
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use serde_json::{json, Value};
 
 use super::engine::{stats_key, PhaseStats};
 use super::plan::Plan;
-use super::session::TruthSource;
+use super::rig::Rig;
 use super::spec::Campaign;
 use super::types::{AxisId, Component, Phase, RunKey, SampleRecord};
 use super::worker::Curve;
@@ -500,4 +501,46 @@ fn drive_truth_full(comps: &[Value], a: AxisId) -> String {
             )
         })
         .unwrap_or_else(|| "-".into())
+}
+
+/// Ground truth of a simulated campaign, detached from the rig.
+pub struct TruthSource {
+    model: Option<Arc<csmetro_sim::model::StageModel>>,
+}
+
+impl TruthSource {
+    pub fn new(rig: &Rig, _c: &Campaign) -> Self {
+        Self {
+            model: rig.truth.clone(),
+        }
+    }
+
+    /// Noise-free error of a component at each (target_x, target_y).
+    pub fn curve(&self, curve: &Curve, other_at_um: f64) -> Option<Vec<f64>> {
+        let m = self.model.as_ref()?;
+        let run = curve.run;
+        Some(
+            curve
+                .positions_um
+                .iter()
+                .map(|&p| {
+                    let (tx, ty) = match run.axis {
+                        AxisId::X => (p, other_at_um),
+                        AxisId::Y => (other_at_um, p),
+                    };
+                    let d = m.deviation(&csmetro_sim::model::SampleContext {
+                        moving: run.axis,
+                        direction: run.direction.sign(),
+                        target_x_um: tx,
+                        target_y_um: ty,
+                        time_s: 0.0,
+                    });
+                    match curve.component.measured {
+                        AxisId::X => d.x_um,
+                        AxisId::Y => d.y_um,
+                    }
+                })
+                .collect(),
+        )
+    }
 }

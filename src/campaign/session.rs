@@ -10,11 +10,13 @@ use tokio::sync::{broadcast, watch};
 
 use super::engine::{Control, EndState, Engine, Outcome, Recorder};
 use super::plan::{plan, Plan};
+/// Where it lived before: results no longer imports session.
+pub use super::results::TruthSource;
 use super::results::{problems, tally};
 use super::rig::{self, Rig};
 use super::spec::Campaign;
-use super::types::{AxisId, CampaignState, RunKey, SampleRecord};
-use super::worker::{reconstruct_run, settings, Curve, Worker};
+use super::types::{CampaignState, RunKey, SampleRecord};
+use super::worker::{reconstruct_run, settings, Worker};
 use crate::store::Store;
 
 /// A campaign event as stored and streamed (server-sent events, `csmetro watch`).
@@ -441,46 +443,4 @@ fn write_files(dir: &std::path::Path, files: &[(String, String, Vec<u8>)]) -> Re
         }
     }
     first.map_or(Ok(()), Err)
-}
-
-/// Ground truth of a simulated campaign, detached from the rig.
-pub struct TruthSource {
-    model: Option<Arc<csmetro_sim::model::StageModel>>,
-}
-
-impl TruthSource {
-    fn new(rig: &Rig, _c: &Campaign) -> Self {
-        Self {
-            model: rig.truth.clone(),
-        }
-    }
-
-    /// Noise-free error of a component at each (target_x, target_y).
-    pub fn curve(&self, curve: &Curve, other_at_um: f64) -> Option<Vec<f64>> {
-        let m = self.model.as_ref()?;
-        let run = curve.run;
-        Some(
-            curve
-                .positions_um
-                .iter()
-                .map(|&p| {
-                    let (tx, ty) = match run.axis {
-                        AxisId::X => (p, other_at_um),
-                        AxisId::Y => (other_at_um, p),
-                    };
-                    let d = m.deviation(&csmetro_sim::model::SampleContext {
-                        moving: run.axis,
-                        direction: run.direction.sign(),
-                        target_x_um: tx,
-                        target_y_um: ty,
-                        time_s: 0.0,
-                    });
-                    match curve.component.measured {
-                        AxisId::X => d.x_um,
-                        AxisId::Y => d.y_um,
-                    }
-                })
-                .collect(),
-        )
-    }
 }
