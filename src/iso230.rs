@@ -36,29 +36,34 @@ pub struct TargetRow {
     pub r_bidir_um: f64,
 }
 
-/// Summary figures of the axis (µm). Unidirectional figures are `None` when that direction is absent.
+/// ISO 230-2 figures of an axis, µm: the one figures type (the reports' `IsoFigures`, the
+/// objects of `iso230.json` and of `summary.json`'s `iso230`). Unidirectional figures are
+/// `None` when that direction is absent, bidirectional ones (B, B̄, M) unless both are present,
+/// R unless every target has at least two approaches per direction (s is 0 with one).
 #[derive(Debug, Clone, Serialize)]
 pub struct Iso230Summary {
     pub targets: usize,
-    /// Fewest approaches at any target and direction: s is 0 where only one approach exists.
+    /// Fewest approaches at any target and direction.
     pub min_approaches: usize,
+    /// Accuracy A = max(x̄ + 2s) - min(x̄ - 2s), both directions; A↑, A↓.
     pub a_um: f64,
     pub a_up_um: Option<f64>,
     pub a_down_um: Option<f64>,
+    /// Reversal value B = max|B_i|, mean reversal B̄ (signed, B_i = x̄↑ - x̄↓).
     pub b_um: Option<f64>,
     pub b_mean_um: Option<f64>,
+    /// Systematic positioning error E (range of x̄↑ and x̄↓), E↑, E↓.
     pub e_um: f64,
     pub e_up_um: Option<f64>,
     pub e_down_um: Option<f64>,
+    /// Range of the mean bidirectional deviation M.
     pub m_um: Option<f64>,
-    pub r_um: f64,
+    /// Repeatability R (bidirectional), R↑, R↓.
+    pub r_um: Option<f64>,
     pub r_up_um: Option<f64>,
     pub r_down_um: Option<f64>,
-}
-
-#[derive(Debug, Clone, Serialize)]
-pub struct Iso230 {
-    pub summary: Iso230Summary,
+    /// Per-target figures (empty: not reported).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
     pub rows: Vec<TargetRow>,
 }
 
@@ -80,7 +85,7 @@ fn range(v: impl Iterator<Item = f64> + Clone) -> f64 {
 }
 
 /// Evaluates approaches; targets closer than `tol_um` are the same target. `None` without data.
-pub fn evaluate(approaches: &[Approach], tol_um: f64) -> Option<Iso230> {
+pub fn evaluate(approaches: &[Approach], tol_um: f64) -> Option<Iso230Summary> {
     if approaches.is_empty() {
         return None;
     }
@@ -158,7 +163,8 @@ pub fn evaluate(approaches: &[Approach], tol_um: f64) -> Option<Iso230> {
         .filter(|&n| n > 0)
         .min()
         .unwrap_or(0);
-    let summary = Iso230Summary {
+    let repeated = min_approaches >= 2;
+    Some(Iso230Summary {
         targets: rows.len(),
         min_approaches,
         a_um: a,
@@ -171,15 +177,17 @@ pub fn evaluate(approaches: &[Approach], tol_um: f64) -> Option<Iso230> {
         e_up_um: has_up.then_some(e_up),
         e_down_um: has_down.then_some(e_down),
         m_um: both.then(|| range(rows.iter().map(|r| r.mean_bidir_um))),
-        r_um: if both {
-            max_of(&mut rows.iter().map(|r| r.r_bidir_um))
-        } else {
-            max_of(&mut up().map(|r| r.r_up_um).chain(down().map(|r| r.r_down_um)))
-        },
-        r_up_um: has_up.then(|| max_of(&mut up().map(|r| r.r_up_um))),
-        r_down_um: has_down.then(|| max_of(&mut down().map(|r| r.r_down_um))),
-    };
-    Some(Iso230 { summary, rows })
+        r_um: repeated.then(|| {
+            if both {
+                max_of(&mut rows.iter().map(|r| r.r_bidir_um))
+            } else {
+                max_of(&mut up().map(|r| r.r_up_um).chain(down().map(|r| r.r_down_um)))
+            }
+        }),
+        r_up_um: (has_up && repeated).then(|| max_of(&mut up().map(|r| r.r_up_um))),
+        r_down_um: (has_down && repeated).then(|| max_of(&mut down().map(|r| r.r_down_um))),
+        rows,
+    })
 }
 
 #[cfg(test)]
@@ -218,13 +226,13 @@ mod tests {
             (t1.mean_up_um, t1.mean_down_um, t1.reversal_um),
             (2.0, 1.0, 1.0)
         );
-        let s = &r.summary;
+        let s = &r;
         assert_eq!(s.b_um, Some(3.0));
         assert_eq!(s.b_mean_um, Some(2.0));
         assert_eq!(s.m_um, Some(1.0)); // x̄ = 0.5 and 1.5
         assert_eq!(s.e_um, 3.0); // from -1 to 2
                                  // R at target 0: 2·√2 + 0 + 3 vs 4√2.
-        assert!((s.r_um - (2.0 * s2 + 3.0)).abs() < 1e-12);
+        assert!((s.r_um.unwrap() - (2.0 * s2 + 3.0)).abs() < 1e-12);
         // A: max(x̄ + 2s) = 2 + 2√2 (target 0 up), min(x̄ - 2s) = -1 (target 0 down), or 1 - 2·√2 (target 1 down).
         let lo = (-1.0f64).min(1.0 - 2.0 * s2);
         assert!((s.a_um - (2.0 + 2.0 * s2 - lo)).abs() < 1e-12);
@@ -234,11 +242,11 @@ mod tests {
     #[test]
     fn one_direction_only_leaves_bidirectional_figures_empty() {
         let r = evaluate(&[ap(0.0, true, 1.0), ap(5.0, true, 2.0)], 1e-6).unwrap();
-        assert!(
-            r.summary.b_um.is_none() && r.summary.m_um.is_none() && r.summary.a_down_um.is_none()
-        );
-        assert_eq!(r.summary.e_um, 1.0);
-        assert_eq!(r.summary.min_approaches, 1);
+        assert!(r.b_um.is_none() && r.m_um.is_none() && r.a_down_um.is_none());
+        assert_eq!(r.e_um, 1.0);
+        assert_eq!(r.min_approaches, 1);
+        // One approach per target: s = 0, no repeatability to report.
+        assert!(r.r_um.is_none() && r.r_up_um.is_none());
         assert!(evaluate(&[], 1e-6).is_none());
     }
 }

@@ -51,6 +51,8 @@ enum Command {
     Abort(cli::client::AbortArgs),
     /// Download every result (curves, plots, tables, summary) of a campaign.
     Report(cli::client::ReportArgs),
+    /// Fault soak: simulated campaigns with random faults and kills, checked against the truth (JSON).
+    Soak(cli::soak::Args),
 }
 
 fn main() -> ExitCode {
@@ -73,6 +75,7 @@ fn main() -> ExitCode {
         Command::Unpause(a) => cli::client::unpause(a),
         Command::Abort(a) => cli::client::abort(a),
         Command::Report(a) => cli::client::report(a),
+        Command::Soak(a) => cli::soak::run(a),
     };
     cli::finish(result)
 }

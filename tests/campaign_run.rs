@@ -504,3 +504,73 @@ fn a_foreground_run_killed_beside_the_service_becomes_resumable_through_it() {
             && e.data["reason"] == "its process exited without finishing"));
     assert!(server.terminate().success());
 }
+
+/// The summary after `kill -9`, a resume stopped by SIGTERM and a last resume reports what one
+/// uninterrupted run of the same campaign reports: every measurement of every attempt, the
+/// same physical acquisition time and the same saving (the exchanges' wall time aside).
+#[test]
+fn the_summary_after_kill_9_sigterm_and_resume_equals_an_uninterrupted_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign(dir.path(), 400.0, 20);
+    let whole = json_of(&run(&c, &dir.path().join("whole.db")));
+    let db = dir.path().join("c.db");
+    let mut child = spawn_run(&c, &db);
+    wait_for_samples(&mut child, &db, 30);
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    let mut child = bin()
+        .args(["resume", "1", "--quiet", "--db"])
+        .arg(&db)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_samples(&mut child, &db, 100);
+    let o = signal(child, "-TERM");
+    assert_eq!(o.status.code(), Some(143));
+    assert!(
+        (store(&db).sample_count(1).unwrap()) < 202,
+        "stopped mid-run"
+    );
+    let j = json_of(
+        &bin()
+            .args(["resume", "1", "--json", "--quiet", "--db"])
+            .arg(&db)
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(j["state"], "done");
+    assert_eq!(j["samples"], 202);
+    let (y, w) = (&j["axes"][0], &whole["axes"][0]);
+    for phase in ["cs", "full"] {
+        let (p, q) = (&y["phases"][phase], &w["phases"][phase]);
+        assert_eq!(p["measurements"], q["measurements"], "{phase}: {p} vs {q}");
+        assert_eq!(p["failed_points"], 0);
+        let (a, b) = (
+            p["acquisition_s"].as_f64().unwrap(),
+            q["acquisition_s"].as_f64().unwrap(),
+        );
+        assert!((a / b - 1.0).abs() < 0.01, "{phase} acquisition {a} vs {b}");
+    }
+    assert_eq!(y["phases"]["cs"]["measurements"], 40);
+    assert_eq!(y["phases"]["full"]["measurements"], 162);
+    let saved = |v: &serde_json::Value| v["total"]["acquisition_saved_pct"].as_f64().unwrap();
+    assert!(
+        (saved(&j) - saved(&whole)).abs() < 0.5,
+        "{} vs {}",
+        saved(&j),
+        saved(&whole)
+    );
+    assert_eq!(j["total"]["cs"]["measurements"], 40);
+    assert_eq!(j["total"]["full"]["measurements"], 162);
+    // The table prints both rows of the axis with every measurement.
+    let txt = std::fs::read_to_string(dir.path().join("it-1/summary.txt")).unwrap();
+    let row = |k: &str| {
+        txt.lines()
+            .find(|l| l.starts_with('Y') && l.contains(k))
+            .unwrap_or_else(|| panic!("no Y {k} row in\n{txt}"))
+            .to_string()
+    };
+    assert!(row("full scan").contains(" 162 "), "{txt}");
+    assert!(row("CS ").contains(" 40 "), "{txt}");
+}

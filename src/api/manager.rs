@@ -3,8 +3,10 @@
 //! one broadcast of live events for every client.
 //!
 //! Crash safety comes from the store: every sample is committed as it is taken, so a campaign
-//! left `running`/`paused`/`interrupted`/`queued` by a killed service is queued again by
-//! [`Manager::start`] and resumed by `session::execute`, which skips the stored targets.
+//! left `running`/`interrupted`/`queued` by a killed service is queued again by
+//! [`Manager::start`] and resumed by `session::execute`, which skips the stored targets. A
+//! campaign the operator paused stays paused across a restart (killed or shut down) until the
+//! operator resumes it.
 //! Liveness comes from a lock file per stage ([`crate::campaign::stagelock`]): a campaign still
 //! run by a live process (a foreground `csmetro run` on the same store) is left to it, a queued
 //! campaign waits while another process holds its stage, and a campaign whose process died
@@ -178,6 +180,11 @@ impl Manager {
                     continue;
                 }
             }
+            if row.state == CampaignState::Paused {
+                // The operator's pause holds: the stage stays where it is until they resume.
+                tracing::info!(campaign = row.id, name = %row.name, "paused by the operator; left paused at start");
+                continue;
+            }
             if row.state != CampaignState::Queued {
                 let msg = format!("resumed at service start (was {})", row.state.as_str());
                 self.db()
@@ -242,7 +249,8 @@ impl Manager {
             }
         };
         for row in rows {
-            if !row.state.is_in_progress() || self.inner().active(row.id).is_some() {
+            // Paused by the operator: held on purpose (possibly across a restart), not orphaned.
+            if row.state != CampaignState::Running || self.inner().active(row.id).is_some() {
                 continue;
             }
             // A held stage means its process is alive (or the service drives the stage and will
@@ -253,7 +261,7 @@ impl Manager {
                 continue;
             };
             let now = self.db().campaign(row.id).ok().flatten();
-            let Some(now) = now.filter(|r| r.state.is_in_progress()) else {
+            let Some(now) = now.filter(|r| r.state == CampaignState::Running) else {
                 continue;
             };
             let stored = self.db().sample_count(row.id).unwrap_or(0);
@@ -630,7 +638,11 @@ impl Manager {
                 return Err(self.refuse(id, "resume"));
             } else {
                 let row = self.row(id)?;
-                if row.state != CampaignState::Interrupted {
+                // Interrupted, or paused by the operator before a service restart.
+                if !matches!(
+                    row.state,
+                    CampaignState::Interrupted | CampaignState::Paused
+                ) {
                     drop(inner);
                     return Err(self.refuse(id, "resume"));
                 }
@@ -672,7 +684,11 @@ impl Manager {
         }
         drop(inner);
         let row = self.row(id)?;
-        if queued.is_none() && row.state != CampaignState::Interrupted {
+        let resting = matches!(
+            row.state,
+            CampaignState::Interrupted | CampaignState::Paused
+        );
+        if queued.is_none() && !resting {
             return Err(self.refuse(id, "abort"));
         }
         self.db()

@@ -46,6 +46,9 @@ pub trait Recorder: Send {
     fn run_done(&mut self, run: RunKey);
     /// Cross-validated error estimate of a CS run from the samples so far (adaptive mode).
     fn cv_error_um(&mut self, run: RunKey) -> Option<f64>;
+    /// Simulation: the true stage position (mean over the frames) of the sample about to be
+    /// committed for target `seq`, µm. Called before [`Recorder::sample`].
+    fn truth(&mut self, _seq: u64, _x_um: f64, _y_um: f64) {}
 }
 
 /// Time and counts of one (phase, axis).
@@ -120,6 +123,8 @@ struct InFlight {
     time_s: f64,
     unix_s: f64,
     point_s: f64,
+    /// Simulation: the true position at the triggers of this point.
+    truth: Option<(f64, f64)>,
     job: JoinHandle<Decoded>,
 }
 
@@ -192,6 +197,10 @@ pub struct Engine<'a> {
     /// Physical time already spent by earlier attempts, s.
     pub start_time_s: f64,
     stats: BTreeMap<String, PhaseStats>,
+    /// Physical time spent on a target before the attempt that is stored (rejected attempts,
+    /// re-approaches), s: it goes into that sample's `point_s`, so the stored samples alone
+    /// give the acquisition time.
+    extra_s: BTreeMap<u64, f64>,
     /// Decode jobs in flight at most (2 cores: keep both busy while the stage moves).
     pub depth: usize,
 }
@@ -216,6 +225,7 @@ impl<'a> Engine<'a> {
             done,
             start_time_s,
             stats: BTreeMap::new(),
+            extra_s: BTreeMap::new(),
             depth: std::thread::available_parallelism()
                 .map_or(2, |n| n.get())
                 .clamp(2, 8),
@@ -375,8 +385,17 @@ impl<'a> Engine<'a> {
         if positioning {
             self.stat(run).positioning_s += phys;
             self.tick(phys);
+            // The approach to a run's start is stored once per run (the last one counts): a
+            // re-approach after a pause or a restart is time an uninterrupted run never spends.
+            let run_start = !self.done.values().any(|s| s.target.run == run);
+            self.recorder.event(
+                "positioned",
+                json!({"run": run.label(), "phase": run.phase.as_str(), "axis": run.axis.as_str(),
+                       "physical_s": phys, "run_start": run_start}),
+            );
         } else {
             self.advance(run, phys);
+            *self.extra_s.entry(first.seq).or_default() += phys;
         }
         Ok(())
     }
@@ -421,7 +440,12 @@ impl<'a> Engine<'a> {
         let time_s = self.rig.clock.get() + move_s + wait;
         self.rig.clock.set(time_s);
         let trig = Instant::now();
+        let mark = self.rig.triggers.as_ref().map(|l| l.len());
         let jobs = self.trigger(frames).await?;
+        let truth = match (&self.rig.triggers, mark) {
+            (Some(l), Some(m)) => l.mean_since(m),
+            _ => None,
+        };
         let frame_s = match self.rig.frame_time_s {
             Some(f) => f * frames as f64,
             None => self.rig.time.physical_since(trig),
@@ -437,6 +461,7 @@ impl<'a> Engine<'a> {
             time_s,
             unix_s: unix_now(),
             point_s,
+            truth,
             job,
         })
     }
@@ -470,20 +495,26 @@ impl<'a> Engine<'a> {
                     quality,
                     frames: d.frames,
                     rejected: rejected_before,
-                    point_s: f.point_s,
+                    point_s: f.point_s + self.extra_s.get(&f.target.seq).copied().unwrap_or(0.0),
                 };
+                if let Some((x, y)) = f.truth {
+                    self.recorder.truth(rec.target.seq, x, y);
+                }
                 let fresh = self.recorder.sample(&rec).map_err(EngineError::Store)?;
                 if fresh {
                     self.stat(run).measurements += 1;
                 }
+                self.extra_s.remove(&rec.target.seq);
                 self.done.insert(rec.target.seq, rec);
                 Ok(None)
             }
             None => {
                 self.stat(run).rejected_frames += 1;
+                *self.extra_s.entry(f.target.seq).or_default() += f.point_s;
                 self.recorder.event(
                     "frame_rejected",
-                    json!({"seq": f.target.seq, "target_um": f.target.target_um(), "reason": d.reason}),
+                    json!({"seq": f.target.seq, "target_um": f.target.target_um(), "reason": d.reason,
+                           "phase": run.phase.as_str(), "axis": run.axis.as_str(), "frames": d.frames}),
                 );
                 Ok(Some(f.target))
             }
@@ -544,9 +575,12 @@ impl<'a> Engine<'a> {
             loop {
                 if attempt > max {
                     self.stat(b.run).failed_points += 1;
+                    let physical_s = self.extra_s.remove(&t.seq).unwrap_or(0.0);
                     self.recorder.event(
                         "point_failed",
-                        json!({"seq": t.seq, "target_um": t.target_um(), "attempts": attempt}),
+                        json!({"seq": t.seq, "target_um": t.target_um(), "attempts": attempt,
+                               "phase": b.run.phase.as_str(), "axis": b.run.axis.as_str(),
+                               "physical_s": physical_s}),
                     );
                     break;
                 }

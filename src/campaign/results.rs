@@ -1,16 +1,150 @@
 //! Results of a finished campaign: curves, the JSON summary (the paper's Table III as a
 //! report: measurements, physical acquisition time, processing time, recovery error), the
 //! summary table `csmetro run` prints, and the files written to the output directory.
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use serde_json::{json, Value};
 
-use super::engine::Outcome;
-use super::session::{stat, TruthSource};
+use super::engine::{stats_key, PhaseStats};
+use super::plan::Plan;
+use super::rig::Rig;
 use super::spec::Campaign;
-use super::types::{AxisId, Component, Phase, SampleRecord};
+use super::types::{AxisId, Component, Phase, RunKey, SampleRecord};
 use super::worker::Curve;
 use crate::report::{build_report, ComponentCurve, ReportOptions};
+use crate::store::EventRow;
+
+/// The figures of a campaign as the store holds them: every count and physical time comes from
+/// the stored samples and events, so a campaign interrupted, restarted or resumed any number of
+/// times reports what one uninterrupted run of the same plan reports (wall times and the
+/// physical time of the re-approaches aside).
+#[derive(Debug, Clone, Default)]
+pub struct Tally {
+    /// Per `stats_key(phase, axis)`.
+    pub stats: BTreeMap<String, PhaseStats>,
+    /// Physical time re-approaching after pauses and restarts, per `stats_key`, s.
+    pub repositioning_s: BTreeMap<String, f64>,
+    /// Planned targets that never got a sample (rejected beyond the retries).
+    pub failed_points: u64,
+}
+
+impl Tally {
+    /// Stats of one (phase, axis), zero when absent.
+    pub fn stat(&self, phase: Phase, axis: AxisId) -> PhaseStats {
+        self.stats
+            .get(&stats_key(phase, axis))
+            .cloned()
+            .unwrap_or_default()
+    }
+}
+
+fn run_of_event(e: &EventRow, by_seq: &BTreeMap<u64, RunKey>) -> Option<String> {
+    if let (Some(p), Some(a)) = (e.data["phase"].as_str(), e.data["axis"].as_str()) {
+        return Some(format!("{p}-{a}"));
+    }
+    let run = by_seq.get(&e.data["seq"].as_u64()?)?;
+    Some(stats_key(run.phase, run.axis))
+}
+
+/// Counts and times of a campaign from its stored samples and events. Meant for a campaign
+/// whose last attempt went through the whole plan: every planned target then has a sample,
+/// was skipped by the adaptive mode, or failed.
+pub fn tally(plan: &Plan, samples: &[SampleRecord], events: &[EventRow]) -> Tally {
+    let mut t = Tally::default();
+    let by_seq: BTreeMap<u64, RunKey> = plan
+        .batches
+        .iter()
+        .flat_map(|b| b.targets.iter().map(|x| (x.seq, x.run)))
+        .collect();
+    let stored: BTreeSet<u64> = samples.iter().map(|s| s.target.seq).collect();
+    for s in samples {
+        let st = t
+            .stats
+            .entry(stats_key(s.target.run.phase, s.target.run.axis))
+            .or_default();
+        st.measurements += 1;
+        st.acquisition_s += s.point_s;
+        st.frames += s.frames as u64;
+    }
+    // The last adaptive decision of each run, and the last approach to its start.
+    let mut adaptive: BTreeMap<String, (u64, bool)> = BTreeMap::new();
+    let mut run_start: BTreeMap<String, (String, f64)> = BTreeMap::new();
+    let mut failed_s: BTreeMap<u64, (String, f64)> = BTreeMap::new();
+    for e in events {
+        let d = &e.data;
+        match e.kind.as_str() {
+            "frame_rejected" => {
+                if let Some(k) = run_of_event(e, &by_seq) {
+                    let st = t.stats.entry(k).or_default();
+                    st.rejected_frames += 1;
+                    st.frames += d["frames"].as_u64().unwrap_or(0);
+                }
+            }
+            "point_failed" => {
+                if let (Some(k), Some(seq)) = (run_of_event(e, &by_seq), d["seq"].as_u64()) {
+                    failed_s.insert(seq, (k, d["physical_s"].as_f64().unwrap_or(0.0)));
+                }
+            }
+            "positioned" => {
+                let (Some(k), Some(run), Some(phys)) = (
+                    run_of_event(e, &by_seq),
+                    d["run"].as_str(),
+                    d["physical_s"].as_f64(),
+                ) else {
+                    continue;
+                };
+                if d["run_start"].as_bool() == Some(true) {
+                    run_start.insert(run.to_string(), (k, phys));
+                } else {
+                    *t.repositioning_s.entry(k).or_default() += phys;
+                }
+            }
+            "adaptive" => {
+                if let (Some(run), Some(b)) = (d["run"].as_str(), d["batch"].as_u64()) {
+                    adaptive.insert(run.to_string(), (b, d["stop"].as_bool() == Some(true)));
+                }
+            }
+            "attempt" => {
+                if let Some(m) = d["decode_s"].as_object() {
+                    for (k, v) in m {
+                        t.stats.entry(k.clone()).or_default().decode_s += v.as_f64().unwrap_or(0.0);
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    for (k, phys) in run_start.into_values() {
+        t.stats.entry(k).or_default().positioning_s += phys;
+    }
+    // A point that failed and was measured by a later attempt is not a failed point.
+    for (seq, (k, phys)) in &failed_s {
+        if !stored.contains(seq) {
+            t.stats.entry(k.clone()).or_default().acquisition_s += phys;
+        }
+    }
+    for b in &plan.batches {
+        let key = stats_key(b.run.phase, b.run.axis);
+        let skipped = adaptive
+            .get(&b.run.label())
+            .is_some_and(|&(last, stop)| stop && (b.index as u64) > last);
+        let missing = b
+            .targets
+            .iter()
+            .filter(|x| !stored.contains(&x.seq))
+            .count() as u64;
+        let st = t.stats.entry(key).or_default();
+        if skipped {
+            st.saved_by_adaptive += missing;
+        } else {
+            st.failed_points += missing;
+            t.failed_points += missing;
+        }
+    }
+    t
+}
 
 pub struct Report {
     pub summary: Value,
@@ -45,10 +179,29 @@ fn hms(s: f64) -> String {
     format!("{}:{:02}:{:02}", t / 3600, (t / 60) % 60, t % 60)
 }
 
+/// What went wrong in a campaign that measured to its end: failed points, failed
+/// reconstructions. Empty: it is done.
+pub fn problems(t: &Tally, reconstruction_failures: &[String]) -> Vec<String> {
+    let mut v = Vec::new();
+    if t.failed_points > 0 {
+        v.push(format!(
+            "{} planned point(s) failed (every frame rejected)",
+            t.failed_points
+        ));
+    }
+    for e in reconstruction_failures {
+        v.push(format!("reconstruction failed: {e}"));
+    }
+    v
+}
+
+#[allow(clippy::too_many_arguments)]
 pub fn build(
     c: &Campaign,
     id: i64,
-    outcome: &Outcome,
+    tally: &Tally,
+    wall_s: f64,
+    problems: &[String],
     curves: &[Curve],
     samples: &[SampleRecord],
     truth: &TruthSource,
@@ -155,8 +308,8 @@ pub fn build(
                 csv.into_bytes(),
             ));
         }
-        let full_st = stat(outcome, Phase::Full, a);
-        let cs_st = stat(outcome, Phase::Cs, a);
+        let full_st = tally.stat(Phase::Full, a);
+        let cs_st = tally.stat(Phase::Cs, a);
         let mut phase_json = serde_json::Map::new();
         for (pi, (phase, st)) in [(Phase::Cs, &cs_st), (Phase::Full, &full_st)]
             .into_iter()
@@ -171,7 +324,9 @@ pub fn build(
             tot[pi][2] += processing;
             phase_json.insert(
                 phase.as_str().into(),
-                json!({"measurements": st.measurements, "acquisition_s": st.acquisition_s, "positioning_s": st.positioning_s, "processing_s": processing,
+                json!({"measurements": st.measurements, "acquisition_s": st.acquisition_s, "positioning_s": st.positioning_s,
+                       "repositioning_s": tally.repositioning_s.get(&stats_key(phase, a)).copied().unwrap_or(0.0),
+                       "processing_s": processing,
                        "decode_s": st.decode_s, "reconstruction_s": proc_s[pi], "frames": st.frames,
                        "rejected_frames": st.rejected_frames, "failed_points": st.failed_points,
                        "saved_by_adaptive": st.saved_by_adaptive}),
@@ -260,11 +415,15 @@ pub fn build(
         }
         Err(e) => report_error = Some(e.to_string()),
     }
+    for p in problems {
+        table.push_str(&format!("error: {p}\n"));
+    }
     let summary = json!({
         "id": id,
         "name": c.spec.campaign.name,
-        "state": format!("{:?}", outcome.end).to_lowercase(),
-        "wall_s": outcome.wall_s,
+        "state": if problems.is_empty() { "done" } else { "failed" },
+        "errors": problems,
+        "wall_s": wall_s,
         "samples": samples.len(),
         "axes": axes_json,
         "total": {
@@ -342,4 +501,46 @@ fn drive_truth_full(comps: &[Value], a: AxisId) -> String {
             )
         })
         .unwrap_or_else(|| "-".into())
+}
+
+/// Ground truth of a simulated campaign, detached from the rig.
+pub struct TruthSource {
+    model: Option<Arc<csmetro_sim::model::StageModel>>,
+}
+
+impl TruthSource {
+    pub fn new(rig: &Rig, _c: &Campaign) -> Self {
+        Self {
+            model: rig.truth.clone(),
+        }
+    }
+
+    /// Noise-free error of a component at each (target_x, target_y).
+    pub fn curve(&self, curve: &Curve, other_at_um: f64) -> Option<Vec<f64>> {
+        let m = self.model.as_ref()?;
+        let run = curve.run;
+        Some(
+            curve
+                .positions_um
+                .iter()
+                .map(|&p| {
+                    let (tx, ty) = match run.axis {
+                        AxisId::X => (p, other_at_um),
+                        AxisId::Y => (other_at_um, p),
+                    };
+                    let d = m.deviation(&csmetro_sim::model::SampleContext {
+                        moving: run.axis,
+                        direction: run.direction.sign(),
+                        target_x_um: tx,
+                        target_y_um: ty,
+                        time_s: 0.0,
+                    });
+                    match curve.component.measured {
+                        AxisId::X => d.x_um,
+                        AxisId::Y => d.y_um,
+                    }
+                })
+                .collect(),
+        )
+    }
 }

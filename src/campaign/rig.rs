@@ -9,7 +9,7 @@ use csmetro_gcs::{C863Config, C863};
 use csmetro_hal::{Axis, AxisError, Camera};
 use csmetro_ppp::{DecodeConfig, Decoder, Pattern};
 use csmetro_sim::camera::SimCamera;
-use csmetro_sim::controller::{ControllerConfig, Endpoint, SimController};
+use csmetro_sim::controller::{ControllerConfig, Endpoint, RandomFaults, SimController};
 use csmetro_sim::model::StageModel;
 use csmetro_sim::stage::SimStage;
 use rand::SeedableRng;
@@ -73,7 +73,43 @@ pub struct Rig {
     pub describe: String,
     /// Motion parameters of the simulated axes (physical move time).
     pub motion: Option<SimMotion>,
+    /// Simulation: the stage's true position (x, y), µm, at each camera trigger, in order.
+    pub triggers: Option<TriggerLog>,
     sims: Vec<SimController>,
+}
+
+/// The true positions the simulated camera was triggered at (no measurement noise), µm.
+#[derive(Debug, Clone, Default)]
+pub struct TriggerLog(Arc<Mutex<Vec<(f64, f64)>>>);
+
+impl TriggerLog {
+    fn push(&self, p: (f64, f64)) {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).push(p);
+    }
+    /// Number of triggers so far.
+    pub fn len(&self) -> usize {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Mean true position over the triggers from number `from` on, None if there were none.
+    pub fn mean_since(&self, from: usize) -> Option<(f64, f64)> {
+        let v = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let s = v.get(from..).filter(|s| !s.is_empty())?;
+        let n = s.len() as f64;
+        let (x, y) = s.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+        Some((x / n, y / n))
+    }
+}
+
+/// Seed of one axis's random faults: the two controllers must not fail in lockstep.
+pub fn axis_fault_seed(seed: u64, axis: AxisId) -> u64 {
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(match axis {
+            AxisId::X => 0x51,
+            AxisId::Y => 0x52,
+        })
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -181,6 +217,10 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
             acceleration_mm_s2: s.acceleration_mm_s2,
             start_mm: start_mm[if a == AxisId::X { 0 } else { 1 }],
             reference_switch_mm: (s.travel_mm[0] + s.travel_mm[1]) / 2.0,
+            random_faults: s.faults.as_ref().map(|f| RandomFaults {
+                seed: axis_fault_seed(f.seed, a),
+                ..f.clone()
+            }),
             ..ControllerConfig::default()
         };
         let sim = match s.transport {
@@ -207,11 +247,14 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
     let clock = PhysicalClock::default();
     let source_stage = stage.clone();
     let source_clock = clock.clone();
+    let triggers = TriggerLog::default();
+    let source_log = triggers.clone();
     let noise = model.noise_sigma_um();
     let rng = Mutex::new(ChaCha8Rng::seed_from_u64(s.seed));
     let normal = Normal::new(0.0, noise.max(0.0)).map_err(|e| e.to_string())?;
     let source = move || {
         let (x, y) = source_stage.true_position_at_um(Some(source_clock.get()));
+        source_log.push((x, y));
         if noise > 0.0 {
             let mut r = rng.lock().unwrap_or_else(|e| e.into_inner());
             (x + normal.sample(&mut *r), y + normal.sample(&mut *r))
@@ -230,9 +273,13 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
     let x = axes.pop().expect("two axes");
     Ok(Rig {
         describe: format!(
-            "simulated: 2 x C-863.11 over {:?}, time scale {}, {}",
+            "simulated: 2 x C-863.11 over {:?}, time scale {}{}, {}",
             s.transport,
             s.time_scale,
+            s.faults.as_ref().map_or(String::new(), |f| format!(
+                ", random faults (seed {})",
+                f.seed
+            )),
             camera.describe()
         ),
         x,
@@ -250,6 +297,7 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
             acceleration_mm_s2: s.acceleration_mm_s2,
             settle_s: ControllerConfig::default().settle_time_s,
         }),
+        triggers: Some(triggers),
         sims,
     })
 }
@@ -280,6 +328,7 @@ async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> 
         clock: PhysicalClock::default(),
         truth: None,
         motion: None,
+        triggers: None,
         sims: Vec::new(),
     })
 }

@@ -8,12 +8,15 @@ use serde::Serialize;
 use serde_json::{json, Value};
 use tokio::sync::{broadcast, watch};
 
-use super::engine::{stats_key, Control, EndState, Engine, Outcome, PhaseStats, Recorder};
+use super::engine::{Control, EndState, Engine, Outcome, Recorder};
 use super::plan::{plan, Plan};
+/// Where it lived before: results no longer imports session.
+pub use super::results::TruthSource;
+use super::results::{problems, tally};
 use super::rig::{self, Rig};
 use super::spec::Campaign;
-use super::types::{AxisId, CampaignState, Phase, RunKey, SampleRecord};
-use super::worker::{reconstruct_run, settings, Curve, Worker};
+use super::types::{CampaignState, RunKey, SampleRecord};
+use super::worker::{reconstruct_run, settings, Worker};
 use crate::store::Store;
 
 /// A campaign event as stored and streamed (server-sent events, `csmetro watch`).
@@ -67,6 +70,7 @@ struct StoreRecorder {
     samples: Vec<SampleRecord>,
     campaign: Campaign,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
+    truth_log: Option<std::fs::File>,
 }
 
 fn emit(store: &SharedStore, events: &broadcast::Sender<Event>, id: i64, kind: &str, data: Value) {
@@ -89,6 +93,16 @@ fn emit(store: &SharedStore, events: &broadcast::Sender<Event>, id: i64, kind: &
 }
 
 impl Recorder for StoreRecorder {
+    fn truth(&mut self, seq: u64, x_um: f64, y_um: f64) {
+        use std::io::Write;
+        // Written before the sample is committed: a sample stored is a sample whose truth is
+        // on file, whenever the process dies.
+        if let Some(f) = &mut self.truth_log {
+            if let Err(e) = writeln!(f, "{seq},{x_um:?},{y_um:?}") {
+                tracing::warn!(error = %e, "truth log not written");
+            }
+        }
+    }
     fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
         let fresh = lock(&self.store)
             .insert_sample(self.id, s)
@@ -128,6 +142,8 @@ impl Recorder for StoreRecorder {
 }
 
 const STOPPED: &str = "stopped (service shutdown); resumes from the last stored sample";
+const PAUSED_AT_STOP: &str =
+    "paused by the operator; the service stopped meanwhile and keeps it paused until resumed";
 
 /// What a finished campaign reports.
 #[derive(Debug, Clone, Serialize)]
@@ -140,6 +156,14 @@ pub struct Finished {
     pub out_dir: Option<PathBuf>,
 }
 
+/// Options of [`execute_with`] that only tests and soaks use.
+#[derive(Debug, Clone, Default)]
+pub struct Options {
+    /// Simulation: append `seq,true_x_um,true_y_um` of each sample to this file (before the
+    /// sample is committed), so a soak can check every stored position against the truth.
+    pub truth_log: Option<PathBuf>,
+}
+
 /// Runs (or resumes) stored campaign `id`: skips targets already stored, stops motion on
 /// abort and on error, reconstructs, reports, and records the final state.
 pub async fn execute(
@@ -150,6 +174,29 @@ pub async fn execute(
     events: broadcast::Sender<Event>,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
 ) -> Result<Finished, String> {
+    execute_with(store, id, c, control, events, on_sample, Options::default()).await
+}
+
+/// [`execute`] with [`Options`].
+pub async fn execute_with(
+    store: SharedStore,
+    id: i64,
+    c: Campaign,
+    control: watch::Receiver<Control>,
+    events: broadcast::Sender<Event>,
+    on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
+    opts: Options,
+) -> Result<Finished, String> {
+    let truth_log = match &opts.truth_log {
+        Some(p) => Some(
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .map_err(|e| format!("truth log {}: {e}", p.display()))?,
+        ),
+        None => None,
+    };
     let p: Plan = plan(&c);
     let done: BTreeMap<u64, SampleRecord> = lock(&store)
         .samples(id)
@@ -193,6 +240,8 @@ pub async fn execute(
     );
 
     let (st2, ev2) = (store.clone(), events.clone());
+    let recon_failures: Arc<Mutex<Vec<String>>> = Arc::default();
+    let rf2 = recon_failures.clone();
     let worker = Worker::start(&c, move |r| match r {
         Ok(curve) => {
             let name = format!(
@@ -210,7 +259,10 @@ pub async fn execute(
                        "cv_error_um": curve.cv_error_um, "solve_ms": curve.solve_ms, "m": curve.samples.len()}),
             );
         }
-        Err(e) => emit(&st2, &ev2, id, "reconstruction_failed", json!({"error": e})),
+        Err(e) => {
+            emit(&st2, &ev2, id, "reconstruction_failed", json!({"error": e}));
+            rf2.lock().unwrap_or_else(|p| p.into_inner()).push(e);
+        }
     });
     let mut rec = StoreRecorder {
         store: store.clone(),
@@ -220,14 +272,29 @@ pub async fn execute(
         samples: Vec::new(),
         campaign: c.clone(),
         on_sample,
+        truth_log,
     };
     let outcome = {
         let mut engine = Engine::new(&c, &mut rig, &mut rec, control, done);
         engine.run(&p).await
     };
-    let StoreRecorder {
-        worker, samples, ..
-    } = rec;
+    let StoreRecorder { worker, .. } = rec;
+    // Wall time decoding in this attempt (the physical figures are in the samples).
+    let decode_s: BTreeMap<String, f64> = match &outcome {
+        Ok(o) => o
+            .stats
+            .iter()
+            .map(|(k, v)| (k.clone(), v.decode_s))
+            .collect(),
+        Err(_) => BTreeMap::new(),
+    };
+    emit(
+        &store,
+        &events,
+        id,
+        "attempt",
+        json!({"decode_s": decode_s}),
+    );
     let outcome = match outcome {
         Ok(o) => o,
         Err(e) => {
@@ -264,7 +331,18 @@ pub async fn execute(
             json!({"state": "aborted"}),
         )),
     };
-    if let Some((state, msg, data)) = halted {
+    if let Some((mut state, mut msg, mut data)) = halted {
+        // Stopped (shutdown) while the operator held it paused: it stays paused.
+        let paused = lock(&store)
+            .campaign(id)
+            .ok()
+            .flatten()
+            .is_some_and(|r| r.state == CampaignState::Paused);
+        if state == CampaignState::Interrupted && paused {
+            state = CampaignState::Paused;
+            msg = PAUSED_AT_STOP;
+            data = json!({"state": "paused", "reason": PAUSED_AT_STOP});
+        }
         let _ = lock(&store).set_state(id, state, Some(msg));
         emit(&store, &events, id, "finished", data);
         return Ok(Finished {
@@ -276,94 +354,93 @@ pub async fn execute(
             out_dir: None,
         });
     }
-    let rep = super::results::build(&c, id, &outcome, &curves, &samples, &truth);
+    // Every figure from the store: the same whatever attempts it took.
+    let (samples, log) = {
+        let s = lock(&store);
+        (
+            s.samples(id).map_err(|e| e.to_string())?,
+            s.events_after(id, 0).map_err(|e| e.to_string())?,
+        )
+    };
+    let t = tally(&p, &samples, &log);
+    let failures = recon_failures
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    let mut errors = problems(&t, &failures);
+    let rep = super::results::build(
+        &c,
+        id,
+        &t,
+        outcome.wall_s,
+        &errors,
+        &curves,
+        &samples,
+        &truth,
+    );
     let out_dir = super::results::out_dir(&c, id);
-    let files = rep.files.clone();
+    let mut store_err = None;
     {
         let s = lock(&store);
-        for (name, ctype, bytes) in &files {
-            let _ = s.put_result(id, name, ctype, bytes);
+        for (name, ctype, bytes) in &rep.files {
+            if let Err(e) = s.put_result(id, name, ctype, bytes) {
+                store_err = Some(e.to_string());
+            }
         }
     }
-    let mut write_err = None;
-    for (name, _, bytes) in &files {
-        let p = out_dir.join(name);
-        if let Some(d) = p.parent() {
-            let _ = std::fs::create_dir_all(d);
-        }
-        if let Err(e) = std::fs::write(&p, bytes) {
-            write_err = Some(format!("{}: {e}", p.display()));
-        }
+    if let Some(e) = store_err {
+        errors.push(format!("results not stored: {e}"));
     }
-    if let Some(e) = &write_err {
-        tracing::warn!(error = %e, "result file not written (results are in the store)");
+    let written = write_files(&out_dir, &rep.files);
+    if let Err(e) = &written {
+        tracing::warn!(error = %e, dir = %out_dir.display(), "result files not written");
+        errors.push(e.clone());
     }
+    let (state, message) = if errors.is_empty() {
+        (CampaignState::Done, None)
+    } else {
+        (CampaignState::Failed, Some(errors.join("; ")))
+    };
     lock(&store)
-        .set_state(id, CampaignState::Done, None)
+        .set_state(id, state, message.as_deref())
         .map_err(|e| e.to_string())?;
+    let mut summary = rep.summary;
+    summary["state"] = json!(state.as_str());
+    summary["errors"] = json!(errors);
     emit(
         &store,
         &events,
         id,
         "finished",
-        json!({"state": "done", "summary": rep.summary}),
+        json!({"state": state.as_str(), "errors": errors, "summary": summary}),
     );
     Ok(Finished {
         id,
-        state: CampaignState::Done,
+        state,
         outcome,
-        summary: Some(rep.summary),
+        summary: Some(summary),
         table: Some(rep.table),
-        out_dir: Some(out_dir),
+        out_dir: written.is_ok().then_some(out_dir),
     })
 }
 
-/// Ground truth of a simulated campaign, detached from the rig.
-pub struct TruthSource {
-    model: Option<Arc<csmetro_sim::model::StageModel>>,
-}
-
-impl TruthSource {
-    fn new(rig: &Rig, _c: &Campaign) -> Self {
-        Self {
-            model: rig.truth.clone(),
+/// Writes the result files under `dir`; the first failure names the file (relative to `dir`).
+fn write_files(dir: &std::path::Path, files: &[(String, String, Vec<u8>)]) -> Result<(), String> {
+    let mut first = None;
+    for (name, _, bytes) in files {
+        let p = dir.join(name);
+        let r = match p.parent() {
+            Some(d) => std::fs::create_dir_all(d).and_then(|()| std::fs::write(&p, bytes)),
+            None => std::fs::write(&p, bytes),
+        };
+        if let Err(e) = r {
+            first.get_or_insert_with(|| {
+                format!(
+                    "results not written to the output directory ({name}: {}); they are in the store",
+                    e.kind()
+                )
+            });
         }
     }
-
-    /// Noise-free error of a component at each (target_x, target_y).
-    pub fn curve(&self, curve: &Curve, other_at_um: f64) -> Option<Vec<f64>> {
-        let m = self.model.as_ref()?;
-        let run = curve.run;
-        Some(
-            curve
-                .positions_um
-                .iter()
-                .map(|&p| {
-                    let (tx, ty) = match run.axis {
-                        AxisId::X => (p, other_at_um),
-                        AxisId::Y => (other_at_um, p),
-                    };
-                    let d = m.deviation(&csmetro_sim::model::SampleContext {
-                        moving: run.axis,
-                        direction: run.direction.sign(),
-                        target_x_um: tx,
-                        target_y_um: ty,
-                        time_s: 0.0,
-                    });
-                    match curve.component.measured {
-                        AxisId::X => d.x_um,
-                        AxisId::Y => d.y_um,
-                    }
-                })
-                .collect(),
-        )
-    }
-}
-
-/// Stats of one (phase, axis), zero when absent.
-pub fn stat(o: &Outcome, phase: Phase, axis: AxisId) -> PhaseStats {
-    o.stats
-        .get(&stats_key(phase, axis))
-        .cloned()
-        .unwrap_or_default()
+    first.map_or(Ok(()), Err)
 }

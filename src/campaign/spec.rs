@@ -130,6 +130,9 @@ pub struct SimHardware {
     /// BENCHMARKS.md).
     pub velocity_mm_s: f64,
     pub acceleration_mm_s2: f64,
+    /// `[hardware.sim.faults]`: random faults of both simulated controllers (soaks); each axis
+    /// draws from its own seed, derived from `seed` here.
+    pub faults: Option<csmetro_sim::controller::RandomFaults>,
 }
 
 impl Default for SimHardware {
@@ -146,6 +149,7 @@ impl Default for SimHardware {
             soft_limits_y_um: [-500.0, 13_500.0],
             velocity_mm_s: 1.5,
             acceleration_mm_s2: 50.0,
+            faults: None,
         }
     }
 }
@@ -696,6 +700,29 @@ fn validate(
             if let Some(o) = &s.render_optics {
                 o.validate()
                     .map_err(|e| fail("hardware.sim.render_optics", e))?;
+            }
+            if let Some(f) = &s.faults {
+                let rate = |v: f64| (0.0..=1.0).contains(&v);
+                let rates = [
+                    f.delay_rate,
+                    f.drop_rate,
+                    f.garbage_rate,
+                    f.error_rate,
+                    f.vanish_rate,
+                ];
+                if !rates.into_iter().all(rate) {
+                    return Err(fail(
+                        "hardware.sim.faults",
+                        "every *_rate must be in [0, 1]".into(),
+                    ));
+                }
+                let [lo, hi] = f.delay_ms;
+                if !(lo <= hi && hi <= 60_000 && f.vanish_ms <= 60_000) {
+                    return Err(fail(
+                        "hardware.sim.faults",
+                        "delay_ms = [lo, hi] with lo <= hi and vanish_ms at most 60000 ms".into(),
+                    ));
+                }
             }
             if let Some(m) = &s.model {
                 load_model(m, trust).map_err(|e| fail("hardware.sim.model", e))?;

@@ -11,6 +11,7 @@ pub mod reconstruct;
 pub mod run;
 pub mod serve;
 pub mod sim;
+pub mod soak;
 
 /// An error that ends a command: a one-line message and the process exit code.
 #[derive(Debug)]

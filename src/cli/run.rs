@@ -31,6 +31,9 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Simulation only (soaks): append each sample's true position to this file.
+    #[arg(long, hide = true)]
+    truth_log: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -43,6 +46,8 @@ pub struct ResumeArgs {
     json: bool,
     #[arg(long)]
     quiet: bool,
+    #[arg(long, hide = true)]
+    truth_log: Option<PathBuf>,
 }
 
 fn open(db: &std::path::Path) -> Result<SharedStore, CliError> {
@@ -67,7 +72,10 @@ pub fn run(a: Args) -> CliResult {
         c.spec.campaign.name,
         a.db.display()
     );
-    foreground(store, id, c, a.json, a.quiet)
+    let opts = session::Options {
+        truth_log: a.truth_log,
+    };
+    foreground(store, id, c, a.json, a.quiet, opts)
 }
 
 pub fn resume(a: ResumeArgs) -> CliResult {
@@ -87,10 +95,20 @@ pub fn resume(a: ResumeArgs) -> CliResult {
     }
     let _stage = take_stage(&a.db, &row.stage)?;
     let c = session::load_stored(&store, a.id).map_err(CliError::failure)?;
-    foreground(store, a.id, c, a.json, a.quiet)
+    let opts = session::Options {
+        truth_log: a.truth_log,
+    };
+    foreground(store, a.id, c, a.json, a.quiet, opts)
 }
 
-fn foreground(store: SharedStore, id: i64, c: Campaign, json: bool, quiet: bool) -> CliResult {
+fn foreground(
+    store: SharedStore,
+    id: i64,
+    c: Campaign,
+    json: bool,
+    quiet: bool,
+    opts: session::Options,
+) -> CliResult {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -140,7 +158,7 @@ fn foreground(store: SharedStore, id: i64, c: Campaign, json: bool, quiet: bool)
                         e.data["cv_error_um"].as_f64().map_or("-".into(), |v| format!("{v:.3}")),
                         e.data["solve_ms"].as_f64().unwrap_or(0.0)
                     )),
-                    "frame_rejected" | "point_failed" | "adaptive" => {
+                    "frame_rejected" | "point_failed" | "adaptive" | "reconstruction_failed" => {
                         b2.println(format!("{}: {}", e.kind, e.data))
                     }
                     _ => {}
@@ -149,7 +167,7 @@ fn foreground(store: SharedStore, id: i64, c: Campaign, json: bool, quiet: bool)
         });
         let b3 = bar.clone();
         let on_sample = Box::new(move |_: &crate::campaign::types::SampleRecord| b3.inc(1));
-        let r = session::execute(store, id, c, ctl_rx, ev_tx, on_sample).await;
+        let r = session::execute_with(store, id, c, ctl_rx, ev_tx, on_sample, opts).await;
         bar.finish_and_clear();
         let fin = r.map_err(CliError::failure)?;
         if json {
@@ -168,6 +186,18 @@ fn foreground(store: SharedStore, id: i64, c: Campaign, json: bool, quiet: bool)
         }
         Ok(match fin.state {
             CampaignState::Done => ExitCode::SUCCESS,
+            CampaignState::Failed => {
+                let errors = fin.summary.as_ref().and_then(|s| s["errors"].as_array().cloned());
+                for e in errors.unwrap_or_default() {
+                    eprintln!("error: {}", e.as_str().unwrap_or_default());
+                }
+                eprintln!("campaign {id} failed; motion stopped");
+                ExitCode::FAILURE
+            }
+            CampaignState::Paused => {
+                eprintln!("campaign {id} is paused; `csmetro resume {id}` continues it");
+                ExitCode::from(143)
+            }
             CampaignState::Aborted => {
                 eprintln!("campaign {id} aborted; motion stopped");
                 ExitCode::from(130)

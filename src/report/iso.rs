@@ -13,61 +13,10 @@ use serde::Serialize;
 
 use super::{ComponentCurve, ReportError};
 use crate::campaign::types::{AxisId, Component, Direction};
-use crate::iso230::{evaluate, Approach, Iso230, TargetRow};
+use crate::iso230::{evaluate, Approach, Iso230Summary};
 
-/// ISO 230-2 summary figures, µm. Unidirectional figures are `None` when that direction is
-/// absent, bidirectional ones (B, B̄, M) unless both are present, R unless every target has at
-/// least two approaches per direction.
-#[derive(Debug, Clone, Serialize)]
-pub struct IsoFigures {
-    pub targets: usize,
-    /// Fewest approaches at any target and direction.
-    pub min_approaches: usize,
-    /// Accuracy A = max(x̄ + 2s) - min(x̄ - 2s), both directions; A↑, A↓.
-    pub a_um: f64,
-    pub a_up_um: Option<f64>,
-    pub a_down_um: Option<f64>,
-    /// Reversal value B = max|B_i|, mean reversal B̄ (signed, B_i = x̄↑ - x̄↓).
-    pub b_um: Option<f64>,
-    pub b_mean_um: Option<f64>,
-    /// Systematic positioning error E (range of x̄↑ and x̄↓), E↑, E↓.
-    pub e_um: f64,
-    pub e_up_um: Option<f64>,
-    pub e_down_um: Option<f64>,
-    /// Range of the mean bidirectional deviation M.
-    pub m_um: Option<f64>,
-    /// Repeatability R (bidirectional), R↑, R↓.
-    pub r_um: Option<f64>,
-    pub r_up_um: Option<f64>,
-    pub r_down_um: Option<f64>,
-    /// Per-target figures (measured samples only).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub rows: Vec<TargetRow>,
-}
-
-impl IsoFigures {
-    fn from_iso(iso: Iso230, keep_rows: bool) -> Self {
-        let s = iso.summary;
-        let repeated = s.min_approaches >= 2;
-        Self {
-            targets: s.targets,
-            min_approaches: s.min_approaches,
-            a_um: s.a_um,
-            a_up_um: s.a_up_um,
-            a_down_um: s.a_down_um,
-            b_um: s.b_um,
-            b_mean_um: s.b_mean_um,
-            e_um: s.e_um,
-            e_up_um: s.e_up_um,
-            e_down_um: s.e_down_um,
-            m_um: s.m_um,
-            r_um: repeated.then_some(s.r_um),
-            r_up_um: s.r_up_um.filter(|_| repeated),
-            r_down_um: s.r_down_um.filter(|_| repeated),
-            rows: if keep_rows { iso.rows } else { Vec::new() },
-        }
-    }
-}
+/// ISO 230-2 figures, µm: one type with [`crate::iso230::evaluate`]'s.
+pub type IsoFigures = Iso230Summary;
 
 /// ISO 230-2 figures of one moving axis.
 #[derive(Debug, Clone, Serialize)]
@@ -149,7 +98,8 @@ pub fn iso230_axis(
             reason: "no finite reconstructed value".into(),
         });
     };
-    let reconstructed = IsoFigures::from_iso(recon_iso, false);
+    let mut reconstructed = recon_iso;
+    reconstructed.rows.clear();
     notes.push(
         "reconstructed: one approach per target and direction (s = 0): R not reported, A = E"
             .into(),
@@ -214,7 +164,7 @@ fn measured_figures(
         ));
         return None;
     }
-    let fig = IsoFigures::from_iso(evaluate(&kept, tol_um)?, true);
+    let fig = evaluate(&kept, tol_um)?;
     if counts.len() > n_targets {
         notes.push(format!(
             "measured: {} of {} sampled targets left out (fewer than 2 approaches in a direction)",
