@@ -115,3 +115,36 @@ fn a_killed_simulators_pty_link_is_removed_by_the_next_one() {
     second.wait().unwrap();
     assert!(wait_gone(&link2), "its own link removed on shutdown");
 }
+
+#[test]
+fn sim_controller_refuses_bad_random_faults_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("sim.toml");
+    std::fs::write(
+        &cfg,
+        "[controller.random_faults]\nseed = 1\ndrop_rate = 2.0\n",
+    )
+    .unwrap();
+    let out = Command::new(BIN)
+        .args([
+            "sim",
+            "controller",
+            "--pty",
+            "--config",
+            cfg.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("sim.toml") && err.contains("drop_rate"),
+        "{err}"
+    );
+    let out = Command::new(BIN)
+        .args(["sim", "controller", "--pty", "--fault-seed", "3"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "--fault-seed without random faults");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("random_faults"));
+}
