@@ -2,15 +2,19 @@
 //!
 //! `csmetro sim controller --tcp 127.0.0.1:PORT | --pty` serves a simulated PI C-863 and prints
 //! where it listens (address or tty path) as the first stdout line, then serves until SIGINT or
-//! SIGTERM. `csmetro sim bench-gcs` times the GCS driver against it over a pty (JSON).
+//! SIGTERM. `csmetro sim bench-gcs` times the GCS driver against it over a pty (JSON);
+//! `csmetro sim soak-gcs` runs the driver under random faults and checks that every answer it
+//! took was the controller's reply to the request it had just sent (JSON).
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use clap::Subcommand;
+use csmetro_gcs::frame::{AxisQuery, Command};
 use csmetro_gcs::{C863Config, RefMode, C863};
 use csmetro_hal::Axis;
+use csmetro_sim::controller::soak::{soak_gcs, BindingCheck, SoakOptions};
 use csmetro_sim::controller::{ControllerConfig, SimController};
 use csmetro_sim::stage::SimStage;
 use csmetro_sim::{AxisId, StageModel};
@@ -44,9 +48,13 @@ struct ControllerArgs {
     /// Simulated physical seconds per real second (100 runs a campaign 100 times faster).
     #[arg(long)]
     time_scale: Option<f64>,
-    /// Simulator config: `time_scale` and a `[controller]` section (ControllerConfig, faults).
+    /// Simulator config: `time_scale` and a `[controller]` section (ControllerConfig, faults,
+    /// `[controller.random_faults]`).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Seed of the config's `[controller.random_faults]` (overrides its `seed`).
+    #[arg(long)]
+    fault_seed: Option<u64>,
 }
 
 #[derive(Subcommand)]
@@ -65,12 +73,37 @@ enum What {
         /// Step between moves, µm.
         #[arg(long, default_value_t = 100.0)]
         step_um: f64,
-        #[arg(long, default_value_t = 1.0)]
-        time_scale: f64,
+        /// Simulated seconds per real second (default: the --config file's, else 1).
+        #[arg(long)]
+        time_scale: Option<f64>,
         /// Use a simulator already serving at this tty path (another process, e.g.
         /// `csmetro sim controller --pty`) instead of one in this process.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "config")]
         port: Option<PathBuf>,
+        /// Simulator config for the in-process simulator (as `sim controller --config`:
+        /// `[controller]`, its faults; its `time_scale` unless --time-scale is given).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// Soak the GCS driver against the simulated C-863 (pty) under random delays (past the
+    /// reply timeout too), dropped and garbled replies; checks every answer the driver took
+    /// against the reply the simulator produced for that request. Prints JSON.
+    SoakGcs {
+        /// Driver calls (queries, and a move every tenth call on average).
+        #[arg(long, default_value_t = 100_000)]
+        commands: u64,
+        /// Seeds both the command mix and the faults.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long, default_value_t = 100.0)]
+        time_scale: f64,
+        /// The driver's reply timeout, ms.
+        #[arg(long, default_value_t = 100)]
+        reply_timeout_ms: u64,
+        /// Fault rates and delays from this file's `[controller.random_faults]` instead of
+        /// the built-in ones (its seed is replaced by --seed).
+        #[arg(long)]
+        config: Option<PathBuf>,
     },
 }
 
@@ -88,8 +121,97 @@ pub fn run(args: Args) -> CliResult {
             step_um,
             time_scale,
             port,
-        } => rt.block_on(bench_gcs(round_trips, moves, step_um, time_scale, port)),
+            config,
+        } => rt.block_on(bench_gcs(
+            round_trips,
+            moves,
+            step_um,
+            time_scale,
+            port,
+            config,
+        )),
+        What::SoakGcs {
+            commands,
+            seed,
+            time_scale,
+            reply_timeout_ms,
+            config,
+        } => rt.block_on(soak(commands, seed, time_scale, reply_timeout_ms, config)),
     }
+}
+
+/// Longest soak: a typo must not start a run of days.
+const MAX_SOAK_COMMANDS: u64 = 10_000_000;
+
+async fn soak(
+    commands: u64,
+    seed: u64,
+    time_scale: f64,
+    reply_timeout_ms: u64,
+    config: Option<PathBuf>,
+) -> CliResult {
+    if commands == 0 || commands > MAX_SOAK_COMMANDS {
+        return Err(CliError::input(format!(
+            "--commands must be 1..={MAX_SOAK_COMMANDS}, not {commands}"
+        )));
+    }
+    if !(time_scale.is_finite() && time_scale > 0.0) {
+        return Err(CliError::input(format!(
+            "--time-scale must be > 0, not {time_scale}"
+        )));
+    }
+    if !(1..=60_000).contains(&reply_timeout_ms) {
+        return Err(CliError::input(format!(
+            "--reply-timeout-ms must be 1..=60000, not {reply_timeout_ms}"
+        )));
+    }
+    let mut opts = SoakOptions::new(commands, seed);
+    opts.time_scale = time_scale;
+    opts.reply_timeout_ms = reply_timeout_ms;
+    if let Some(p) = &config {
+        let (_, cfg) = load_config(p)?;
+        opts.faults = cfg.random_faults.ok_or_else(|| {
+            CliError::input(format!(
+                "{}: no [controller.random_faults] section",
+                p.display()
+            ))
+        })?;
+        opts.faults.seed = seed;
+    }
+    let r = soak_gcs(&opts).await.map_err(CliError::failure)?;
+    let out = json!({
+        "commands": r.commands,
+        "seed": seed,
+        "time_scale": time_scale,
+        "reply_timeout_ms": reply_timeout_ms,
+        "fault_rates": {
+            "delay": opts.faults.delay_rate,
+            "delay_ms": opts.faults.delay_ms,
+            "drop": opts.faults.drop_rate,
+            "garbage": opts.faults.garbage_rate,
+            "error": opts.faults.error_rate,
+            "vanish": opts.faults.vanish_rate,
+        },
+        "faults_injected": r.faults,
+        "retries": r.link.retries,
+        "resyncs": r.link.resyncs,
+        "resyncs_failed": r.link.resyncs_failed,
+        "discarded_replies": r.link.discarded,
+        "reopens": r.link.reopens,
+        "errors_returned": r.errors_returned,
+        "answers_checked": r.answers_checked,
+        "stale_accepted": r.stale_accepted,
+        "garbled_accepted": r.garbled_accepted,
+        "misaligned": r.misaligned,
+        "examples": r.examples,
+        "unchecked": r.unchecked,
+        "wall_s": r.wall_s,
+    });
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&out).map_err(|e| CliError::failure(e.to_string()))?
+    );
+    Ok(ExitCode::SUCCESS)
 }
 
 /// `time_scale` and the `[controller]` section of a simulator config file.
@@ -108,12 +230,20 @@ fn load_config(path: &Path) -> Result<(Option<f64>, ControllerConfig), CliError>
                 })?,
         ),
     };
-    let cfg = match table.remove("controller") {
+    let cfg: ControllerConfig = match table.remove("controller") {
         None => ControllerConfig::default(),
         Some(v) => v
             .try_into()
             .map_err(|e| CliError::input(format!("{}: [controller]: {e}", path.display())))?,
     };
+    if let Some(rf) = &cfg.random_faults {
+        rf.validate().map_err(|e| {
+            CliError::input(format!(
+                "{}: [controller.random_faults]: {e}",
+                path.display()
+            ))
+        })?;
+    }
     Ok((scale, cfg))
 }
 
@@ -121,10 +251,20 @@ async fn controller(a: ControllerArgs) -> CliResult {
     let mut signals = Signals::register()?;
     let axis = AxisId::parse(&a.axis)
         .ok_or_else(|| CliError::input(format!("--axis must be x or y, not {:?}", a.axis)))?;
-    let (file_scale, cfg) = match &a.config {
+    let (file_scale, mut cfg) = match &a.config {
         Some(p) => load_config(p)?,
         None => (None, ControllerConfig::default()),
     };
+    if let Some(seed) = a.fault_seed {
+        cfg.random_faults
+            .as_mut()
+            .ok_or_else(|| {
+                CliError::input(
+                    "--fault-seed needs a [controller.random_faults] section in --config",
+                )
+            })?
+            .seed = seed;
+    }
     let scale = a.time_scale.or(file_scale).unwrap_or(1.0);
     if !(scale.is_finite() && scale > 0.0) {
         return Err(CliError::input(format!(
@@ -192,14 +332,24 @@ async fn bench_gcs(
     round_trips: usize,
     moves: usize,
     step_um: f64,
-    scale: f64,
+    scale: Option<f64>,
     port: Option<PathBuf>,
+    config: Option<PathBuf>,
 ) -> CliResult {
     let fail = |e: csmetro_hal::AxisError| CliError::failure(e.to_string());
+    let (file_scale, cfg) = match &config {
+        Some(p) => load_config(p)?,
+        None => (None, ControllerConfig::default()),
+    };
+    let scale = scale.or(file_scale).unwrap_or(1.0);
+    if !(scale.is_finite() && scale > 0.0) {
+        return Err(CliError::input(format!(
+            "--time-scale must be > 0, not {scale}"
+        )));
+    }
     let (sim, clock, path) = match port {
         Some(p) => (None, None, p.display().to_string()),
         None => {
-            let cfg = ControllerConfig::default();
             let stage = SimStage::new(
                 StageModel::default(),
                 scale,
@@ -211,6 +361,7 @@ async fn bench_gcs(
             let sim = SimController::start_pty(stage, AxisId::X, cfg, None)
                 .await
                 .map_err(|e| CliError::failure(format!("pty: {e}")))?;
+            sim.controller().keep_exchanges(1 << 16);
             let path = sim.endpoint().to_string();
             (Some(sim), Some(clock), path)
         }
@@ -224,10 +375,29 @@ async fn bench_gcs(
     .map_err(fail)?;
     drv.identify().await.map_err(fail)?;
     let mut rt = Vec::with_capacity(round_trips);
+    // With an in-process simulator every answer is checked against the reply produced for
+    // its request; a round trip that fails after the driver's retries is counted, not fatal.
+    let mut chk = BindingCheck::default();
+    let mut rt_errors = 0u64;
+    let pos = Command::Query {
+        query: AxisQuery::Pos,
+        axes: vec![drv.config().axis.clone()],
+    };
     for _ in 0..round_trips.max(1) {
         let t = Instant::now();
-        drv.position_um().await.map_err(fail)?;
-        rt.push(t.elapsed().as_secs_f64() * 1e6);
+        match drv.query(&pos).await {
+            Ok(r) => {
+                rt.push(t.elapsed().as_secs_f64() * 1e6);
+                chk.expect(drv.stats().frames_sent, &pos, &r);
+            }
+            Err(_) => rt_errors += 1,
+        }
+        if let Some(s) = &sim {
+            chk.absorb(s.controller());
+        }
+    }
+    if rt.is_empty() {
+        return Err(CliError::failure("no round trip succeeded"));
     }
     rt.sort_by(f64::total_cmp);
     let t0 = Instant::now();
@@ -245,9 +415,26 @@ async fn bench_gcs(
             .map_err(fail)?;
     }
     let wall = t0.elapsed().as_secs_f64();
+    let binding = match &sim {
+        Some(s) => {
+            chk.settle(s.controller(), Duration::from_secs(10)).await;
+            json!({
+                "answers_checked": chk.checked,
+                "stale_accepted": chk.stale,
+                "garbled_accepted": chk.garbled,
+                "misaligned": chk.misaligned,
+                "unchecked": chk.unchecked(),
+                "faults_injected": s.controller().fault_counts(),
+            })
+        }
+        None => serde_json::Value::Null,
+    };
     let out = json!({
         "transport": "pty",
         "round_trip_us": { "n": rt.len(), "median": percentile(&rt, 0.5), "p99": percentile(&rt, 0.99) },
+        "round_trip_errors": rt_errors,
+        "link": drv.stats(),
+        "binding": binding,
         "sequence": {
             "reference": "FNL",
             "moves": moves,

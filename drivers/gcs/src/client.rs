@@ -4,10 +4,17 @@
 //! number of times after re-synchronising the byte stream, and a vanished port is reopened a
 //! bounded number of times. Every setter is followed by `ERR?`, so a refused command becomes a
 //! typed error at once. Positions cross the [`Axis`] boundary in µm and the wire in mm.
+//!
+//! Replies are bound to their requests (the crate README states the rule): a reply is taken
+//! only while the stream is *in sync*, only if it has the shape of the answer to the request
+//! just sent, and only if nothing unsolicited arrived before the request. Any timeout, garbled
+//! reply or I/O error puts the stream out of sync; before the next request the driver sends a
+//! probe `SPA?` whose list of parameter ids is a fresh nonce and discards everything up to the
+//! reply that echoes that list.
 use std::time::{Duration, Instant};
 
 use csmetro_hal::{Axis, AxisError, AxisInfo};
-use futures::{SinkExt, StreamExt};
+use futures::{FutureExt, SinkExt, StreamExt};
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::TcpStream;
@@ -16,7 +23,9 @@ use tracing::{debug, warn};
 
 use crate::codec::ClientCodec;
 use crate::error::{error_message, E10_STOPPED, E5_INIT_NOT_DONE};
-use crate::frame::{AxisQuery, AxisSetter, Command, ControlByte, RefMode, Reply, BUSY, READY};
+use crate::frame::{
+    parse_param_id, AxisQuery, AxisSetter, Command, ControlByte, RefMode, Reply, BUSY, READY,
+};
 
 /// How to reach the controller.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -133,14 +142,73 @@ enum Fail {
     Garbled(String),
 }
 
+/// Counters of the link's recoveries since [`C863::connect`] (for soaks and diagnostics).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct LinkStats {
+    /// Frames written: commands, control bytes and resync probes, resent ones included.
+    pub frames_sent: u64,
+    /// Exchanges attempted again after a failed one.
+    pub retries: u64,
+    /// Resynchronisations started.
+    pub resyncs: u64,
+    /// Resynchronisations that did not reach sync (a timeout, or too much to discard).
+    pub resyncs_failed: u64,
+    /// Replies and garbled frames discarded because they could answer an earlier request.
+    pub discarded: u64,
+    /// Port reopened after an I/O error.
+    pub reopens: u64,
+}
+
+/// Parameters the resync probe reads: every GCS 2.0 stage controller has them and reading
+/// them changes nothing.
+const PROBE_PARAMS: [u32; 4] = [0x0A, 0x15, 0x16, 0x30];
+/// Items per probe: 4^8 = 65 536 different probes before a list repeats.
+const PROBE_LEN: usize = 8;
+/// Longest resync, in reply timeouts: a stream that keeps talking cannot hold the driver.
+const RESYNC_TIMEOUTS: u32 = 4;
+/// Most frames one resync discards before it gives up.
+const RESYNC_MAX_DISCARD: usize = 64;
+
+/// The parameter ids of probe `nonce`, in order (two bits of the nonce per item).
+fn probe_ids(nonce: u16) -> [u32; PROBE_LEN] {
+    std::array::from_fn(|i| PROBE_PARAMS[usize::from(nonce >> (2 * i)) & 3])
+}
+
+/// Whether `r` is the reply to the probe that asked for `ids` on `axis`: one
+/// `axis id=value` line per id, in order (ids decimal or hex).
+fn answers_probe(r: &Reply, axis: &str, ids: &[u32]) -> bool {
+    r.lines.len() == ids.len()
+        && r.lines.iter().zip(ids).all(|(l, &id)| {
+            let Some((head, _)) = l.split_once('=') else {
+                return false;
+            };
+            let mut t = head.split_ascii_whitespace();
+            matches!(
+                (t.next(), t.next().map(parse_param_id), t.next()),
+                (Some(a), Some(Ok(got)), None) if a == axis && got == id
+            )
+        })
+}
+
+/// A starting nonce that differs between sessions, so that a probe reply left in flight by a
+/// previous process is not taken for this one's.
+fn session_nonce() -> u16 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u32(std::process::id());
+    h.finish() as u16
+}
+
 /// A connected (or reconnectable) C-863.
 pub struct C863 {
     cfg: C863Config,
     conn: Option<Conn>,
-    /// The command whose exchange failed: resync before the next one.
-    needs_resync: Option<Command>,
-    /// Resync probes (`#7`, `CSV?`) sent whose replies have not been seen yet.
-    pending_probes: [u32; 2],
+    /// Every request since the last matched probe got its own reply in time: the next reply
+    /// read answers the next request. False at start, after reopening and after any failure.
+    in_sync: bool,
+    /// Nonce of the last probe sent.
+    nonce: u16,
+    stats: LinkStats,
     /// A move or reference may be in progress: stop on drop.
     moving: bool,
 }
@@ -150,17 +218,25 @@ fn mm(um: f64) -> f64 {
 }
 
 impl C863 {
-    /// Opens the port (bounded by the reconnect settings); sends nothing.
+    /// Opens the port (bounded by the reconnect settings); sends nothing. The first request
+    /// is preceded by a resync probe.
     pub async fn connect(cfg: C863Config) -> Result<Self, AxisError> {
         let mut me = Self {
             cfg,
             conn: None,
-            needs_resync: None,
-            pending_probes: [0; 2],
+            in_sync: false,
+            nonce: session_nonce(),
+            stats: LinkStats::default(),
             moving: false,
         };
         me.reopen().await?;
+        me.stats.reopens = 0;
         Ok(me)
+    }
+
+    /// Recoveries so far.
+    pub fn stats(&self) -> LinkStats {
+        self.stats
     }
 
     pub fn config(&self) -> &C863Config {
@@ -215,8 +291,9 @@ impl C863 {
                         debug!(attempt, "C-863 port reopened");
                     }
                     self.conn = Some(c);
-                    self.needs_resync = None;
-                    self.pending_probes = [0; 2];
+                    // A reopened serial port may still deliver replies to earlier requests.
+                    self.in_sync = false;
+                    self.stats.reopens += 1;
                     return Ok(());
                 }
                 Err(e) => last = e,
@@ -228,68 +305,116 @@ impl C863 {
         )))
     }
 
-    /// Re-synchronises the reply stream after a failed exchange: sends a probe whose reply has
-    /// a shape no other command's has (`#7`: one byte 0xB1/0xB0; `CSV?` if `#7` itself failed)
-    /// and discards everything up to the reply of the last probe sent, so a late reply is never
-    /// taken for the next command's. Probes of earlier failed resyncs are counted; if some of
-    /// their replies were lost, a quiet line after at least one probe reply also counts as
-    /// synchronised. Bounded by the reply timeout per read and 32 discarded replies.
-    async fn resync(&mut self, failed: &Command) -> Result<(), Fail> {
-        let ready = Command::Control(ControlByte::Ready);
-        let k = usize::from(*failed == ready);
-        let probe = if k == 1 { Command::Csv } else { ready };
+    /// Discards whatever has already arrived unasked (complete frames and partial bytes);
+    /// returns how many frames and whether anything was there.
+    fn drain_arrived(conn: &mut Conn) -> (u64, bool) {
+        let mut frames = 0;
+        while frames < RESYNC_MAX_DISCARD as u64 {
+            match conn.next().now_or_never() {
+                Some(Some(_)) => frames += 1,
+                // Nothing more for now, or closed (the next send or read reports it).
+                Some(None) | None => break,
+            }
+        }
+        let partial = !conn.read_buffer().is_empty();
+        if partial {
+            conn.read_buffer_mut().clear();
+            conn.codec_mut().reset();
+        }
+        (frames, frames > 0 || partial)
+    }
+
+    /// Brings the stream back in sync: discards what already arrived, sends a probe `SPA?`
+    /// whose id list encodes a fresh nonce, and discards every frame up to the reply that
+    /// echoes exactly that list. Replies are in request order, so whatever follows answers
+    /// requests sent after the probe. Bounded by the reply timeout per read,
+    /// [`RESYNC_TIMEOUTS`] timeouts in all and [`RESYNC_MAX_DISCARD`] frames.
+    async fn resync(&mut self) -> Result<(), Fail> {
+        self.stats.resyncs += 1;
+        let r = self.resync_once().await;
+        if r.is_err() {
+            self.stats.resyncs_failed += 1;
+        }
+        r
+    }
+
+    async fn resync_once(&mut self) -> Result<(), Fail> {
         let t = self.cfg.reply_timeout();
+        let axis = self.cfg.axis.clone();
+        self.nonce = self.nonce.wrapping_add(1);
+        let ids = probe_ids(self.nonce);
+        let probe = Command::QueryParam {
+            items: ids.iter().map(|&id| (axis.clone(), id)).collect(),
+        };
         let conn = self
             .conn
             .as_mut()
             .ok_or_else(|| Fail::Io("not connected".into()))?;
+        let (frames, _) = Self::drain_arrived(conn);
+        self.stats.discarded += frames;
+        self.stats.frames_sent += 1;
         match tokio::time::timeout(t, conn.send(&probe)).await {
             Err(_) => return Err(Fail::Timeout),
             Ok(Err(e)) => return Err(Fail::Io(e.to_string())),
             Ok(Ok(())) => {}
         }
-        self.pending_probes[k] += 1;
-        let mut seen = false;
-        for _ in 0..32 {
-            match tokio::time::timeout(t, conn.next()).await {
-                Err(_) if seen => break,
-                Err(_) => return Err(Fail::Timeout),
+        let deadline = tokio::time::Instant::now() + t * RESYNC_TIMEOUTS;
+        let mut last_discarded = None;
+        for _ in 0..RESYNC_MAX_DISCARD {
+            let until = deadline.min(tokio::time::Instant::now() + t);
+            match tokio::time::timeout_at(until, conn.next()).await {
+                Err(_) => break,
                 Ok(None) => return Err(Fail::Io("port closed".into())),
                 Ok(Some(Err(e))) => return Err(Fail::Io(e.to_string())),
-                Ok(Some(Ok(Ok(r)))) => {
-                    if let Some(j) = probe_kind(&r) {
-                        self.pending_probes[j] = self.pending_probes[j].saturating_sub(1);
-                        seen |= j == k;
-                        if j == k && self.pending_probes[k] == 0 {
-                            break;
-                        }
-                    } else {
-                        debug!(stale = ?r, "discarded a stale reply");
-                    }
+                Ok(Some(Ok(Ok(r)))) if answers_probe(&r, &axis, &ids) => {
+                    self.in_sync = true;
+                    return Ok(());
                 }
-                Ok(Some(Ok(Err(e)))) => debug!(error = %e, "discarded a garbled reply"),
+                Ok(Some(Ok(r))) => {
+                    self.stats.discarded += 1;
+                    debug!(frame = ?r, "discarded a frame that is not the probe's reply");
+                    last_discarded = Some(match r {
+                        Ok(r) => format!("{:?}", r.lines),
+                        Err(e) => e.to_string(),
+                    });
+                }
             }
         }
-        if !seen {
-            return Err(Fail::Garbled(
-                "could not resynchronise the reply stream".into(),
-            ));
-        }
-        self.pending_probes = [0; 2];
-        self.needs_resync = None;
-        Ok(())
+        // The probe's reply did not come. If something else did, the last frame may have
+        // been the probe's reply garbled: report the stream as garbled, not as silent.
+        Err(match last_discarded {
+            Some(f) => Fail::Garbled(format!(
+                "resync probe unanswered; last frame discarded: {f}"
+            )),
+            None => Fail::Timeout,
+        })
     }
 
-    /// One attempt: send `cmd` and, if it has one, read its reply.
+    /// One attempt: send `cmd` and, if it has one, read its reply. Out of sync, or with
+    /// anything unsolicited already received, a resync comes first.
     async fn exchange(&mut self, cmd: &Command) -> Result<Option<Reply>, Fail> {
-        if let Some(failed) = self.needs_resync.clone() {
-            self.resync(&failed).await?;
+        if self.in_sync {
+            let conn = self
+                .conn
+                .as_mut()
+                .ok_or_else(|| Fail::Io("not connected".into()))?;
+            let (frames, any) = Self::drain_arrived(conn);
+            if any {
+                // Bytes nobody asked for: some earlier reply came after all, or noise.
+                warn!(frames, "C-863 sent unsolicited bytes; resynchronising");
+                self.stats.discarded += frames;
+                self.in_sync = false;
+            }
+        }
+        if !self.in_sync {
+            self.resync().await?;
         }
         let t = self.cfg.reply_timeout();
         let conn = self
             .conn
             .as_mut()
             .ok_or_else(|| Fail::Io("not connected".into()))?;
+        self.stats.frames_sent += 1;
         match tokio::time::timeout(t, conn.send(cmd)).await {
             Err(_) => return Err(Fail::Timeout),
             Ok(Err(e)) => return Err(Fail::Io(e.to_string())),
@@ -303,19 +428,64 @@ impl C863 {
             Ok(None) => Err(Fail::Io("port closed".into())),
             Ok(Some(Err(e))) => Err(Fail::Io(e.to_string())),
             Ok(Some(Ok(Err(e)))) => Err(Fail::Garbled(e.to_string())),
-            Ok(Some(Ok(Ok(r)))) => Ok(Some(r)),
+            Ok(Some(Ok(Ok(r)))) => match cmd.check_reply_shape(&r) {
+                Ok(()) => Ok(Some(r)),
+                Err(e) => Err(Fail::Garbled(e)),
+            },
         }
     }
 
-    /// Sends `cmd` and checks its reply with `check`; retries timeouts and garbled replies
-    /// `retries` times, reopening a failed port as configured.
+    /// Refuses motion the soft limits do not allow, before anything is sent: a `MOV` target
+    /// outside them, and any `MVR` (a relative target cannot be checked here, and a relative
+    /// move resent after a lost reply would move twice).
+    fn guard_motion(&self, cmd: &Command) -> Result<(), AxisError> {
+        let (lo, hi) = self.cfg.soft_limits_um;
+        match cmd {
+            Command::Set {
+                setter: AxisSetter::Mov,
+                args,
+            } => {
+                for (_, v) in args {
+                    // In mm, as `move_to` converts: a target on a limit stays on it.
+                    if !(*v >= mm(lo) && *v <= mm(hi)) {
+                        return Err(AxisError::OutsideSoftLimits {
+                            target_um: v * 1000.0,
+                            lo_um: lo,
+                            hi_um: hi,
+                        });
+                    }
+                }
+                Ok(())
+            }
+            Command::Set {
+                setter: AxisSetter::Mvr,
+                ..
+            } => Err(AxisError::Protocol(
+                "MVR is not sent: a relative move can be neither checked against the soft \
+                 limits nor resent safely; use MOV"
+                    .into(),
+            )),
+            _ => Ok(()),
+        }
+    }
+
+    /// Sends `cmd` and checks its reply with `check`; retries timeouts, garbled replies and
+    /// port failures `retries` times (reopening a failed port as configured), each retry
+    /// after a resync. Retrying is safe because every command that gets here may be sent
+    /// twice: queries only read (except that a lost `ERR?` reply loses its code), setters are
+    /// absolute (`MOV`, `SVO`, `VEL`, ...), a reference move restarts towards the same switch,
+    /// stops stop again, and `MVR` never gets here ([`guard_motion`](Self::guard_motion)).
     async fn request<T>(
         &mut self,
         cmd: &Command,
         check: impl Fn(&Reply) -> Result<T, String>,
     ) -> Result<T, AxisError> {
+        self.guard_motion(cmd)?;
         let mut last = AxisError::Protocol("no attempt".into());
         for attempt in 0..=self.cfg.retries {
+            if attempt > 0 {
+                self.stats.retries += 1;
+            }
             if self.conn.is_none() {
                 self.reopen().await?;
             }
@@ -329,11 +499,12 @@ impl C863 {
                 Err(Fail::Io(e)) => {
                     warn!(%cmd, error = %e, attempt, "C-863 port failed; reopening");
                     self.conn = None;
+                    self.in_sync = false;
                     last = AxisError::Io(e);
                 }
                 Err(Fail::Timeout) => {
                     warn!(%cmd, attempt, "C-863 reply timeout");
-                    self.needs_resync = Some(cmd.clone());
+                    self.in_sync = false;
                     last = AxisError::Timeout {
                         what: format!("reply to `{cmd}`"),
                         after: self.cfg.reply_timeout(),
@@ -341,7 +512,7 @@ impl C863 {
                 }
                 Err(Fail::Garbled(e)) => {
                     warn!(%cmd, error = %e, attempt, "C-863 garbled reply");
-                    self.needs_resync = Some(cmd.clone());
+                    self.in_sync = false;
                     last = AxisError::Protocol(format!("reply to `{cmd}`: {e}"));
                 }
             }
@@ -527,18 +698,6 @@ impl C863 {
         if let Err(e) = self.stop().await {
             warn!(error = %e, "C-863 stop after an error failed");
         }
-    }
-}
-
-/// Which resync probe a reply answers: 0 for `#7`, 1 for `CSV?`.
-fn probe_kind(r: &Reply) -> Option<usize> {
-    let l = r.single().ok()?;
-    if l == READY.to_string() || l == BUSY.to_string() {
-        Some(0)
-    } else if l.trim() == "2.0" {
-        Some(1)
-    } else {
-        None
     }
 }
 

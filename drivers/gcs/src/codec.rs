@@ -13,6 +13,8 @@ use crate::frame::{Address, Command, ControlByte, Reply};
 
 /// Longest command line a controller accepts before error 3.
 pub const MAX_COMMAND_LEN: usize = 1024;
+/// How much of an overlong command line is kept (for logs).
+const INVALID_TEXT_LEN: usize = 40;
 /// Longest reply a client accepts (HLP? is the longest, a few KiB).
 pub const MAX_REPLY_LEN: usize = 64 * 1024;
 
@@ -91,7 +93,7 @@ impl Decoder for ServerCodec {
             let Some(i) = buf.iter().position(|&b| b == b'\n') else {
                 if buf.len() > MAX_COMMAND_LEN {
                     self.discarding = true;
-                    let text = latin1(&buf[..40]);
+                    let text = latin1(&buf[..INVALID_TEXT_LEN]);
                     buf.clear();
                     return Ok(Some(Request {
                         address: None,
@@ -104,6 +106,18 @@ impl Decoder for ServerCodec {
                 return Ok(None);
             };
             let raw = buf.split_to(i + 1);
+            // Too long first: the verdict must not depend on whether the LF came in the
+            // same read (a long line without LF yet is error 3 whatever it holds). Its text
+            // is cut as in that case, so a refused frame never holds more than a prefix.
+            if i > MAX_COMMAND_LEN {
+                return Ok(Some(Request {
+                    address: None,
+                    body: RequestBody::Invalid {
+                        code: E3_COMMAND_TOO_LONG,
+                        text: latin1(&raw[..INVALID_TEXT_LEN]),
+                    },
+                }));
+            }
             let text = latin1(&raw[..i]);
             if text.trim().is_empty() {
                 continue; // blank lines are ignored
@@ -113,15 +127,6 @@ impl Decoder for ServerCodec {
                     address: None,
                     body: RequestBody::Invalid {
                         code: E1_PARAM_SYNTAX,
-                        text,
-                    },
-                }));
-            }
-            if i > MAX_COMMAND_LEN {
-                return Ok(Some(Request {
-                    address: None,
-                    body: RequestBody::Invalid {
-                        code: E3_COMMAND_TOO_LONG,
                         text,
                     },
                 }));
@@ -187,6 +192,10 @@ impl ClientCodec {
             scanned: 0,
         }
     }
+    /// Forgets the partial reply scanned so far (call when the read buffer is cleared).
+    pub fn reset(&mut self) {
+        self.scanned = 0;
+    }
 }
 
 impl Encoder<&Command> for ClientCodec {
@@ -208,6 +217,10 @@ impl Decoder for ClientCodec {
     fn decode(&mut self, buf: &mut BytesMut) -> Result<Option<Self::Item>, Self::Error> {
         // The reply ends at the first LF not preceded by a space.
         let mut end = None;
+        // A buffer emptied behind the codec's back restarts the scan.
+        if self.scanned > buf.len() {
+            self.scanned = 0;
+        }
         for i in self.scanned..buf.len() {
             if buf[i] == b'\n' && (i == 0 || buf[i - 1] != b' ') {
                 end = Some(i);

@@ -257,6 +257,99 @@ impl Command {
         }
     }
 
+    /// Whether `r` has the shape of this command's answer: no control characters, one
+    /// `axis=value` line per asked axis (in order), one `axis id=value` line per asked
+    /// parameter, an integer for `ERR?`, 0xB1/0xB0 for `#7`, hex for `#4`/`#5`, a number for
+    /// `CSV?`, `vendor, model, serial, firmware` for `*IDN?`, axis names for `SAI?`. A reply of
+    /// the wrong shape cannot be this command's, whatever else it is.
+    pub fn check_reply_shape(&self, r: &Reply) -> Result<(), String> {
+        let one = || r.single().map(str::trim);
+        let fail = |what: &str| Err(format!("reply {:?} is not {what}", r.lines));
+        if r.lines
+            .iter()
+            .any(|l| l.chars().any(|c| c.is_ascii_control()))
+        {
+            return fail("text (it holds control characters)");
+        }
+        match self {
+            Command::Control(ControlByte::Ready) => match one()? {
+                l if l == READY.to_string() || l == BUSY.to_string() => Ok(()),
+                _ => fail("0xB1 or 0xB0 (#7)"),
+            },
+            Command::Control(ControlByte::Status | ControlByte::MotionStatus) => {
+                let l = one()?;
+                let h = l.strip_prefix("0x").unwrap_or(l);
+                if !h.is_empty() && h.bytes().all(|b| b.is_ascii_hexdigit()) {
+                    Ok(())
+                } else {
+                    fail("a hex word (#4, #5)")
+                }
+            }
+            Command::Control(ControlByte::MacroRunning) | Command::Err => {
+                match one()?.parse::<i64>() {
+                    Ok(_) => Ok(()),
+                    Err(_) => fail("an integer"),
+                }
+            }
+            Command::Csv => match one()?.parse::<f64>() {
+                Ok(v) if v.is_finite() => Ok(()),
+                _ => fail("a syntax version"),
+            },
+            Command::Idn => match one()?.split(',').count() {
+                n if n >= 3 => Ok(()),
+                _ => fail("`vendor, model, serial, firmware`"),
+            },
+            Command::Sai { .. } => {
+                let axis_name = |l: &String| {
+                    let l = l.trim();
+                    !l.is_empty() && l.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+                };
+                if !r.lines.is_empty() && r.lines.iter().all(axis_name) {
+                    Ok(())
+                } else {
+                    fail("axis names")
+                }
+            }
+            Command::Query { axes, .. } if !axes.is_empty() => {
+                if r.lines.len() != axes.len() {
+                    return fail(&format!("{} `axis=value` lines", axes.len()));
+                }
+                for (l, a) in r.lines.iter().zip(axes) {
+                    match l.split_once('=') {
+                        Some((got, _)) if got.trim() == a => {}
+                        _ => return fail(&format!("`{a}=value`")),
+                    }
+                }
+                Ok(())
+            }
+            Command::QueryParam { items } if !items.is_empty() => {
+                if r.lines.len() != items.len() {
+                    return fail(&format!("{} `axis id=value` lines", items.len()));
+                }
+                for (l, (a, id)) in r.lines.iter().zip(items) {
+                    let ok = l.split_once('=').is_some_and(|(head, _)| {
+                        let mut t = head.split_ascii_whitespace();
+                        t.next() == Some(a.as_str())
+                            && t.next().map(parse_param_id) == Some(Ok(*id))
+                            && t.next().is_none()
+                    });
+                    if !ok {
+                        return fail(&format!("`{a} 0x{id:X}=value`"));
+                    }
+                }
+                Ok(())
+            }
+            Command::Query { .. } | Command::QueryParam { .. } => {
+                if !r.lines.is_empty() && r.lines.iter().all(|l| l.contains('=')) {
+                    Ok(())
+                } else {
+                    fail("`key=value` lines")
+                }
+            }
+            _ => Ok(()),
+        }
+    }
+
     /// Parses one command line (without LF and address prefix), as a controller does.
     /// Errors are GCS error codes: 2 unknown command, 1 syntax, 25 invalid float, 17 out of range.
     /// Axis identifiers are not checked here (the controller knows its axes: error 15).
@@ -539,6 +632,49 @@ mod tests {
                 items: vec![("1".into(), 0x3C)]
             }),
             "decimal and 0x ids are the same parameter"
+        );
+    }
+
+    #[test]
+    fn reply_shape_tells_apart_the_answers_of_different_commands() {
+        let pos = Command::Query {
+            query: AxisQuery::Pos,
+            axes: vec!["1".into()],
+        };
+        assert_eq!(pos.check_reply_shape(&Reply::line("1=7.5")), Ok(()));
+        for wrong in ["\u{B1}", "0", "2.0", "2=7.5", "\u{fe}#~garbled\u{1}@"] {
+            assert!(
+                pos.check_reply_shape(&Reply::line(wrong)).is_err(),
+                "{wrong:?}"
+            );
+        }
+        let ready = Command::Control(ControlByte::Ready);
+        assert_eq!(ready.check_reply_shape(&Reply::line("\u{B0}")), Ok(()));
+        assert!(ready.check_reply_shape(&Reply::line("1=1")).is_err());
+        assert!(Command::Err.check_reply_shape(&Reply::line("1=0")).is_err());
+        assert_eq!(Command::Err.check_reply_shape(&Reply::line("1024")), Ok(()));
+        let spa = Command::QueryParam {
+            items: vec![("1".into(), 0x15), ("1".into(), 0x0A)],
+        };
+        let two = |a: &str, b: &str| Reply::lines(vec![a.into(), b.into()]);
+        assert_eq!(spa.check_reply_shape(&two("1 0x15=15", "1 10=1.5")), Ok(()));
+        assert!(spa
+            .check_reply_shape(&two("1 0x0A=1.5", "1 0x15=15"))
+            .is_err());
+        assert!(spa.check_reply_shape(&Reply::line("1 0x15=15")).is_err());
+        let garbage = Reply::line("\u{fe}#~garbled\u{1}@");
+        for c in [
+            Command::Csv,
+            Command::Idn,
+            Command::Sai { all: false },
+            Command::Hlp,
+        ] {
+            assert!(c.check_reply_shape(&garbage).is_err(), "{c}");
+        }
+        assert_eq!(Command::Csv.check_reply_shape(&Reply::line("2.0")), Ok(()));
+        assert_eq!(
+            Command::Sai { all: true }.check_reply_shape(&Reply::line("1")),
+            Ok(())
         );
     }
 

@@ -1,4 +1,4 @@
-//! The simulator: one stage model (effect library) and the simulated devices built on it.
+#![doc = include_str!("../README.md")]
 pub mod camera;
 pub mod controller;
 pub mod model;

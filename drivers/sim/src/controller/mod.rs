@@ -6,13 +6,15 @@
 //! [`SimStage::true_position_um`], which adds the stage model's errors, as on the real stage.
 use std::collections::VecDeque;
 use std::sync::Mutex;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use csmetro_gcs::codec::{encode_reply, Request, RequestBody};
 use csmetro_gcs::error::*;
 use csmetro_gcs::frame::{
     Address, AxisQuery, AxisSetter, Command, ControlByte, RefMode, Reply, BUSY, READY,
 };
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::model::AxisId;
@@ -20,8 +22,9 @@ use crate::stage::{AxisState, MotionKind, SimStage};
 
 mod pty;
 mod server;
+pub mod soak;
 
-pub use server::{Endpoint, SimController};
+pub use server::{remove_stale_links, Endpoint, SimController};
 
 /// The C-863's one axis.
 pub const AXIS: &str = "1";
@@ -108,6 +111,48 @@ pub struct RandomFaults {
     pub vanish_rate: f64,
     /// How long the port stays away, real milliseconds.
     pub vanish_ms: u64,
+}
+
+/// Longest delay or vanish a random fault may ask for (a typo must not hang a soak for hours).
+pub const MAX_RANDOM_FAULT_MS: u64 = 60_000;
+
+impl RandomFaults {
+    /// Checks rates (in [0, 1]) and durations (ordered, at most [`MAX_RANDOM_FAULT_MS`]).
+    pub fn validate(&self) -> Result<(), String> {
+        for (name, r) in [
+            ("delay_rate", self.delay_rate),
+            ("drop_rate", self.drop_rate),
+            ("garbage_rate", self.garbage_rate),
+            ("error_rate", self.error_rate),
+            ("vanish_rate", self.vanish_rate),
+        ] {
+            if !(0.0..=1.0).contains(&r) {
+                return Err(format!("{name} must be in [0, 1], not {r}"));
+            }
+        }
+        let [lo, hi] = self.delay_ms;
+        if lo > hi || hi > MAX_RANDOM_FAULT_MS {
+            return Err(format!(
+                "delay_ms must be [lo, hi] with lo <= hi <= {MAX_RANDOM_FAULT_MS}, not [{lo}, {hi}]"
+            ));
+        }
+        if self.vanish_ms > MAX_RANDOM_FAULT_MS {
+            return Err(format!(
+                "vanish_ms must be at most {MAX_RANDOM_FAULT_MS}, not {}",
+                self.vanish_ms
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A probability usable by the generator whatever the config said (NaN strikes never).
+fn rate(p: f64) -> f64 {
+    if p.is_nan() {
+        0.0
+    } else {
+        p.clamp(0.0, 1.0)
+    }
 }
 
 impl Default for RandomFaults {
@@ -206,10 +251,48 @@ struct FaultState {
     garbage: u32,
     motion_error: Option<i32>,
     vanish: Option<u64>,
+    random: Option<(RandomFaults, ChaCha8Rng)>,
+    counts: FaultCounts,
+}
+
+/// Faults that struck so far (scripted and random), by kind. A delayed reply that was also
+/// dropped counts as a drop only.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct FaultCounts {
+    pub delay: u64,
+    pub drop: u64,
+    pub garbage: u64,
+    pub error: u64,
+    pub vanish: u64,
+}
+
+/// One request as the controller handled it, for tests that check which reply a client took
+/// for which request (see [`Controller::keep_exchanges`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Exchange {
+    /// 1-based number of the request among all requests to this controller.
+    pub seq: u64,
+    /// The request as text (control bytes as `#7`).
+    pub request: String,
+    /// The reply the controller produced, encoded (empty: none), before faults.
+    pub reply: Vec<u8>,
+    /// The bytes it sent back (differs from `reply` under a fault).
+    pub sent: Vec<u8>,
+    /// When the bytes are written (handling time plus any delay).
+    pub sent_at: Instant,
 }
 
 /// The bytes sent instead of a reply by [`Fault::Garbage`]: neither a value nor a GCS reply shape.
 pub const GARBAGE: &[u8] = b"\xfe#~garbled\x01@\n";
+
+/// Random faults drawn for one reply.
+#[derive(Debug, Default)]
+struct Strike {
+    delay_ms: Option<u64>,
+    drop: bool,
+    garbage: bool,
+    vanish_ms: Option<u64>,
+}
 
 /// What a request produced.
 #[derive(Debug, Default, PartialEq)]
@@ -227,6 +310,8 @@ struct Inner {
     faults: FaultState,
     commands: u64,
     log: Vec<String>,
+    /// `Some(cap)`: exchanges are kept (the oldest dropped beyond `cap`).
+    exchanges: Option<(usize, VecDeque<Exchange>)>,
 }
 
 /// The C-863 state machine for one axis of a [`SimStage`].
@@ -246,6 +331,10 @@ impl Controller {
         });
         let faults = FaultState {
             pending: cfg.faults.clone(),
+            random: cfg
+                .random_faults
+                .clone()
+                .map(|r| (r.clone(), ChaCha8Rng::seed_from_u64(r.seed))),
             ..Default::default()
         };
         Self {
@@ -256,6 +345,7 @@ impl Controller {
                 faults,
                 commands: 0,
                 log: Vec::new(),
+                exchanges: None,
             }),
         }
     }
@@ -292,6 +382,35 @@ impl Controller {
         self.lock().log.clone()
     }
 
+    /// Replaces the random faults (the generator seeded afresh); `None` stops them.
+    pub fn set_random_faults(&self, rf: Option<RandomFaults>) {
+        let mut g = self.lock();
+        g.faults.random = rf
+            .clone()
+            .map(|r| (r.clone(), ChaCha8Rng::seed_from_u64(r.seed)));
+        g.cfg.random_faults = rf;
+    }
+
+    /// Faults that struck so far, by kind.
+    pub fn fault_counts(&self) -> FaultCounts {
+        self.lock().faults.counts
+    }
+
+    /// Starts keeping every [`Exchange`] (at most `cap`, the oldest dropped first), for
+    /// [`drain_exchanges`](Self::drain_exchanges). Off by default: a long-running simulator
+    /// keeps nothing.
+    pub fn keep_exchanges(&self, cap: usize) {
+        self.lock().exchanges = Some((cap.max(1), VecDeque::new()));
+    }
+
+    /// The exchanges kept since the last call, oldest first.
+    pub fn drain_exchanges(&self) -> Vec<Exchange> {
+        match &mut self.lock().exchanges {
+            Some((_, q)) => q.drain(..).collect(),
+            None => Vec::new(),
+        }
+    }
+
     /// Handles one request: state change, reply bytes and injected faults.
     pub fn handle(&self, req: &Request) -> Outcome {
         let mut g = self.lock();
@@ -301,13 +420,13 @@ impl Controller {
             }
         }
         g.commands += 1;
+        let text = match &req.body {
+            RequestBody::Control(c) => format!("#{}", c.byte()),
+            RequestBody::Line(l) => l.clone(),
+            RequestBody::Invalid { text, .. } => text.clone(),
+        };
         if g.log.len() < LOG_CAP {
-            let text = match &req.body {
-                RequestBody::Control(c) => format!("#{}", c.byte()),
-                RequestBody::Line(l) => l.clone(),
-                RequestBody::Invalid { text, .. } => text.clone(),
-            };
-            g.log.push(text);
+            g.log.push(text.clone());
         }
         self.activate_faults(&mut g);
         let reply = match &req.body {
@@ -325,32 +444,92 @@ impl Controller {
             RequestBody::Control(c) => self.exec(&mut g, &Command::Control(*c)),
         };
         let mut out = Outcome::default();
+        let mut produced = Vec::new();
         if let Some(mut reply) = reply {
             reply.address = req.address.map(|a| Address {
                 target: a.sender,
                 sender: a.target,
             });
+            let mut buf = bytes::BytesMut::new();
+            encode_reply(&reply, &mut buf);
+            produced = buf.to_vec();
+            let strike = self.draw_random(&mut g);
             let f = &mut g.faults;
-            if f.drop > 0 {
-                f.drop -= 1;
-            } else if f.garbage > 0 {
-                f.garbage -= 1;
+            if f.drop > 0 || strike.drop {
+                f.drop = f.drop.saturating_sub(u32::from(!strike.drop));
+                f.counts.drop += 1;
+            } else if f.garbage > 0 || strike.garbage {
+                f.garbage = f.garbage.saturating_sub(u32::from(!strike.garbage));
+                f.counts.garbage += 1;
                 out.bytes = GARBAGE.to_vec();
             } else {
-                let mut buf = bytes::BytesMut::new();
-                encode_reply(&reply, &mut buf);
-                out.bytes = buf.to_vec();
+                out.bytes = produced.clone();
             }
-            if let Some(ms) = f.delay.pop_front() {
+            if let Some(ms) = f.delay.pop_front().or(strike.delay_ms) {
                 out.delay = Duration::from_millis(ms);
+                if !out.bytes.is_empty() {
+                    f.counts.delay += 1;
+                }
+            }
+            if let Some(ms) = strike.vanish_ms {
+                f.vanish.get_or_insert(ms);
             }
         }
         out.vanish = g.faults.vanish.take().map(Duration::from_millis);
         if out.vanish.is_some() {
             // The port goes away while this command is in flight: its reply is lost.
             out.bytes.clear();
+            g.faults.counts.vanish += 1;
+        }
+        let (delay, seq) = (out.delay, g.commands);
+        if let Some((cap, q)) = &mut g.exchanges {
+            if q.len() >= *cap {
+                q.pop_front();
+            }
+            q.push_back(Exchange {
+                seq,
+                request: text,
+                reply: produced,
+                sent: out.bytes.clone(),
+                sent_at: Instant::now() + delay,
+            });
         }
         out
+    }
+
+    /// Draws the random faults for one reply: every kind is drawn every time, so the same
+    /// seed and the same commands give the same faults whatever the rates. An error strikes
+    /// at once (latched as by [`Fault::Error`]).
+    fn draw_random(&self, g: &mut Inner) -> Strike {
+        let Some((rf, rng)) = &mut g.faults.random else {
+            return Strike::default();
+        };
+        let u: [f64; 5] = std::array::from_fn(|_| rng.random::<f64>());
+        let [a, b] = rf.delay_ms;
+        let delay_ms = rng.random_range(a.min(b)..=a.max(b));
+        let strike = Strike {
+            delay_ms: (u[0] < rate(rf.delay_rate)).then_some(delay_ms),
+            drop: u[1] < rate(rf.drop_rate),
+            garbage: u[2] < rate(rf.garbage_rate),
+            vanish_ms: (u[4] < rate(rf.vanish_rate)).then_some(rf.vanish_ms),
+        };
+        if u[3] < rate(rf.error_rate) {
+            let code = rf.error_code;
+            g.faults.counts.error += 1;
+            self.latch_fault(code);
+        }
+        strike
+    }
+
+    /// The controller latches `code`; 1024 (motion error) also stops and switches the servo off.
+    fn latch_fault(&self, code: i32) {
+        self.stage.with_axis(self.axis, |a, now| {
+            if code == E1024_MOTION_ERROR {
+                a.stop(now);
+                a.servo = false;
+            }
+            a.error = code;
+        });
     }
 
     fn activate_faults(&self, g: &mut Inner) {
@@ -368,18 +547,16 @@ impl Controller {
                 Fault::Error {
                     code,
                     during_motion: true,
-                } => f.motion_error = Some(code),
+                } => {
+                    f.counts.error += 1;
+                    f.motion_error = Some(code);
+                }
                 Fault::Error {
                     code,
                     during_motion: false,
                 } => {
-                    self.stage.with_axis(self.axis, |a, now| {
-                        if code == E1024_MOTION_ERROR {
-                            a.stop(now);
-                            a.servo = false;
-                        }
-                        a.error = code;
-                    });
+                    f.counts.error += 1;
+                    self.latch_fault(code);
                 }
                 Fault::Vanish { ms } => f.vanish = Some(ms),
             }

@@ -92,6 +92,52 @@ fn bind(addr: SocketAddr) -> io::Result<TcpListener> {
 
 static PTY_COUNTER: AtomicU64 = AtomicU64::new(0);
 
+/// Default pty links are `<temp dir>/csmetro-c863-<pid>-<n>`: the pid of the serving process
+/// tells a stale link (process gone, e.g. after kill -9) from a live one.
+const LINK_PREFIX: &str = "csmetro-c863-";
+
+/// The pid encoded in a default link name (or its `.new` temporary).
+fn link_owner(name: &str) -> Option<i32> {
+    let rest = name.strip_prefix(LINK_PREFIX)?;
+    let rest = rest.strip_suffix(".new").unwrap_or(rest);
+    let (pid, n) = rest.split_once('-')?;
+    if pid.is_empty() || !pid.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    n.parse::<u64>().ok()?;
+    pid.parse::<i32>().ok().filter(|&p| p > 0)
+}
+
+fn pid_alive(pid: i32) -> bool {
+    // Signal 0 only checks: ESRCH means gone; EPERM means alive under another user.
+    !matches!(
+        nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid), None),
+        Err(nix::errno::Errno::ESRCH)
+    )
+}
+
+/// Removes the default pty links in `dir` whose serving process is gone (a killed simulator
+/// cannot remove its own). Only symlinks with the default name are touched; returns how many
+/// were removed. Called by [`SimController::start_pty`] for the temp dir.
+pub fn remove_stale_links(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(pid) = name.to_str().and_then(link_owner) else {
+            continue;
+        };
+        let is_link = e.file_type().map(|t| t.is_symlink()).unwrap_or(false);
+        if is_link && !pid_alive(pid) && std::fs::remove_file(e.path()).is_ok() {
+            debug!(link = %e.path().display(), pid, "removed a stale pty link");
+            removed += 1;
+        }
+    }
+    removed
+}
+
 /// Removes the pty link when the server ends, however it ends.
 struct LinkGuard(PathBuf);
 impl Drop for LinkGuard {
@@ -192,8 +238,10 @@ impl SimController {
     ) -> io::Result<Self> {
         let ctl = Self::new_ctl(stage, axis, cfg);
         let link = link.unwrap_or_else(|| {
+            let dir = std::env::temp_dir();
+            remove_stale_links(&dir);
             let n = PTY_COUNTER.fetch_add(1, Ordering::Relaxed);
-            std::env::temp_dir().join(format!("csmetro-c863-{}-{n}", std::process::id()))
+            dir.join(format!("{LINK_PREFIX}{}-{n}", std::process::id()))
         });
         let first = Pty::open()?;
         relink(&link, &first.slave_path)?;

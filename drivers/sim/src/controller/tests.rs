@@ -247,3 +247,170 @@ fn faults_parse_from_toml() {
         "unknown keys are refused"
     );
 }
+
+fn with_random(rf: RandomFaults) -> Controller {
+    let stage = SimStage::new(crate::StageModel::default(), 100.0, [0.0, 0.0], 1.5, 5.0);
+    Controller::new(
+        stage,
+        AxisId::X,
+        ControllerConfig {
+            random_faults: Some(rf),
+            ..ControllerConfig::default()
+        },
+    )
+}
+
+fn csv_outcomes(c: &Controller, n: usize) -> Vec<Outcome> {
+    (0..n)
+        .map(|_| {
+            let mut buf = BytesMut::from(&b"CSV?\n"[..]);
+            let req = ServerCodec::default().decode(&mut buf).unwrap().unwrap();
+            c.handle(&req)
+        })
+        .collect()
+}
+
+#[test]
+fn random_faults_strike_at_their_rates_and_repeat_with_their_seed() {
+    let rf = RandomFaults {
+        seed: 7,
+        delay_rate: 0.2,
+        delay_ms: [5, 9],
+        drop_rate: 0.1,
+        garbage_rate: 0.1,
+        ..RandomFaults::default()
+    };
+    let c = with_random(rf.clone());
+    let out = csv_outcomes(&c, 2000);
+    let n = c.fault_counts();
+    // Binomial(2000, p) stays within ±5 sd: drop 200 ± 67; garbage 0.9·0.1·2000 = 180 ± 67;
+    // delays counted on sent replies only: 0.2·0.9·2000 = 360 ± 86.
+    assert!((133..=267).contains(&n.drop), "{n:?}");
+    assert!((113..=247).contains(&n.garbage), "{n:?}");
+    assert!((274..=446).contains(&n.delay), "{n:?}");
+    assert_eq!((n.error, n.vanish), (0, 0));
+    let dropped = out.iter().filter(|o| o.bytes.is_empty()).count() as u64;
+    let garbled = out.iter().filter(|o| o.bytes == GARBAGE).count() as u64;
+    assert_eq!(
+        (dropped, garbled),
+        (n.drop, n.garbage),
+        "counts are what struck"
+    );
+    assert!(out
+        .iter()
+        .all(|o| o.delay.is_zero() || (5..=9).contains(&o.delay.as_millis())));
+    assert_eq!(
+        csv_outcomes(&with_random(rf.clone()), 2000),
+        out,
+        "same seed, same faults"
+    );
+    assert_ne!(
+        csv_outcomes(&with_random(RandomFaults { seed: 8, ..rf }), 2000),
+        out
+    );
+}
+
+#[test]
+fn random_error_latches_its_code_and_switches_faults_off_on_request() {
+    let c = with_random(RandomFaults {
+        error_rate: 1.0,
+        error_code: 1024,
+        ..RandomFaults::default()
+    });
+    send(&c, b"SVO 1 1\n");
+    send(&c, b"CSV?\n");
+    c.set_random_faults(None);
+    assert_eq!(
+        send(&c, b"SVO? 1\n"),
+        "1=0\n",
+        "1024 switches the servo off"
+    );
+    assert_eq!(err(&c), 1024);
+    assert_eq!(c.fault_counts().error, 1);
+}
+
+#[test]
+fn random_fault_config_reads_from_toml_and_bad_values_are_refused() {
+    let cfg: ControllerConfig =
+        toml::from_str("[random_faults]\nseed = 3\ndrop_rate = 0.5\ndelay_ms = [1, 2]\n").unwrap();
+    let rf = cfg.random_faults.unwrap();
+    assert_eq!((rf.seed, rf.drop_rate, rf.delay_ms), (3, 0.5, [1, 2]));
+    assert_eq!(rf.validate(), Ok(()));
+    for bad in [
+        RandomFaults {
+            drop_rate: 1.5,
+            ..RandomFaults::default()
+        },
+        RandomFaults {
+            delay_rate: f64::NAN,
+            ..RandomFaults::default()
+        },
+        RandomFaults {
+            delay_ms: [9, 2],
+            ..RandomFaults::default()
+        },
+        RandomFaults {
+            vanish_ms: MAX_RANDOM_FAULT_MS + 1,
+            ..RandomFaults::default()
+        },
+    ] {
+        assert!(bad.validate().is_err(), "{bad:?}");
+    }
+    assert!(toml::from_str::<ControllerConfig>("[random_faults]\nrate = 1\n").is_err());
+}
+
+#[test]
+fn exchanges_pair_each_request_with_its_reply_and_what_was_sent() {
+    let c = ctl();
+    send(&c, b"CSV?\n");
+    assert!(c.drain_exchanges().is_empty(), "off by default");
+    c.keep_exchanges(2);
+    c.inject(Fault::Garbage { count: 1 });
+    send(&c, b"POS? 1\nSVO 1 1\n\x07");
+    let ex = c.drain_exchanges();
+    assert_eq!(ex.len(), 2, "capped, oldest dropped");
+    assert_eq!((ex[0].seq, ex[0].request.as_str()), (3, "SVO 1 1"));
+    assert!(ex[0].reply.is_empty() && ex[0].sent.is_empty());
+    assert_eq!((ex[1].seq, ex[1].request.as_str()), (4, "#7"));
+    assert_eq!(
+        (ex[1].reply.as_slice(), ex[1].sent.as_slice()),
+        (&b"\xb1\n"[..], &b"\xb1\n"[..])
+    );
+    c.inject(Fault::Garbage { count: 1 });
+    send(&c, b"CSV?\n");
+    let ex = c.drain_exchanges();
+    assert_eq!(
+        (ex[0].reply.as_slice(), ex[0].sent.as_slice()),
+        (&b"2.0\n"[..], GARBAGE)
+    );
+}
+
+#[test]
+fn stale_pty_links_of_dead_processes_are_removed_and_live_ones_kept() {
+    let dir = std::env::temp_dir().join(format!("csmetro-links-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A pid that is surely gone: a child that has exited and been reaped.
+    let mut child = std::process::Command::new("true").spawn().unwrap();
+    let dead = child.id();
+    child.wait().unwrap();
+    let me = std::process::id();
+    let mk = |name: String| {
+        let p = dir.join(name);
+        let _ = std::fs::remove_file(&p);
+        std::os::unix::fs::symlink("/dev/null", &p).unwrap();
+        p
+    };
+    let stale = mk(format!("csmetro-c863-{dead}-0"));
+    let stale_tmp = mk(format!("csmetro-c863-{dead}-3.new"));
+    let live = mk(format!("csmetro-c863-{me}-0"));
+    let other = mk(format!("csmetro-c863-x{dead}-0"));
+    let plain = dir.join(format!("csmetro-c863-{dead}-1"));
+    std::fs::write(&plain, b"not a link").unwrap();
+    assert_eq!(remove_stale_links(&dir), 2);
+    assert!(!stale.exists() && stale.symlink_metadata().is_err());
+    assert!(stale_tmp.symlink_metadata().is_err());
+    assert!(live.symlink_metadata().is_ok(), "its process is alive");
+    assert!(other.symlink_metadata().is_ok(), "not a name we make");
+    assert!(plain.exists(), "only symlinks are removed");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
