@@ -3,12 +3,10 @@
 //! With this scaling Ψ is orthogonal, so a sampled Ψ has orthonormal rows (A·Aᵀ = I): the
 //! structure the fast basis-pursuit solver relies on.
 //!
-//! Even lengths use Makhoul's algorithm on a real FFT of length n (realfft: one complex FFT of
-//! n/2 on rustfft's SIMD kernels), 1.7-1.8x faster than rustdct at 1900, 2048 and 65 536
-//! (`cargo run --release -- bench dct`, BENCHMARKS.md). Prime lengths ≥ 64 (the paper's n = 1901)
-//! take the same path with the real FFT done by Rader's algorithm ([`super::rader`]), 2.2x faster
-//! than rustdct at 1901; other odd lengths go through rustdct (there the real FFT is a full
-//! complex one and the two paths tie).
+//! Two backends, both thin wrappers: rustdct's DCT-II/III plans, and Makhoul's algorithm on
+//! realfft's real FFT of length n (its permutation and twiddle passes are plain loops; the FFTs
+//! are rustfft's, with its own SIMD dispatch). [`Dct::new`] takes the faster one per length
+//! (`cargo run --release -- bench dct` times both).
 use std::sync::Arc;
 
 use realfft::num_complex::Complex;
@@ -16,301 +14,8 @@ use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustdct::{DctPlanner, TransformType2And3};
 use rustfft::FftNum;
 
-use super::fused::RaderAdmm;
-use super::rader::RaderReal;
-
-/// A real FFT pair of length n: realfft's plans, or Rader's algorithm for a prime n.
-enum RealPair<T: FftNum> {
-    Plans {
-        r2c: Arc<dyn RealToComplex<T>>,
-        c2r: Arc<dyn ComplexToReal<T>>,
-    },
-    Rader(Box<RaderReal<T>>),
-}
-
-/// Makhoul's input order: v_j = x_(order[j]), the even indices ascending, then the odd ones
-/// descending.
-pub(super) fn makhoul_order(n: usize) -> Vec<usize> {
-    let h = n.div_ceil(2);
-    (0..n)
-        .map(|j| if j < h { 2 * j } else { 2 * (n - 1 - j) + 1 })
-        .collect()
-}
-
-impl<T: FftNum> RealPair<T> {
-    fn new(n: usize) -> Self {
-        // Rader's tables absorb Makhoul's permutation v_j = g_(2j) (j < ⌈n/2⌉),
-        // g_(2(n−1−j)+1) (the rest).
-        if super::rader::pays_off(n) {
-            if let Some(r) = RaderReal::with_permutation(n, &makhoul_order(n)) {
-                return RealPair::Rader(Box::new(r));
-            }
-        }
-        let mut planner = RealFftPlanner::<T>::new();
-        RealPair::Plans {
-            r2c: planner.plan_fft_forward(n),
-            c2r: planner.plan_fft_inverse(n),
-        }
-    }
-
-    fn scratch_len(&self) -> usize {
-        match self {
-            RealPair::Plans { r2c, c2r } => r2c.get_scratch_len().max(c2r.get_scratch_len()),
-            RealPair::Rader(_) => 0,
-        }
-    }
-}
-
 fn real<T: FftNum>(v: f64) -> T {
     T::from_f64(v).unwrap_or_else(T::zero)
-}
-
-/// Makhoul's permutation and twiddle passes around the real FFT (n = buf.len() throughout). The
-/// provided bodies are the scalar loops ([`scalar`]); f64 (BPDN, BP above the exact finish's m,
-/// every f64 transform) runs them in AVX2 where the CPU has it: the compiled loops stayed scalar
-/// (the crate's baseline is SSE2) and were 25-28 % of an n = 65 536 BP solve.
-pub trait Passes: FftNum {
-    /// v = the evens of buf forward, then its odds backward.
-    fn split_even_odd(buf: &[Self], v: &mut [Self]) {
-        scalar::split_from(buf, v, 0)
-    }
-
-    /// The inverse of [`Passes::split_even_odd`].
-    fn merge_even_odd(v: &[Self], buf: &mut [Self]) {
-        scalar::merge_from(v, buf, 0)
-    }
-
-    /// For 1 ≤ k < ⌈n/2⌉ with (a, b) = spec_k and (c, s) = w_k: buf[k] = sk·(ac + bs),
-    /// buf[n − k] = sk·(as − bc).
-    fn untwiddle(spec: &[Complex<Self>], w: &[Complex<Self>], sk: Self, buf: &mut [Self]) {
-        scalar::untwiddle_from(spec, w, sk, buf, 1)
-    }
-
-    /// For 1 ≤ k < ⌈n/2⌉: spec_k = (x + iy)·w_k with x = ak·buf[k], y = −ak·buf[n − k].
-    fn twiddle_in(buf: &[Self], w: &[Complex<Self>], ak: Self, spec: &mut [Complex<Self>]) {
-        scalar::twiddle_in_from(buf, w, ak, spec, 1)
-    }
-}
-
-impl Passes for f32 {}
-
-/// Where the AVX2 kernel `avx2::$f` stopped (it does whole blocks only), or `None` where the CPU
-/// lacks AVX2 and FMA: the scalar loop takes over from there.
-macro_rules! avx2_prefix {
-    ($f:ident($($a:expr),*)) => {{
-        #[cfg(target_arch = "x86_64")]
-        let done = super::simd::has_avx2_fma()
-            // SAFETY: AVX2 and FMA are present (checked).
-            .then(|| unsafe { avx2::$f($($a),*) });
-        #[cfg(not(target_arch = "x86_64"))]
-        let done: Option<usize> = None;
-        done
-    }};
-}
-
-/// The f64 passes in AVX2 when the CPU has it, each entry rounded as in the scalar loop (unfused).
-impl Passes for f64 {
-    fn split_even_odd(buf: &[f64], v: &mut [f64]) {
-        let j0 = avx2_prefix!(split_even_odd(buf, v)).unwrap_or(0);
-        scalar::split_from(buf, v, j0)
-    }
-
-    fn merge_even_odd(v: &[f64], buf: &mut [f64]) {
-        let j0 = avx2_prefix!(merge_even_odd(v, buf)).unwrap_or(0);
-        scalar::merge_from(v, buf, j0)
-    }
-
-    fn untwiddle(spec: &[Complex<f64>], w: &[Complex<f64>], sk: f64, buf: &mut [f64]) {
-        let k0 = avx2_prefix!(untwiddle(spec, w, sk, buf)).unwrap_or(1);
-        scalar::untwiddle_from(spec, w, sk, buf, k0)
-    }
-
-    fn twiddle_in(buf: &[f64], w: &[Complex<f64>], ak: f64, spec: &mut [Complex<f64>]) {
-        let k0 = avx2_prefix!(twiddle_in(buf, w, ak, spec)).unwrap_or(1);
-        scalar::twiddle_in_from(buf, w, ak, spec, k0)
-    }
-}
-
-/// The passes' scalar loops from pair j0 (frequency k0) on: the definitions, which [`avx2`] must
-/// match bit for bit, and the vector loops' tails.
-mod scalar {
-    use realfft::num_complex::Complex;
-    use rustfft::FftNum;
-
-    pub fn split_from<T: FftNum>(buf: &[T], v: &mut [T], j0: usize) {
-        let n = buf.len();
-        for j in j0..n.div_ceil(2) {
-            v[j] = buf[2 * j];
-        }
-        for j in j0..n / 2 {
-            v[n - 1 - j] = buf[2 * j + 1];
-        }
-    }
-
-    pub fn merge_from<T: FftNum>(v: &[T], buf: &mut [T], j0: usize) {
-        let n = buf.len();
-        for j in j0..n.div_ceil(2) {
-            buf[2 * j] = v[j];
-        }
-        for j in j0..n / 2 {
-            buf[2 * j + 1] = v[n - 1 - j];
-        }
-    }
-
-    pub fn untwiddle_from<T: FftNum>(
-        spec: &[Complex<T>],
-        w: &[Complex<T>],
-        sk: T,
-        buf: &mut [T],
-        k0: usize,
-    ) {
-        let n = buf.len();
-        for k in k0..n.div_ceil(2) {
-            let (c, s) = (w[k].re, w[k].im);
-            let (a, b) = (spec[k].re, spec[k].im);
-            buf[k] = sk * (a * c + b * s);
-            buf[n - k] = sk * (a * s - b * c);
-        }
-    }
-
-    pub fn twiddle_in_from<T: FftNum>(
-        buf: &[T],
-        w: &[Complex<T>],
-        ak: T,
-        spec: &mut [Complex<T>],
-        k0: usize,
-    ) {
-        let n = buf.len();
-        for k in k0..n.div_ceil(2) {
-            let (c, s) = (w[k].re, w[k].im);
-            let (x, y) = (ak * buf[k], T::zero() - ak * buf[n - k]);
-            spec[k] = Complex::new(x * c - y * s, x * s + y * c);
-        }
-    }
-}
-
-/// The f64 passes in AVX2, 4 entries (pairs, frequencies) at a time; each returns the pair or
-/// frequency where its whole blocks end, for [`scalar`] to finish.
-#[cfg(target_arch = "x86_64")]
-mod avx2 {
-    use std::arch::x86_64::*;
-
-    use realfft::num_complex::Complex;
-
-    /// (re, im) of 4 complex f64 at p (Complex is repr(C): re then im).
-    #[target_feature(enable = "avx2")]
-    #[inline]
-    unsafe fn load_split(p: *const Complex<f64>) -> (__m256d, __m256d) {
-        let x = _mm256_loadu_pd(p as *const f64);
-        let y = _mm256_loadu_pd((p as *const f64).add(4));
-        (
-            _mm256_permute4x64_pd::<0xD8>(_mm256_unpacklo_pd(x, y)),
-            _mm256_permute4x64_pd::<0xD8>(_mm256_unpackhi_pd(x, y)),
-        )
-    }
-
-    /// 4 entries in reverse order.
-    #[target_feature(enable = "avx2")]
-    #[inline]
-    fn rev(v: __m256d) -> __m256d {
-        _mm256_permute4x64_pd::<0x1B>(v)
-    }
-
-    #[target_feature(enable = "avx2")]
-    pub unsafe fn split_even_odd(buf: &[f64], v: &mut [f64]) -> usize {
-        let n = buf.len();
-        assert!(v.len() == n);
-        let (b, o) = (buf.as_ptr(), v.as_mut_ptr());
-        // Pairs j = 4i..4i + 3 from buf[8i..8i + 8]: evens to v[4i..], odds to v[n − 4 − 4i..]
-        // reversed.
-        let blocks = n / 8;
-        for i in 0..blocks {
-            let x = _mm256_loadu_pd(b.add(8 * i));
-            let y = _mm256_loadu_pd(b.add(8 * i + 4));
-            // unpacklo: (x0, y0, x2, y2) → (x0, x2, y0, y2); unpackhi: (x1, y1, x3, y3) →
-            // reversed odds (y3, y1, x3, x1).
-            let ev = _mm256_permute4x64_pd::<0xD8>(_mm256_unpacklo_pd(x, y));
-            let od = _mm256_permute4x64_pd::<0x27>(_mm256_unpackhi_pd(x, y));
-            _mm256_storeu_pd(o.add(4 * i), ev);
-            _mm256_storeu_pd(o.add(n - 4 - 4 * i), od);
-        }
-        4 * blocks
-    }
-
-    #[target_feature(enable = "avx2")]
-    pub unsafe fn merge_even_odd(v: &[f64], buf: &mut [f64]) -> usize {
-        let n = buf.len();
-        assert!(v.len() == n);
-        let (s, o) = (v.as_ptr(), buf.as_mut_ptr());
-        let blocks = n / 8;
-        for i in 0..blocks {
-            let ev = _mm256_loadu_pd(s.add(4 * i));
-            let od = rev(_mm256_loadu_pd(s.add(n - 4 - 4 * i)));
-            let lo = _mm256_unpacklo_pd(ev, od);
-            let hi = _mm256_unpackhi_pd(ev, od);
-            _mm256_storeu_pd(o.add(8 * i), _mm256_permute2f128_pd::<0x20>(lo, hi));
-            _mm256_storeu_pd(o.add(8 * i + 4), _mm256_permute2f128_pd::<0x31>(lo, hi));
-        }
-        4 * blocks
-    }
-
-    #[target_feature(enable = "avx2")]
-    pub unsafe fn untwiddle(
-        spec: &[Complex<f64>],
-        w: &[Complex<f64>],
-        sk: f64,
-        buf: &mut [f64],
-    ) -> usize {
-        let n = buf.len();
-        let h = n.div_ceil(2);
-        assert!(spec.len() >= h && w.len() >= h);
-        let skv = _mm256_set1_pd(sk);
-        let o = buf.as_mut_ptr();
-        let mut k = 1;
-        // Frequencies k..k + 3 < h; their mirrors n − k − 3..=n − k lie at or above h.
-        while k + 4 <= h {
-            let (a, b) = load_split(spec.as_ptr().add(k));
-            let (c, s) = load_split(w.as_ptr().add(k));
-            let d = _mm256_mul_pd(skv, _mm256_add_pd(_mm256_mul_pd(a, c), _mm256_mul_pd(b, s)));
-            let e = _mm256_mul_pd(skv, _mm256_sub_pd(_mm256_mul_pd(a, s), _mm256_mul_pd(b, c)));
-            _mm256_storeu_pd(o.add(k), d);
-            _mm256_storeu_pd(o.add(n - k - 3), rev(e));
-            k += 4;
-        }
-        k
-    }
-
-    #[target_feature(enable = "avx2")]
-    pub unsafe fn twiddle_in(
-        buf: &[f64],
-        w: &[Complex<f64>],
-        ak: f64,
-        spec: &mut [Complex<f64>],
-    ) -> usize {
-        let n = buf.len();
-        let h = n.div_ceil(2);
-        assert!(spec.len() >= h && w.len() >= h);
-        let akv = _mm256_set1_pd(ak);
-        let zero = _mm256_setzero_pd();
-        let (b, o) = (buf.as_ptr(), spec.as_mut_ptr() as *mut f64);
-        let mut k = 1;
-        while k + 4 <= h {
-            let (c, s) = load_split(w.as_ptr().add(k));
-            let x = _mm256_mul_pd(akv, _mm256_loadu_pd(b.add(k)));
-            let y = _mm256_sub_pd(
-                zero,
-                _mm256_mul_pd(akv, rev(_mm256_loadu_pd(b.add(n - k - 3)))),
-            );
-            let re = _mm256_sub_pd(_mm256_mul_pd(x, c), _mm256_mul_pd(y, s));
-            let im = _mm256_add_pd(_mm256_mul_pd(x, s), _mm256_mul_pd(y, c));
-            let lo = _mm256_unpacklo_pd(re, im);
-            let hi = _mm256_unpackhi_pd(re, im);
-            _mm256_storeu_pd(o.add(2 * k), _mm256_permute2f128_pd::<0x20>(lo, hi));
-            _mm256_storeu_pd(o.add(2 * k + 4), _mm256_permute2f128_pd::<0x31>(lo, hi));
-            k += 4;
-        }
-        k
-    }
 }
 
 /// Orthonormal DCT pair of any length n ≥ 2 by Makhoul's algorithm on a real FFT of length n:
@@ -318,7 +23,8 @@ mod avx2 {
 /// Generic so that the basis-pursuit ranking can run in f32 ([`Dct::single`]).
 pub struct Makhoul<T: FftNum> {
     n: usize,
-    fft: RealPair<T>,
+    r2c: Arc<dyn RealToComplex<T>>,
+    c2r: Arc<dyn ComplexToReal<T>>,
     v: Vec<T>,
     spec: Vec<Complex<T>>,
     scratch: Vec<Complex<T>>,
@@ -328,10 +34,11 @@ pub struct Makhoul<T: FftNum> {
     sk: T,
 }
 
-impl<T: Passes> Makhoul<T> {
+impl<T: FftNum> Makhoul<T> {
     pub fn new(n: usize) -> Self {
-        let fft = RealPair::new(n);
-        let len = fft.scratch_len();
+        let mut planner = RealFftPlanner::<T>::new();
+        let (r2c, c2r) = (planner.plan_fft_forward(n), planner.plan_fft_inverse(n));
+        let len = r2c.get_scratch_len().max(c2r.get_scratch_len());
         let twiddle = (0..=n / 2)
             .map(|k| {
                 let phi = std::f64::consts::PI * k as f64 / (2.0 * n as f64);
@@ -341,7 +48,8 @@ impl<T: Passes> Makhoul<T> {
         let zero = Complex::new(T::zero(), T::zero());
         Self {
             n,
-            fft,
+            r2c,
+            c2r,
             v: vec![T::zero(); n],
             spec: vec![zero; n / 2 + 1],
             scratch: vec![zero; len],
@@ -362,19 +70,22 @@ impl<T: Passes> Makhoul<T> {
     /// θ = Ψᵀ g (in place).
     pub fn forward(&mut self, buf: &mut [T]) {
         let (n, s0, sk) = (self.n, self.s0, self.sk);
-        let (spec, twiddle) = (&mut self.spec, &self.twiddle);
-        match &mut self.fft {
-            // Makhoul's permutation is in Rader's tables: read the signal in place.
-            RealPair::Rader(r) => r.forward(buf, spec),
-            RealPair::Plans { r2c, .. } => {
-                let v = &mut self.v;
-                T::split_even_odd(buf, v);
-                r2c.process_with_scratch(v, spec, &mut self.scratch)
-                    .expect("buffer lengths fixed at planning");
-            }
+        let (v, spec) = (&mut self.v, &mut self.spec);
+        for (j, x) in buf.iter().step_by(2).enumerate() {
+            v[j] = *x;
         }
+        for (j, x) in buf.iter().skip(1).step_by(2).enumerate() {
+            v[n - 1 - j] = *x;
+        }
+        self.r2c
+            .process_with_scratch(v, spec, &mut self.scratch)
+            .expect("buffer lengths fixed at planning");
         buf[0] = s0 * spec[0].re;
-        T::untwiddle(spec, twiddle, sk, buf);
+        for k in 1..n.div_ceil(2) {
+            let (w, s) = (self.twiddle[k], spec[k]);
+            buf[k] = sk * (s.re * w.re + s.im * w.im);
+            buf[n - k] = sk * (s.re * w.im - s.im * w.re);
+        }
         if n % 2 == 0 {
             buf[n / 2] = sk * spec[n / 2].re * real::<T>(std::f64::consts::FRAC_1_SQRT_2);
         }
@@ -383,27 +94,31 @@ impl<T: Passes> Makhoul<T> {
     /// g = Ψ θ (in place).
     pub fn inverse(&mut self, buf: &mut [T]) {
         let (n, s0, sk) = (self.n, self.s0, self.sk);
-        let spec = &mut self.spec;
+        let (v, spec) = (&mut self.v, &mut self.spec);
         // The inverse of the forward map: with X = θ / c (unnormalized DCT-II values),
         // FFT(v)_k = e^{iπk/2n}(X_k - i X_{n-k}), Hermitian, so one inverse real FFT.
         let inv_n: T = real(1.0 / n as f64);
         let (a0, ak) = (inv_n / s0, inv_n / sk);
         spec[0] = Complex::new(a0 * buf[0], T::zero());
-        T::twiddle_in(buf, &self.twiddle, ak, spec);
+        for k in 1..n.div_ceil(2) {
+            let w = self.twiddle[k];
+            let (x, y) = (ak * buf[k], T::zero() - ak * buf[n - k]);
+            spec[k] = Complex::new(x * w.re - y * w.im, x * w.im + y * w.re);
+        }
         if n % 2 == 0 {
             spec[n / 2] = Complex::new(
                 ak * buf[n / 2] * real::<T>(std::f64::consts::SQRT_2),
                 T::zero(),
             );
         }
-        match &mut self.fft {
-            RealPair::Rader(r) => r.inverse(spec, buf),
-            RealPair::Plans { c2r, .. } => {
-                let v = &mut self.v;
-                c2r.process_with_scratch(spec, v, &mut self.scratch)
-                    .expect("buffer lengths fixed at planning");
-                T::merge_even_odd(v, buf);
-            }
+        self.c2r
+            .process_with_scratch(spec, v, &mut self.scratch)
+            .expect("buffer lengths fixed at planning");
+        for (j, x) in buf.iter_mut().step_by(2).enumerate() {
+            *x = v[j];
+        }
+        for (j, x) in buf.iter_mut().skip(1).step_by(2).enumerate() {
+            *x = v[n - 1 - j];
         }
     }
 }
@@ -421,8 +136,6 @@ pub struct Dct {
     backend: Backend,
     /// The same transform in f32, planned on first use ([`Dct::single`]).
     single: Option<Box<Makhoul<f32>>>,
-    /// BP's f32 ADMM in Rader's order, planned on first use ([`Dct::rader_admm`]).
-    fused: Option<Box<RaderAdmm>>,
     s0: f64,
     sk: f64,
     /// cos(π j / 2n), j < 4n: basis entries are table lookups (dense bases are built often).
@@ -465,14 +178,11 @@ impl Dct {
     }
 
     pub fn new(n: usize) -> Self {
-        Self::with_backend(
-            n,
-            (n.is_multiple_of(2) && n >= 2) || super::rader::pays_off(n),
-        )
+        Self::with_backend(n, n.is_multiple_of(2) && n >= 2)
     }
 
-    /// `makhoul`: the real-FFT path (any n ≥ 2; [`Dct::new`] takes it for even n, where it is
-    /// 1.7-1.8x faster, and for primes ≥ 64 through Rader, 2.2x); otherwise rustdct.
+    /// `makhoul`: the real-FFT path (any n ≥ 2; [`Dct::new`] takes it for even n, where the real
+    /// FFT is half a complex one); otherwise rustdct.
     pub fn with_backend(n: usize, makhoul: bool) -> Self {
         let backend = if makhoul && n >= 2 {
             Backend::Makhoul(Box::new(Makhoul::new(n)))
@@ -489,7 +199,6 @@ impl Dct {
             n,
             backend,
             single: None,
-            fused: None,
             s0: (1.0 / nf).sqrt(),
             sk: (2.0 / nf).sqrt(),
             cos_table,
@@ -503,15 +212,6 @@ impl Dct {
 
     pub fn is_empty(&self) -> bool {
         self.n == 0
-    }
-
-    /// The f32 ranking ADMM in Rader's order, for the prime lengths that take Rader's transform
-    /// (`None` otherwise).
-    pub fn rader_admm(&mut self) -> Option<&mut RaderAdmm> {
-        if self.fused.is_none() && super::rader::pays_off(self.n) {
-            self.fused = RaderAdmm::new(self.n).map(Box::new);
-        }
-        self.fused.as_deref_mut()
     }
 
     /// The transform in single precision (n ≥ 2): for iterations whose result is only a ranking.
@@ -581,9 +281,8 @@ impl Dct {
     /// Columns `cols` (distinct) of Ψ at `rows` in single precision, column c into `out[c]`
     /// (each at least rows.len() long), for single-precision factors. The
     /// Chebyshev recurrence cos((k+1)φ) = 2 cos φ cos kφ − cos((k−1)φ) runs over k ≤ max(cols)
-    /// for blocks of 16 rows held in registers, instead of a table lookup per entry (a Barrett
-    /// reduction and a gather: 0.55 → 0.12 ms for a 600 x 600 basis at n = 1901). Its rounding
-    /// grows as ~k²ε (≤ 2e-10 at n = 1901), far below f32's.
+    /// for blocks of 16 rows at a time (independent lanes the compiler vectorises), instead of a
+    /// table lookup per entry. Its rounding grows as ~k²ε (≤ 2e-10 at n = 1901), far below f32's.
     pub fn basis_block_f32(&self, rows: &[usize], cols: &[usize], out: &mut [&mut [f32]]) {
         let Some(&kmax) = cols.iter().max() else {
             return;
@@ -600,13 +299,6 @@ impl Dct {
             let mut x2 = [0.0; CHEB_ROWS];
             for (x, &i) in x2.iter_mut().zip(&rows[r0..r0 + len]) {
                 *x = 2.0 * (std::f64::consts::PI * (2 * i + 1) as f64 / (2.0 * nf)).cos();
-            }
-            #[cfg(target_arch = "x86_64")]
-            if len == CHEB_ROWS && super::simd::has_avx2_fma() {
-                // SAFETY: AVX2 and FMA are present (checked), and every column of `out` holds
-                // rows r0..r0 + 16 (asserted above).
-                unsafe { chebyshev_rows_avx2(&x2, &at, (w0, wk), out, r0) };
-                continue;
             }
             chebyshev_rows(&x2, &at, (w0, wk), out, r0, len);
         }
@@ -634,52 +326,6 @@ impl Dct {
 
 /// Rows per register block of [`Dct::basis_block_f32`].
 const CHEB_ROWS: usize = 16;
-
-/// [`chebyshev_rows`] for a full block, in AVX2 registers (the compiler's own vectorisation of
-/// it spilled the block to the stack at every step).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn chebyshev_rows_avx2(
-    x2: &[f64; CHEB_ROWS],
-    at: &[u32],
-    (w0, wk): (f64, f64),
-    out: &mut [&mut [f32]],
-    r0: usize,
-) {
-    use std::arch::x86_64::*;
-    let xp = x2.as_ptr();
-    let x = [
-        _mm256_loadu_pd(xp),
-        _mm256_loadu_pd(xp.add(4)),
-        _mm256_loadu_pd(xp.add(8)),
-        _mm256_loadu_pd(xp.add(12)),
-    ];
-    let half = _mm256_set1_pd(0.5);
-    let mut prev = [_mm256_set1_pd(1.0); 4];
-    let mut cur = [
-        _mm256_mul_pd(half, x[0]),
-        _mm256_mul_pd(half, x[1]),
-        _mm256_mul_pd(half, x[2]),
-        _mm256_mul_pd(half, x[3]),
-    ];
-    for (k, &col) in at.iter().enumerate() {
-        if col != u32::MAX {
-            let (src, w) = if k == 0 { (prev, w0) } else { (cur, wk) };
-            let w = _mm256_set1_pd(w);
-            let dst = out[col as usize].as_mut_ptr().add(r0);
-            for (q, v) in src.iter().enumerate() {
-                _mm_storeu_ps(dst.add(4 * q), _mm256_cvtpd_ps(_mm256_mul_pd(w, *v)));
-            }
-        }
-        if k >= 1 {
-            for q in 0..4 {
-                let t = _mm256_fmsub_pd(x[q], cur[q], prev[q]);
-                prev[q] = cur[q];
-                cur[q] = t;
-            }
-        }
-    }
-}
 
 /// The recurrence for one block of rows (x2 = 2 cos φ per row), writing column `at[k]` of `out`
 /// at each k that has one.
@@ -771,38 +417,6 @@ mod tests {
         }
     }
 
-    /// The f64 passes (AVX2 where present) equal the scalar loops bit for bit at every remainder of
-    /// their 4- and 8-entry blocks.
-    #[test]
-    fn f64_passes_match_the_scalar_loops() {
-        for n in (2usize..48).chain([1900, 1901, 4096]) {
-            let x: Vec<f64> = (0..n)
-                .map(|i| ((i * 37 % 11) as f64 - 5.0) * 0.1 + i as f64)
-                .collect();
-            let spec: Vec<Complex<f64>> = (0..=n / 2)
-                .map(|k| Complex::new(x[k] * 0.3 - 1.0, x[n - 1 - k] * 0.7))
-                .collect();
-            let w: Vec<Complex<f64>> = (0..=n / 2)
-                .map(|k| Complex::new((k as f64 * 0.1).cos(), (k as f64 * 0.1).sin()))
-                .collect();
-            let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
-            <f64 as Passes>::split_even_odd(&x, &mut a);
-            scalar::split_from(&x, &mut b, 0);
-            assert_eq!(a, b, "split n={n}");
-            <f64 as Passes>::merge_even_odd(&x, &mut a);
-            scalar::merge_from(&x, &mut b, 0);
-            assert_eq!(a, b, "merge n={n}");
-            <f64 as Passes>::untwiddle(&spec, &w, 0.7, &mut a);
-            scalar::untwiddle_from(&spec, &w, 0.7, &mut b, 1);
-            assert_eq!(a, b, "untwiddle n={n}");
-            let zero = Complex::new(0.0, 0.0);
-            let (mut sa, mut sb) = (vec![zero; n / 2 + 1], vec![zero; n / 2 + 1]);
-            <f64 as Passes>::twiddle_in(&x, &w, 0.3, &mut sa);
-            scalar::twiddle_in_from(&x, &w, 0.3, &mut sb, 1);
-            assert_eq!(sa, sb, "twiddle_in n={n}");
-        }
-    }
-
     /// Both backends compute the same transform pair (the even-length path against rustdct).
     #[test]
     fn makhoul_matches_rustdct() {
@@ -865,7 +479,7 @@ mod tests {
         }
     }
 
-    /// The single-precision block (Chebyshev recurrence, AVX2 blocks of 16 rows and the portable
+    /// The single-precision block (Chebyshev recurrence, full blocks of 16 rows and the
     /// tail) equals the exact columns to f32 rounding, in the caller's column order, at the
     /// paper's n with a row count that is not a multiple of 16 and k from 0 to n − 1.
     #[test]

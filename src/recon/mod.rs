@@ -5,18 +5,12 @@
 //! (`physics`), and `auto`, which picks by cross-validation on the measured samples themselves and
 //! reports that cross-validated error as the estimate of the reconstruction error.
 pub mod bp;
-pub mod chol;
-#[cfg(target_arch = "x86_64")]
-pub mod chol512;
 pub mod dct;
-pub mod fused;
 pub mod interp;
 pub mod physics;
-pub mod rader;
-pub(crate) mod simd;
 pub mod simplex;
-#[cfg(target_arch = "x86_64")]
-pub mod split_fft;
+#[cfg(test)]
+mod test_curve;
 
 use std::str::FromStr;
 use std::time::Instant;

@@ -10,7 +10,20 @@
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use csmetro_sim::model::legendre;
+/// Legendre polynomial P_k(s) by the three-term recurrence (the envelope's basis on [-1, 1]).
+pub fn legendre(k: usize, s: f64) -> f64 {
+    let (mut p0, mut p1) = (1.0, s);
+    if k == 0 {
+        return p0;
+    }
+    for j in 1..k {
+        let jf = j as f64;
+        let p2 = ((2.0 * jf + 1.0) * s * p1 - jf * p0) / (jf + 1.0);
+        p0 = p1;
+        p1 = p2;
+    }
+    p1
+}
 
 /// Model structure and hyper-parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -176,6 +189,16 @@ pub fn fit(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn legendre_matches_closed_forms() {
+        for &s in &[-1.0, -0.3, 0.0, 0.7, 1.0] {
+            assert_eq!((legendre(0, s), legendre(1, s)), (1.0, s));
+            assert!((legendre(2, s) - 0.5 * (3.0 * s * s - 1.0)).abs() < 1e-14);
+            assert!((legendre(3, s) - 0.5 * (5.0 * s * s * s - 3.0 * s)).abs() < 1e-14);
+            assert!((legendre(4, s) - (35.0 * s.powi(4) - 30.0 * s * s + 3.0) / 8.0).abs() < 1e-14);
+        }
+    }
 
     #[test]
     fn ou_smoother_interpolates_noise_free_data_and_reverts_to_zero_far_away() {
