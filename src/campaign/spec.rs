@@ -764,7 +764,7 @@ fn validate(
                     if !device {
                         return Err(fail(
                             &format!("hardware.controllers.{name}.transport"),
-                            format!("`{port}` is not a serial device under /dev"),
+                            "the port is not a serial device under /dev".into(),
                         ));
                     }
                 }
@@ -1211,6 +1211,30 @@ m = 300
         let out = d.join("results/csmetro-results");
         let left: Vec<_> = std::fs::read_dir(&out).unwrap().collect();
         assert!(left.is_empty(), "{left:?}");
+    }
+
+    #[test]
+    fn a_submitted_real_campaign_opens_serial_devices_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = policy(dir.path());
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/config/campaigns/lab-xy-real.toml"
+        ))
+        .unwrap();
+        let port = "/dev/serial/by-id/usb-PI_C-863_0115500001-if00-port0";
+        for bad in [
+            "/etc/passwd",
+            "/dev/../etc/passwd",
+            "/dev/zero/../../etc/passwd",
+        ] {
+            let t = text.replace(port, bad);
+            let e = Campaign::parse_submitted(&t, "r.toml", &p).unwrap_err();
+            assert_eq!(e.key, "hardware.controllers.x.transport", "{bad}: {e}");
+            assert!(!e.to_string().contains("passwd"), "{e}");
+            // The local operator names their own ports.
+            Campaign::parse(&t, "r.toml", dir.path()).unwrap();
+        }
     }
 
     #[test]
