@@ -14,6 +14,11 @@
 //! | `GET /campaigns/{id}/results/{*name}` | the bytes, with their stored content type |
 //!
 //! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`.
+//!
+//! A submitted campaign is untrusted: its stage model is a relative `.toml` path inside
+//! `[campaigns] base_dir` or `models_dir`, its `[outputs] dir` a relative directory below
+//! `results_dir`; anything else is a 400 that names the key and line but shows no server path
+//! and no file content.
 use std::convert::Infallible;
 use std::sync::Arc;
 

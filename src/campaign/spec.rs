@@ -574,8 +574,8 @@ fn check_submitted_outputs(dir: &str) -> Result<(), String> {
 }
 
 /// The output directory must be writable before anything moves: the fixed part of the template
-/// (before the first `{id}`/`{name}`) is created and a probe file written; what the probe
-/// created is removed again.
+/// (before the first `{id}`/`{name}`) is created and a probe file written; for the local operator
+/// the directories the probe created are removed again.
 fn probe_outputs(
     template: &str,
     root: Option<&Path>,
@@ -605,7 +605,10 @@ fn probe_outputs(
         }
     }
     let result = std::fs::create_dir_all(&dir).and_then(|()| {
-        let probe = dir.join(format!(".csmetro-probe-{}", std::process::id()));
+        // Unique per probe: the service validates submissions on several threads at once.
+        static PROBES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let k = PROBES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let probe = dir.join(format!(".csmetro-probe-{}-{k}", std::process::id()));
         std::fs::OpenOptions::new()
             .write(true)
             .create_new(true)
@@ -613,8 +616,12 @@ fn probe_outputs(
             .and_then(|mut f| std::io::Write::write_all(&mut f, b"probe"))?;
         std::fs::remove_file(&probe)
     });
-    for c in &created {
-        let _ = std::fs::remove_dir(c);
+    // The operator's directories are left as they were. Below the service's results directory
+    // they stay: another submission may be probing the same directory at this moment.
+    if root.is_none() {
+        for c in &created {
+            let _ = std::fs::remove_dir(c);
+        }
     }
     result.map_err(|e| fail("outputs.dir", shown(&e)))
 }
@@ -784,7 +791,7 @@ fn validate(
                     if !device {
                         return Err(fail(
                             &format!("hardware.controllers.{name}.transport"),
-                            format!("`{port}` is not a serial device under /dev"),
+                            "the port is not a serial device under /dev".into(),
                         ));
                     }
                 }
@@ -1106,6 +1113,16 @@ m = 300
     }
 
     #[test]
+    fn grids_too_large_for_the_method_are_refused() {
+        let t =
+            GOOD.replace("step_um = 5.0", "step_um = 0.1") + "[reconstruction]\nmethod = \"bp\"\n";
+        let e = parse(&t).unwrap_err();
+        assert_eq!(e.key, "axes.x.range_um", "{e}");
+        assert!(e.message.contains("at most 65536"), "{e}");
+        parse(&t.replace("\"bp\"", "\"pchip\"")).unwrap();
+    }
+
+    #[test]
     fn a_huge_grid_is_refused_before_allocating() {
         let t = GOOD.replace("step_um = 5.0", "step_um = 1e-7");
         let e = parse(&t).unwrap_err();
@@ -1147,7 +1164,8 @@ m = 300
     #[test]
     fn a_campaign_planning_billions_of_points_is_refused() {
         let t = GOOD.replace("step_um = 5.0", "step_um = 0.01")
-            + "full_scan = true\n[acquisition]\ncycles = 1000\n";
+            + "full_scan = true\n[acquisition]\ncycles = 1000\n\
+               [reconstruction]\nmethod = \"pchip\"\n";
         let e = parse(&t).unwrap_err();
         assert!(e.message.contains("would plan more than"), "{e}");
     }
@@ -1216,8 +1234,34 @@ m = 300
         assert_eq!(e.key, "hardware.sim.model", "{e}");
         // The local operator's own file may name what it likes.
         Campaign::parse(&with(&abs), "c.toml", d).unwrap();
-        // Results were probed and left no trace.
-        assert!(!d.join("results").exists());
+        // Results were probed below the results directory: the probe file is gone.
+        let out = d.join("results/csmetro-results");
+        let left: Vec<_> = std::fs::read_dir(&out).unwrap().collect();
+        assert!(left.is_empty(), "{left:?}");
+    }
+
+    #[test]
+    fn a_submitted_real_campaign_opens_serial_devices_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = policy(dir.path());
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/config/campaigns/lab-xy-real.toml"
+        ))
+        .unwrap();
+        let port = "/dev/serial/by-id/usb-PI_C-863_0115500001-if00-port0";
+        for bad in [
+            "/etc/passwd",
+            "/dev/../etc/passwd",
+            "/dev/zero/../../etc/passwd",
+        ] {
+            let t = text.replace(port, bad);
+            let e = Campaign::parse_submitted(&t, "r.toml", &p).unwrap_err();
+            assert_eq!(e.key, "hardware.controllers.x.transport", "{bad}: {e}");
+            assert!(!e.to_string().contains("passwd"), "{e}");
+            // The local operator names their own ports.
+            Campaign::parse(&t, "r.toml", dir.path()).unwrap();
+        }
     }
 
     #[test]
