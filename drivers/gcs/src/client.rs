@@ -892,6 +892,30 @@ mod tests {
     use super::*;
 
     #[test]
+    fn every_probe_is_answered_only_by_its_own_reply() {
+        let all: std::collections::HashSet<_> = (0..=u16::MAX).map(probe_ids).collect();
+        assert_eq!(all.len(), 1 << 16, "no two nonces share an id list");
+        let reply =
+            |ids: &[u32]| Reply::lines(ids.iter().map(|id| format!("1 0x{id:X}=1.5")).collect());
+        let (a, b) = (probe_ids(41), probe_ids(42));
+        assert!(answers_probe(&reply(&a), "1", &a));
+        assert!(
+            !answers_probe(&reply(&a), "1", &b),
+            "an earlier probe's reply"
+        );
+        assert!(!answers_probe(&reply(&a[..7]), "1", &a), "a line short");
+        assert!(!answers_probe(&reply(&a), "2", &a), "another axis");
+        let decimal = Reply::lines(a.iter().map(|id| format!("1 {id}=0")).collect());
+        assert!(
+            answers_probe(&decimal, "1", &a),
+            "decimal ids are the same ids"
+        );
+        for stale in ["1=7.5", "0", "\u{B1}", "2.0"] {
+            assert!(!answers_probe(&Reply::line(stale), "1", &a), "{stale:?}");
+        }
+    }
+
+    #[test]
     fn config_reads_from_toml_with_safe_defaults() {
         let c: C863Config = toml::from_str(
             r#"

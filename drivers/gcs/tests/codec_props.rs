@@ -100,7 +100,8 @@ proptest! {
         bytes in prop::collection::vec(wire_byte(), 0..3000),
         cuts in prop::collection::vec(any::<usize>(), 0..8),
     ) {
-        let whole = feed(&mut ServerCodec::default(), std::slice::from_ref(&bytes), MAX_COMMAND_LEN);
+        let one = std::slice::from_ref(&bytes);
+        let whole = feed(&mut ServerCodec::default(), one, MAX_COMMAND_LEN);
         let parts = feed(&mut ServerCodec::default(), &split(&bytes, &cuts), MAX_COMMAND_LEN);
         prop_assert_eq!(server_bodies(whole), server_bodies(parts));
     }
@@ -112,7 +113,8 @@ proptest! {
         addressed in any::<bool>(),
     ) {
         let a = addressed.then_some(1);
-        let whole = feed(&mut ClientCodec::new(a), std::slice::from_ref(&bytes), MAX_REPLY_LEN);
+        let one = std::slice::from_ref(&bytes);
+        let whole = feed(&mut ClientCodec::new(a), one, MAX_REPLY_LEN);
         let parts = feed(&mut ClientCodec::new(a), &split(&bytes, &cuts), MAX_REPLY_LEN);
         prop_assert_eq!(whole, parts);
     }
@@ -165,7 +167,8 @@ proptest! {
                 _ => {}
             }
         }
-        for r in feed(&mut ServerCodec::default(), std::slice::from_ref(&bytes), MAX_COMMAND_LEN) {
+        let one = std::slice::from_ref(&bytes);
+        for r in feed(&mut ServerCodec::default(), one, MAX_COMMAND_LEN) {
             if let RequestBody::Line(l) = r.body {
                 let _ = Command::parse(&l);
             }
