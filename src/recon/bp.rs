@@ -54,10 +54,8 @@ pub struct FastSettings {
     /// by column generation). `None`: m/12 within [8, 31]. Measured on the bench curves (AMD
     /// EPYC, harness medians, m/12 → 32): m = 500 3.56-3.60 → 3.62; m = 600 4.76-4.78 → 4.70-4.75;
     /// m = 900 11.2-11.6 → 9.8-9.9 ms; m = 1200 24-26 → 21 ms. Beyond ~32 the first block solve
-    /// costs more than the generation rounds it saves (a round adds at most 32 columns too). 31,
-    /// not 32: with B₀ᵀh the Gram anchor's first block is then 32 right-hand sides, the row
-    /// kernel's width in multiples of 8 (Zen 3, m = 600, median of best: 23, 31 and 39 level
-    /// within the noise, 4.43-4.60 ms; 15 4.80-4.96).
+    /// costs more than the generation rounds it saves (a round adds at most 32 columns too).
+    /// (Measured with the former hand-written kernels; 23, 31 and 39 were level there.)
     pub candidates: Option<usize>,
     /// Pivot budget of one simplex finish.
     pub max_pivots: usize,

@@ -3,16 +3,20 @@
 //! With this scaling Ψ is orthogonal, so a sampled Ψ has orthonormal rows (A·Aᵀ = I): the
 //! structure the fast basis-pursuit solver relies on.
 //!
-//! Two backends, both thin wrappers: rustdct's DCT-II/III plans, and Makhoul's algorithm on
-//! realfft's real FFT of length n (its permutation and twiddle passes are plain loops; the FFTs
-//! are rustfft's, with its own SIMD dispatch). [`Dct::new`] takes the faster one per length
-//! (`cargo run --release -- bench dct` times both).
+//! Two backends, both thin wrappers: rustdct's DCT-II/III plans, and Makhoul's algorithm on a
+//! real FFT of length n (its permutation and twiddle passes are plain loops; the FFTs are
+//! rustfft's, with its own SIMD dispatch). [`Dct::new`] takes the faster one per length
+//! (`cargo run --release -- bench dct` times both). Lengths with a large prime factor (the
+//! paper's n = 1901 is prime) take rustfft's Bluestein algorithm on a power-of-two FFT: its
+//! planner's Rader path for 1901 runs on 1900 = 2²·5²·19, whose radix-19 butterfly has no
+//! vector kernel (a quarter of a BP solve's time in a profile at m = 600).
 use std::sync::Arc;
 
 use realfft::num_complex::Complex;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustdct::{DctPlanner, TransformType2And3};
-use rustfft::FftNum;
+use rustfft::algorithm::BluesteinsAlgorithm;
+use rustfft::{Fft, FftNum, FftPlanner};
 
 fn real<T: FftNum>(v: f64) -> T {
     T::from_f64(v).unwrap_or_else(T::zero)
@@ -21,10 +25,37 @@ fn real<T: FftNum>(v: f64) -> T {
 /// Orthonormal DCT pair of any length n ≥ 2 by Makhoul's algorithm on a real FFT of length n:
 /// v = (g₀, g₂, …, g₃, g₁) (evens up, odds down), X_k = Re(e^{-iπk/2n}·FFT(v)_k).
 /// Generic so that the basis-pursuit ranking can run in f32 ([`Dct::single`]).
+/// The real FFT of length n under [`Makhoul`]: realfft's plans, or a complex FFT of the real
+/// signal through Bluestein's algorithm ([`bluestein_pays_off`]).
+enum RealFft<T: FftNum> {
+    Plans {
+        r2c: Arc<dyn RealToComplex<T>>,
+        c2r: Arc<dyn ComplexToReal<T>>,
+    },
+    Bluestein {
+        fwd: Arc<dyn Fft<T>>,
+        inv: Arc<dyn Fft<T>>,
+        work: Vec<Complex<T>>,
+    },
+}
+
+/// Whether n has a prime factor of at least 64: then Bluestein on a power-of-two FFT beats
+/// rustfft's plan for n (Rader's algorithm on n − 1, which need not factor into vector radices).
+pub fn bluestein_pays_off(n: usize) -> bool {
+    let (mut rest, mut p, mut largest) = (n, 2, 1);
+    while p * p <= rest {
+        while rest.is_multiple_of(p) {
+            rest /= p;
+            largest = p;
+        }
+        p += 1;
+    }
+    largest.max(rest) >= 64 && n % 2 == 1
+}
+
 pub struct Makhoul<T: FftNum> {
     n: usize,
-    r2c: Arc<dyn RealToComplex<T>>,
-    c2r: Arc<dyn ComplexToReal<T>>,
+    fft: RealFft<T>,
     v: Vec<T>,
     spec: Vec<Complex<T>>,
     scratch: Vec<Complex<T>>,
@@ -36,9 +67,24 @@ pub struct Makhoul<T: FftNum> {
 
 impl<T: FftNum> Makhoul<T> {
     pub fn new(n: usize) -> Self {
-        let mut planner = RealFftPlanner::<T>::new();
-        let (r2c, c2r) = (planner.plan_fft_forward(n), planner.plan_fft_inverse(n));
-        let len = r2c.get_scratch_len().max(c2r.get_scratch_len());
+        let (fft, len) = if bluestein_pays_off(n) {
+            let mut planner = FftPlanner::<T>::new();
+            let inner = (2 * n - 1).next_power_of_two();
+            let fwd: Arc<dyn Fft<T>> =
+                Arc::new(BluesteinsAlgorithm::new(n, planner.plan_fft_forward(inner)));
+            let inv: Arc<dyn Fft<T>> =
+                Arc::new(BluesteinsAlgorithm::new(n, planner.plan_fft_inverse(inner)));
+            let len = fwd
+                .get_inplace_scratch_len()
+                .max(inv.get_inplace_scratch_len());
+            let work = vec![Complex::new(T::zero(), T::zero()); n];
+            (RealFft::Bluestein { fwd, inv, work }, len)
+        } else {
+            let mut planner = RealFftPlanner::<T>::new();
+            let (r2c, c2r) = (planner.plan_fft_forward(n), planner.plan_fft_inverse(n));
+            let len = r2c.get_scratch_len().max(c2r.get_scratch_len());
+            (RealFft::Plans { r2c, c2r }, len)
+        };
         let twiddle = (0..=n / 2)
             .map(|k| {
                 let phi = std::f64::consts::PI * k as f64 / (2.0 * n as f64);
@@ -48,8 +94,7 @@ impl<T: FftNum> Makhoul<T> {
         let zero = Complex::new(T::zero(), T::zero());
         Self {
             n,
-            r2c,
-            c2r,
+            fft,
             v: vec![T::zero(); n],
             spec: vec![zero; n / 2 + 1],
             scratch: vec![zero; len],
@@ -77,9 +122,19 @@ impl<T: FftNum> Makhoul<T> {
         for (j, x) in buf.iter().skip(1).step_by(2).enumerate() {
             v[n - 1 - j] = *x;
         }
-        self.r2c
-            .process_with_scratch(v, spec, &mut self.scratch)
-            .expect("buffer lengths fixed at planning");
+        match &mut self.fft {
+            RealFft::Plans { r2c, .. } => r2c
+                .process_with_scratch(v, spec, &mut self.scratch)
+                .expect("buffer lengths fixed at planning"),
+            RealFft::Bluestein { fwd, work, .. } => {
+                for (b, &x) in work.iter_mut().zip(v.iter()) {
+                    *b = Complex::new(x, T::zero());
+                }
+                fwd.process_with_scratch(work, &mut self.scratch);
+                let half = spec.len();
+                spec.copy_from_slice(&work[..half]);
+            }
+        }
         buf[0] = s0 * spec[0].re;
         for k in 1..n.div_ceil(2) {
             let (w, s) = (self.twiddle[k], spec[k]);
@@ -111,9 +166,22 @@ impl<T: FftNum> Makhoul<T> {
                 T::zero(),
             );
         }
-        self.c2r
-            .process_with_scratch(spec, v, &mut self.scratch)
-            .expect("buffer lengths fixed at planning");
+        match &mut self.fft {
+            RealFft::Plans { c2r, .. } => c2r
+                .process_with_scratch(spec, v, &mut self.scratch)
+                .expect("buffer lengths fixed at planning"),
+            RealFft::Bluestein { inv, work, .. } => {
+                // The Hermitian spectrum in full (n odd: no Nyquist bin), one inverse FFT.
+                work[..spec.len()].copy_from_slice(spec);
+                for k in 1..spec.len() {
+                    work[n - k] = spec[k].conj();
+                }
+                inv.process_with_scratch(work, &mut self.scratch);
+                for (x, b) in v.iter_mut().zip(work.iter()) {
+                    *x = b.re;
+                }
+            }
+        }
         for (j, x) in buf.iter_mut().step_by(2).enumerate() {
             *x = v[j];
         }
@@ -178,11 +246,11 @@ impl Dct {
     }
 
     pub fn new(n: usize) -> Self {
-        Self::with_backend(n, n.is_multiple_of(2) && n >= 2)
+        Self::with_backend(n, (n.is_multiple_of(2) && n >= 2) || bluestein_pays_off(n))
     }
 
     /// `makhoul`: the real-FFT path (any n ≥ 2; [`Dct::new`] takes it for even n, where the real
-    /// FFT is half a complex one); otherwise rustdct.
+    /// FFT is half a complex one, and where [`bluestein_pays_off`]); otherwise rustdct.
     pub fn with_backend(n: usize, makhoul: bool) -> Self {
         let backend = if makhoul && n >= 2 {
             Backend::Makhoul(Box::new(Makhoul::new(n)))
@@ -417,10 +485,26 @@ mod tests {
         }
     }
 
+    /// Bluestein's path is taken at odd lengths with a prime factor of 64 or more (the paper's
+    /// prime 1901, 381 = 3·127), and not where rustfft's radices serve.
+    #[test]
+    fn bluestein_where_a_large_prime_factor_is() {
+        for n in [1901usize, 383, 381, 127 * 5] {
+            assert!(bluestein_pays_off(n), "{n}");
+            assert!(matches!(
+                Makhoul::<f32>::new(n).fft,
+                RealFft::Bluestein { .. }
+            ));
+        }
+        for n in [2usize, 3, 61, 1900, 2048, 1875, 2 * 1901, 65_536] {
+            assert!(!bluestein_pays_off(n), "{n}");
+        }
+    }
+
     /// Both backends compute the same transform pair (the even-length path against rustdct).
     #[test]
     fn makhoul_matches_rustdct() {
-        for &n in &[2usize, 3, 4, 6, 7, 9, 17, 33, 35, 64, 1900, 1901, 4096] {
+        for &n in &[2usize, 3, 4, 6, 7, 9, 17, 33, 35, 64, 381, 1900, 1901, 4096] {
             let mut a = Dct::with_backend(n, true);
             let mut b = Dct::with_backend(n, false);
             assert!(matches!(a.backend, Backend::Makhoul(_)));
