@@ -201,6 +201,10 @@ pub struct Engine<'a> {
     /// re-approaches), s: it goes into that sample's `point_s`, so the stored samples alone
     /// give the acquisition time.
     extra_s: BTreeMap<u64, f64>,
+    /// Where the sweep came from before a re-approach (a resume mid-run, after a pause): the
+    /// next point's move is timed from there, as an uninterrupted sweep moves (simulation; on
+    /// hardware a move's time is the wall time).
+    planned_from_um: Option<f64>,
     /// Decode jobs in flight at most (2 cores: keep both busy while the stage moves).
     pub depth: usize,
 }
@@ -226,6 +230,7 @@ impl<'a> Engine<'a> {
             start_time_s,
             stats: BTreeMap::new(),
             extra_s: BTreeMap::new(),
+            planned_from_um: None,
             depth: std::thread::available_parallelism()
                 .map_or(2, |n| n.get())
                 .clamp(2, 8),
@@ -350,14 +355,21 @@ impl<'a> Engine<'a> {
         }
     }
 
-    /// Moves `axis` to `target_um` and waits for on-target; returns the physical time taken.
-    async fn move_axis(&mut self, axis: AxisId, target_um: f64) -> Result<f64, EngineError> {
+    /// Moves `axis` to `target_um` and waits for on-target; returns the physical time taken,
+    /// timed from `timed_from_um` instead of where the axis was when given.
+    async fn move_axis(
+        &mut self,
+        axis: AxisId,
+        target_um: f64,
+        timed_from_um: Option<f64>,
+    ) -> Result<f64, EngineError> {
         let timeout = Duration::from_secs_f64(self.campaign.spec.hardware.move_timeout_s);
         let t = Instant::now();
         let a = self.rig.axis(axis);
         let from = a.position_um().await.map_err(ax(axis))?;
         a.move_to(target_um).await.map_err(ax(axis))?;
         a.wait_on_target(timeout).await.map_err(ax(axis))?;
+        let from = timed_from_um.unwrap_or(from);
         Ok(self.rig.motion_s(axis, (target_um - from).abs(), t))
     }
 
@@ -380,8 +392,8 @@ impl<'a> Engine<'a> {
         let start = (first.target_um() - run.direction.sign() * pre).clamp(lo, hi);
         let mut phys = 0.0;
         // The other axis stands still during a run: put it in place first.
-        phys += self.move_axis(other, other_at).await?;
-        phys += self.move_axis(run.axis, start).await?;
+        phys += self.move_axis(other, other_at, None).await?;
+        phys += self.move_axis(run.axis, start, None).await?;
         if positioning {
             self.stat(run).positioning_s += phys;
             self.tick(phys);
@@ -428,7 +440,8 @@ impl<'a> Engine<'a> {
     async fn measure(&mut self, t: &Target) -> Result<InFlight, EngineError> {
         let acq = &self.campaign.spec.acquisition;
         let (settle, dwell, frames) = (acq.settle_s, acq.dwell_s, acq.frames_per_point);
-        let move_s = self.move_axis(t.run.axis, t.target_um()).await?;
+        let from = self.planned_from_um.take();
+        let move_s = self.move_axis(t.run.axis, t.target_um(), from).await?;
         let wait = settle + dwell;
         tokio::time::sleep(self.rig.time.wall(wait)).await;
         let encoder_um = self
@@ -532,7 +545,13 @@ impl<'a> Engine<'a> {
         if todo.is_empty() {
             return Ok(Control::Run);
         }
+        // The target before `t` in this sweep, if any.
+        let before = |t: &Target| {
+            let i = b.targets.iter().position(|x| x.seq == t.seq)?;
+            i.checked_sub(1).map(|i| b.targets[i].target_um())
+        };
         self.approach(b.run, &todo[0], b.index == 0).await?;
+        self.planned_from_um = before(&todo[0]);
         let mut flight: VecDeque<InFlight> = VecDeque::new();
         let mut retry: Vec<Target> = Vec::new();
         let mut halted = None;
@@ -550,6 +569,7 @@ impl<'a> Engine<'a> {
                 }
                 // Resumed: approach again from the run's side.
                 self.approach(b.run, t, true).await?;
+                self.planned_from_um = before(t);
             }
             let f = self.measure(t).await?;
             flight.push_back(f);
