@@ -21,6 +21,12 @@ pub const MAX_TERMS: usize = 64;
 /// effect tabulates its profile on a 1 µm grid over the travel).
 pub const MAX_TRAVEL_UM: f64 = 1e6;
 
+/// At most this many keys in one `[[effect]]` (the largest kind has 11): bounds the search for
+/// the key at fault when serde refuses a value.
+const MAX_KEYS: usize = 32;
+/// At most this many bytes in a model file (the shipped ones are a few kB).
+const MAX_FILE_BYTES: u64 = 1 << 20;
+
 /// Kinds that act on every sample (or on none) and so need no `axis`.
 const AXIS_FREE: &[&str] = &["camera_rotation", "camera_scale", "thermal_drift", "noise"];
 
@@ -92,6 +98,18 @@ impl StageModel {
     /// Reads a model TOML file; errors are one line, `FILE:LINE: what`.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
         let shown = path.display().to_string();
+        // Checked before reading: the file is untrusted and could be anything.
+        if let Ok(meta) = std::fs::metadata(path) {
+            if meta.len() > MAX_FILE_BYTES {
+                return Err(ModelError::File {
+                    path: shown,
+                    message: format!(
+                        "{} bytes; a model file is at most {MAX_FILE_BYTES}",
+                        meta.len()
+                    ),
+                });
+            }
+        }
         let text = std::fs::read_to_string(path).map_err(|e| ModelError::File {
             path: shown.clone(),
             message: e.to_string(),
@@ -214,6 +232,15 @@ fn read_effect(
         ));
     }
     let fail = |key: &str, m: String| at(line_of(key), format!("{kind} effect: {m}"));
+    if table.len() > MAX_KEYS {
+        return Err(fail(
+            "",
+            format!(
+                "{} parameters; an effect has at most {MAX_KEYS}",
+                table.len()
+            ),
+        ));
+    }
     for (k, v) in &table {
         check_values(k, v).map_err(|m| fail(k, m))?;
     }
@@ -249,20 +276,38 @@ fn read_effect(
         table.insert("component".into(), Value::String(component.as_str().into()));
     }
     table.insert("kind".into(), Value::String(kind.clone()));
-    let parsed = EffectKind::deserialize(Value::Table(table)).map_err(|e| {
+    let parsed = EffectKind::deserialize(Value::Table(table.clone())).map_err(|e| {
         let m = humane(e.message());
-        // serde names an unknown key: point at its line; other messages at the effect's.
-        let key = m
-            .strip_prefix("unknown parameter `")
-            .and_then(|r| r.split('`').next())
-            .unwrap_or("")
-            .to_string();
-        fail(&key, m)
+        // serde names an unknown key; a wrong value it does not name (the kind tag buffers
+        // the table), so find the key whose removal cures or changes the error.
+        let key = match m.strip_prefix("unknown parameter `") {
+            Some(r) => r.split('`').next().map(str::to_string),
+            None if m.starts_with("missing parameter") => None,
+            None => table.keys().find(|k| value_at_fault(&table, k)).cloned(),
+        };
+        match key {
+            Some(k) if !m.contains(&format!("`{k}`")) => fail(&k, format!("`{k}`: {m}")),
+            Some(k) => fail(&k, m),
+            None => fail("", m),
+        }
     })?;
     check_kind(&parsed).map_err(|(key, m)| fail(key, m))?;
     let mut e = Effect::new(axis, parsed);
     e.travel_um = travel_um;
     Ok(e)
+}
+
+/// Whether `key` holds the value serde refused: without it the table reads, or only misses it.
+fn value_at_fault(table: &Table, key: &str) -> bool {
+    if key == "kind" {
+        return false;
+    }
+    let mut t = table.clone();
+    t.remove(key);
+    match EffectKind::deserialize(Value::Table(t)) {
+        Ok(_) => true,
+        Err(e) => e.message().starts_with(&format!("missing field `{key}`")),
+    }
 }
 
 /// What serde cannot say: strictly positive periods and widths, non-empty profiles.

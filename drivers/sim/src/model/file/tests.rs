@@ -59,6 +59,17 @@ fn errors_name_the_line_of_the_key_or_the_effect() {
     ));
     assert_eq!(l, 11, "{m}");
     assert!(m.contains("finite"), "{m}");
+    // A value of the wrong type: serde does not name the key, the reader does.
+    let (l, m) = err_line(&format!(
+        "{head}[[effect]]\nkind = \"scale\"\naxis = \"x\"\nppm = \"abc\"\nref_um = 3\n"
+    ));
+    assert_eq!(l, 12, "{m}");
+    assert!(m.contains("`ppm`") && m.contains("invalid type"), "{m}");
+    let (l, m) = err_line(&format!(
+        "{head}[[effect]]\nkind = \"harmonic\"\naxis = \"x\"\nperiod_um = 3\ncomponent = \"up\"\n"
+    ));
+    assert_eq!(l, 13, "{m}");
+    assert!(m.contains("`component`"), "{m}");
 }
 
 #[test]
@@ -79,6 +90,22 @@ fn load_names_the_file_and_the_line() {
 
 #[test]
 fn absurd_sizes_are_refused() {
+    let keys: String = (0..40).map(|i| format!("k{i} = {i}\n")).collect();
+    let (l, m) = err_line(&format!(
+        "[[effect]]\nkind = \"scale\"\naxis = \"x\"\n{keys}"
+    ));
+    assert_eq!(l, 1, "{m}");
+    assert!(m.contains("at most 32"), "{m}");
+    let dir = std::env::temp_dir().join(format!("csmetro-big-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("big.toml");
+    std::fs::write(&p, "# padding\n".repeat(200_000)).unwrap();
+    let e = StageModel::load(&p).unwrap_err().to_string();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(
+        e.contains("big.toml") && e.contains("at most 1048576"),
+        "{e}"
+    );
     let many: Vec<String> = (0..1000).map(|i| format!("{}.0", i % 7)).collect();
     let (l, m) = err_line(&format!(
         "[[effect]]\nkind = \"leadscrew_cyclic\"\naxis = \"x\"\ncos_um = [{}]\n",
