@@ -33,12 +33,12 @@ impl TomlError {
 }
 
 /// Largest TOML file read (campaigns, stage models, the service configuration).
-pub const MAX_TOML_BYTES: u64 = 1 << 20;
+pub(crate) const MAX_TOML_BYTES: u64 = 1 << 20;
 
 /// Reads a regular file of at most `limit` bytes as UTF-8. Devices, fifos, directories and
 /// kernel files (/proc, /sys) are refused before a byte is read (`/dev/zero` would never end),
 /// and the read stops one byte past the limit whatever the file's metadata claims.
-pub fn read_bounded(path: &Path, limit: u64) -> Result<String, String> {
+pub(crate) fn read_bounded(path: &Path, limit: u64) -> Result<String, String> {
     // Before opening: opening a fifo blocks until someone writes to it.
     let meta = std::fs::metadata(path).map_err(|e| io_reason(&e))?;
     // Kernel files (/proc, /sys) pass for regular ones of size 0.
@@ -67,7 +67,7 @@ pub fn read_bounded(path: &Path, limit: u64) -> Result<String, String> {
 }
 
 /// An I/O error without the path or the OS's wording beyond its kind.
-pub fn io_reason(e: &std::io::Error) -> String {
+pub(crate) fn io_reason(e: &std::io::Error) -> String {
     use std::io::ErrorKind as K;
     match e.kind() {
         K::NotFound => "no such file".into(),

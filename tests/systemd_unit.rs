@@ -113,10 +113,15 @@ fn unit_config_parses_and_keeps_state_in_the_state_directory() {
     assert!(cfg.results_dir.starts_with("/var/lib/csmetro"));
     assert!(cfg.token.is_none());
     // The shipped campaigns name their models as ../sim/...: submitting them must work.
-    assert_eq!(cfg.models_dir.as_deref(), Some(Path::new("/etc/csmetro/sim")));
+    assert_eq!(
+        cfg.models_dir.as_deref(),
+        Some(Path::new("/etc/csmetro/sim"))
+    );
     // Stage locks are shared with local `csmetro run` processes through /run/lock.
     assert!(
-        u["Service"]["ReadWritePaths"].iter().any(|p| p == "/run/lock"),
+        u["Service"]["ReadWritePaths"]
+            .iter()
+            .any(|p| p == "/run/lock"),
         "ReadWritePaths {:?}",
         u["Service"]["ReadWritePaths"]
     );

@@ -334,7 +334,7 @@ fn line_targets(travel: [f64; 2], n: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
 pub fn simulate_campaign(
     truth: &StageModel,
     spec: &CampaignSpec,
-    extra: Option<Extra>,
+    extra: Option<Extra<'_>>,
 ) -> Vec<Sample> {
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     let sigma = spec.noise_um.unwrap_or_else(|| truth.noise_sigma_um());

@@ -4,7 +4,7 @@
 use rand::{Rng, SeedableRng};
 
 /// The curve at positions i·step_um, i < n, µm.
-pub fn paper_like(n: usize, step_um: f64, seed: u64) -> Vec<f64> {
+pub(crate) fn paper_like(n: usize, step_um: f64, seed: u64) -> Vec<f64> {
     use std::f64::consts::PI;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let span = (step_um * (n.max(2) - 1) as f64).max(1e-300);

@@ -242,7 +242,7 @@ pub(crate) mod testdata {
 
     /// A paper-like curve on 0:5:1000: slow trend + 400 µm leadscrew cycle, direction offset
     /// `offset_um`; samples every 7th grid point, the full scan slightly noisy.
-    pub fn curve(component: &str, offset_um: f64) -> ComponentCurve {
+    pub(crate) fn curve(component: &str, offset_um: f64) -> ComponentCurve {
         let grid: Vec<f64> = (0..=200).map(|i| i as f64 * 5.0).collect();
         let f = |x: f64| {
             offset_um

@@ -1,6 +1,7 @@
 //! A `csmetro serve` process on 127.0.0.1:0 with its own configuration and store, tiny
 //! simulated campaigns, and a small HTTP client for the tests.
-#![allow(dead_code)]
+// Each test binary uses some of these helpers, and `pub` is how they are shared between them.
+#![allow(dead_code, unreachable_pub)]
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

@@ -20,6 +20,8 @@ use serde::{Deserialize, Serialize};
 use crate::model::AxisId;
 use crate::stage::{AxisState, MotionKind, SimStage};
 
+// The FFI boundary with the pseudo-terminal: the only module of this crate allowed `unsafe`.
+#[allow(unsafe_code)]
 mod pty;
 mod server;
 pub mod soak;

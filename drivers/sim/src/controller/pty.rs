@@ -13,14 +13,14 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 /// An open pty pair in raw mode. The slave stays open here so that the master never sees
 /// EIO between two clients.
-pub struct Pty {
+pub(super) struct Pty {
     pub master: PtyMaster,
     pub slave_path: PathBuf,
     pub slave: OwnedFd,
 }
 
 impl Pty {
-    pub fn open() -> io::Result<Self> {
+    pub(super) fn open() -> io::Result<Self> {
         let p = nix::pty::openpty(None, None)?;
         // Raw: no echo, no CR/LF translation, no signals on 0x03 etc.
         let mut t = tcgetattr(&p.slave)?;
@@ -39,7 +39,7 @@ impl Pty {
     }
 }
 
-pub struct PtyMaster(AsyncFd<OwnedFd>);
+pub(super) struct PtyMaster(AsyncFd<OwnedFd>);
 
 impl AsyncRead for PtyMaster {
     fn poll_read(

@@ -168,11 +168,11 @@ fn one_or_two<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Err
 mod seed_bits {
     use serde::{Deserialize, Deserializer, Serializer};
 
-    pub fn serialize<S: Serializer>(seed: &u64, s: S) -> Result<S::Ok, S::Error> {
+    pub(super) fn serialize<S: Serializer>(seed: &u64, s: S) -> Result<S::Ok, S::Error> {
         s.serialize_i64(*seed as i64)
     }
 
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
         Ok(i64::deserialize(d)? as u64)
     }
 }
