@@ -4,6 +4,7 @@
 //! effect tables (generic checks: kind, axis, travel, finite numbers, sizes), then each table
 //! into `EffectKind` by its `kind` tag, then the checks serde cannot express (periods > 0, ...).
 use std::collections::BTreeMap;
+use std::io::Read;
 use std::path::Path;
 
 use serde::Deserialize;
@@ -98,22 +99,31 @@ impl StageModel {
     /// Reads a model TOML file; errors are one line, `FILE:LINE: what`.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
         let shown = path.display().to_string();
-        // Checked before reading: the file is untrusted and could be anything.
-        if let Ok(meta) = std::fs::metadata(path) {
-            if meta.len() > MAX_FILE_BYTES {
-                return Err(ModelError::File {
-                    path: shown,
-                    message: format!(
-                        "{} bytes; a model file is at most {MAX_FILE_BYTES}",
-                        meta.len()
-                    ),
-                });
-            }
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| ModelError::File {
+        // Checked before opening: the file is untrusted and could be anything (a fifo blocks
+        // the open, /dev/zero never ends, /proc files report a size of 0).
+        let refuse = |message: String| ModelError::File {
             path: shown.clone(),
-            message: e.to_string(),
-        })?;
+            message,
+        };
+        let meta = std::fs::metadata(path).map_err(|e| refuse(e.to_string()))?;
+        if !meta.is_file() || path.starts_with("/proc") || path.starts_with("/sys") {
+            return Err(refuse("not a regular file".into()));
+        }
+        if meta.len() > MAX_FILE_BYTES {
+            return Err(refuse(format!(
+                "{} bytes; a model file is at most {MAX_FILE_BYTES}",
+                meta.len()
+            )));
+        }
+        let mut text = String::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_FILE_BYTES + 1).read_to_string(&mut text))
+            .map_err(|e| refuse(e.to_string()))?;
+        if text.len() as u64 > MAX_FILE_BYTES {
+            return Err(refuse(format!(
+                "more than {MAX_FILE_BYTES} bytes; a model file is at most that"
+            )));
+        }
         Self::from_toml_str(&text).map_err(|e| match e {
             ModelError::Line { line, message } => ModelError::File {
                 path: format!("{shown}:{line}"),
