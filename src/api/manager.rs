@@ -370,6 +370,23 @@ impl Manager {
                 let lock = match db_path.as_deref().map(|p| stagelock::try_lock(p, stage)) {
                     None => None,
                     Some(Ok(l)) => Some(l),
+                    Some(Err(StageLockError::Io { path, source })) => {
+                        // Not "busy": waiting would never end. The reason, not the server
+                        // path, goes to the campaign (its status is served by the API).
+                        inner.queues.get_mut(stage).and_then(|q| q.pop_front());
+                        drop(inner);
+                        tracing::error!(campaign = id, lock = %path.display(), error = %source,
+                            "cannot take the stage lock");
+                        self.interrupt(
+                            id,
+                            format!(
+                                "cannot take the lock of stage `{stage}`: {}; fix the lock \
+                                 directory (CSMETRO_LOCK_DIR) and resume",
+                                crate::tomlpos::io_reason(&source)
+                            ),
+                        );
+                        continue;
+                    }
                     Some(Err(e)) => {
                         drop(inner);
                         self.wait_for_stage(id, stage, e);
