@@ -6,23 +6,44 @@ use std::path::Path;
 
 use csmetro_hal::{Frame, Pixels};
 
+/// Why a PNG frame could not be written or read. Messages name the file, never its contents.
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
+    /// Opening or creating the file failed.
     #[error("{path}: {source}")]
     File {
+        /// The file.
         path: String,
+        /// The operating system's error.
         source: std::io::Error,
     },
     #[error("{path}: not a readable PNG: {message}")]
-    Png { path: String, message: String },
+    /// The PNG encoder or decoder failed (corrupt or truncated file).
+    Png {
+        /// The file.
+        path: String,
+        /// The PNG library's message.
+        message: String,
+    },
     #[error("{path}: unsupported PNG ({0}); expected 8- or 16-bit grayscale", path = .1)]
+    /// A readable PNG that is not 8- or 16-bit grayscale: (what it is, the file).
     Unsupported(String, String),
     #[error("frame has {got} pixels, expected {expected}")]
-    Size { got: usize, expected: usize },
+    /// The frame's pixel buffer does not hold `width * height` values.
+    Size {
+        /// Pixels in the buffer.
+        got: usize,
+        /// `width * height`.
+        expected: usize,
+    },
     #[error("{path}: {width} x {height} px is larger than a frame may be ({MAX_FRAME_SIDE} px a side, {MAX_FRAME_PIXELS} px in all)")]
+    /// The PNG header announces a frame above [`MAX_FRAME_SIDE`] or [`MAX_FRAME_PIXELS`].
     TooLarge {
+        /// The file.
         path: String,
+        /// Announced width, px.
         width: u32,
+        /// Announced height, px.
         height: u32,
     },
 }
