@@ -6,7 +6,7 @@ use std::path::Path;
 
 use csmetro_hal::{Frame, Pixels};
 
-/// Why a PNG frame could not be written or read. Messages name the file, never its contents.
+/// Why a PNG frame could not be written or read; messages name the file where there is one.
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
     /// Opening or creating the file failed.
@@ -17,27 +17,27 @@ pub enum IoError {
         /// The operating system's error.
         source: std::io::Error,
     },
-    #[error("{path}: not a readable PNG: {message}")]
     /// The PNG encoder or decoder failed (corrupt or truncated file).
+    #[error("{path}: not a readable PNG: {message}")]
     Png {
         /// The file.
         path: String,
         /// The PNG library's message.
         message: String,
     },
-    #[error("{path}: unsupported PNG ({0}); expected 8- or 16-bit grayscale", path = .1)]
     /// A readable PNG that is not 8- or 16-bit grayscale: (what it is, the file).
+    #[error("{path}: unsupported PNG ({0}); expected 8- or 16-bit grayscale", path = .1)]
     Unsupported(String, String),
-    #[error("frame has {got} pixels, expected {expected}")]
     /// The frame's pixel buffer does not hold `width * height` values.
+    #[error("frame has {got} pixels, expected {expected}")]
     Size {
         /// Pixels in the buffer.
         got: usize,
         /// `width * height`.
         expected: usize,
     },
-    #[error("{path}: {width} x {height} px is larger than a frame may be ({MAX_FRAME_SIDE} px a side, {MAX_FRAME_PIXELS} px in all)")]
     /// The PNG header announces a frame above [`MAX_FRAME_SIDE`] or [`MAX_FRAME_PIXELS`].
+    #[error("{path}: {width} x {height} px is larger than a frame may be ({MAX_FRAME_SIDE} px a side, {MAX_FRAME_PIXELS} px in all)")]
     TooLarge {
         /// The file.
         path: String,
