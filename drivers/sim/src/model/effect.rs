@@ -85,7 +85,7 @@ pub enum EffectKind {
     },
     /// δ_axis = -(e0 + e1·s)·1e-6·(p_other - offset_um)
     YawAbbe {
-        /// Written as [e0, e1]; read as [e0] or [e0, e1].
+        /// Angles e0, e1, µrad: written as `[e0, e1]`; read as `[e0]` or `[e0, e1]`.
         #[serde(deserialize_with = "one_or_two")]
         yaw_urad: [f64; 2],
         /// Abbe offset: the other axis' position of zero error, µm (default 0).
