@@ -33,15 +33,20 @@ use crate::frame::{
 pub enum Transport {
     /// A serial device (or a pty), 8N1.
     Serial {
+        /// Device path, e.g. `/dev/ttyUSB0` or a pty.
         port: String,
         #[serde(default = "default_baud")]
+        /// Baud rate, bit/s (default 115200).
         baud: u32,
         /// Hardware flow control (RTS/CTS).
         #[serde(default)]
         rts_cts: bool,
     },
     /// A terminal server or the simulator, `host:port`.
-    Tcp { address: String },
+    Tcp {
+        /// `host:port` to connect to.
+        address: String,
+    },
 }
 
 fn default_baud() -> u32 {
@@ -52,6 +57,7 @@ fn default_baud() -> u32 {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct C863Config {
+    /// How to reach the controller.
     pub transport: Transport,
     /// GCS axis identifier (a C-863 has one axis, "1").
     pub axis: String,
@@ -104,6 +110,7 @@ impl Default for C863Config {
 }
 
 impl C863Config {
+    /// Defaults, reached over TCP at `host:port`.
     pub fn tcp(address: impl Into<String>) -> Self {
         Self {
             transport: Transport::Tcp {
@@ -112,6 +119,7 @@ impl C863Config {
             ..Self::default()
         }
     }
+    /// Defaults, reached over the serial device `port` at 115200 baud, no flow control.
     pub fn serial(port: impl Into<String>) -> Self {
         Self {
             transport: Transport::Serial {
@@ -239,6 +247,7 @@ impl C863 {
         self.stats
     }
 
+    /// The configuration this driver was built with.
     pub fn config(&self) -> &C863Config {
         &self.cfg
     }

@@ -21,19 +21,25 @@ pub const MAX_REPLY_LEN: usize = 64 * 1024;
 /// What a controller receives.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum RequestBody {
+    /// A single-byte control command.
     Control(ControlByte),
     /// A command line without LF and without address prefix.
     Line(String),
     /// A frame the controller refuses with this error code (CR in a line, line too long).
     Invalid {
+        /// The GCS error code the controller sets.
         code: i32,
+        /// The refused frame's text (a prefix of it when too long), for logs.
         text: String,
     },
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
+/// One received request: its daisy-chain prefix and body.
 pub struct Request {
+    /// Daisy-chain prefix, if the request had one.
     pub address: Option<Address>,
+    /// What was requested.
     pub body: RequestBody,
 }
 
@@ -171,8 +177,10 @@ impl Encoder<Reply> for ServerCodec {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ReplyError {
     #[error("reply contains CR: {0:?}")]
+    /// The reply contains a CR.
     CarriageReturn(String),
     #[error("reply longer than {MAX_REPLY_LEN} bytes")]
+    /// The reply exceeds the maximum reply length.
     TooLong,
 }
 
@@ -186,6 +194,7 @@ pub struct ClientCodec {
 }
 
 impl ClientCodec {
+    /// A codec for the controller at `address` (`None`: unaddressed).
     pub fn new(address: Option<u8>) -> Self {
         Self {
             address,

@@ -24,6 +24,7 @@ pub enum ControlByte {
 }
 
 impl ControlByte {
+    /// The control command of a byte, `None` for bytes that are not one.
     pub fn from_byte(b: u8) -> Option<Self> {
         Some(match b {
             0x04 => Self::Status,
@@ -34,6 +35,7 @@ impl ControlByte {
             _ => return None,
         })
     }
+    /// The byte sent on the wire.
     pub fn byte(self) -> u8 {
         self as u8
     }
@@ -47,23 +49,38 @@ pub const BUSY: char = '\u{B0}';
 /// Queries that take an optional list of axes and answer `axis=value` per axis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum AxisQuery {
+    /// `POS?`: current position, mm.
     Pos,
+    /// `MOV?`: commanded target, mm.
     Mov,
+    /// `ONT?`: on-target state (0|1).
     Ont,
+    /// `SVO?`: servo state (0|1).
     Svo,
+    /// `FRF?`: referenced state (0|1).
     Frf,
+    /// `VEL?`: velocity, mm/s.
     Vel,
+    /// `ACC?`: acceleration, mm/s².
     Acc,
+    /// `DEC?`: deceleration, mm/s².
     Dec,
+    /// `TMN?`: low end of travel, mm.
     Tmn,
+    /// `TMX?`: high end of travel, mm.
     Tmx,
+    /// `LIM?`: whether the axis has limit switches (0|1).
     Lim,
+    /// `TRS?`: whether the axis has a reference switch (0|1).
     Trs,
+    /// `RON?`: reference mode (0|1).
     Ron,
+    /// `CST?`: stage name.
     Cst,
 }
 
 impl AxisQuery {
+    /// Every query, in declaration order.
     pub const ALL: [AxisQuery; 14] = [
         Self::Pos,
         Self::Mov,
@@ -80,6 +97,7 @@ impl AxisQuery {
         Self::Ron,
         Self::Cst,
     ];
+    /// The GCS mnemonic, with its `?`.
     pub fn mnemonic(self) -> &'static str {
         match self {
             Self::Pos => "POS?",
@@ -122,6 +140,7 @@ pub enum AxisSetter {
 }
 
 impl AxisSetter {
+    /// Every setter, in declaration order.
     pub const ALL: [AxisSetter; 8] = [
         Self::Svo,
         Self::Mov,
@@ -132,6 +151,7 @@ impl AxisSetter {
         Self::Ron,
         Self::Pos,
     ];
+    /// The GCS mnemonic.
     pub fn mnemonic(self) -> &'static str {
         match self {
             Self::Svo => "SVO",
@@ -163,6 +183,7 @@ pub enum RefMode {
 }
 
 impl RefMode {
+    /// The GCS mnemonic.
     pub fn mnemonic(self) -> &'static str {
         match self {
             Self::Frf => "FRF",
@@ -175,6 +196,7 @@ impl RefMode {
 /// One GCS command.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Command {
+    /// A single-byte control command (`#5`, `#7`, ...).
     Control(ControlByte),
     /// `*IDN?`
     Idn,
@@ -182,6 +204,7 @@ pub enum Command {
     Csv,
     /// `SAI?` / `SAI? ALL`
     Sai {
+        /// `true`: `SAI? ALL`; `false`: `SAI?`.
         all: bool,
     },
     /// `ERR?` (reading clears the error)
@@ -190,31 +213,40 @@ pub enum Command {
     Hlp,
     /// `POS?`, `ONT? 1`, ... (empty axes = all axes)
     Query {
+        /// Which query.
         query: AxisQuery,
+        /// Axis identifiers; empty: all axes.
         axes: Vec<String>,
     },
     /// `MOV 1 7.5`, `SVO 1 1`, ...
     Set {
+        /// Which setter.
         setter: AxisSetter,
+        /// `(axis, value)` pairs, value in the setter's unit.
         args: Vec<(String, f64)>,
     },
     /// `FRF 1` / `FNL` / `FPL 1` (empty axes = all axes)
     Reference {
+        /// Which reference move.
         mode: RefMode,
+        /// Axis identifiers; empty: all axes.
         axes: Vec<String>,
     },
     /// `HLT` / `HLT 1`: stop smoothly
     Halt {
+        /// Axis identifiers; empty: all axes.
         axes: Vec<String>,
     },
     /// `STP`: stop all abruptly
     Stop,
     /// `SPA 1 0x... value`
     SetParam {
+        /// `(axis, parameter id, value as text)` triples.
         items: Vec<(String, u32, String)>,
     },
     /// `SPA? 1 0x...` (empty = all)
     QueryParam {
+        /// `(axis, parameter id)` pairs.
         items: Vec<(String, u32)>,
     },
 }
@@ -508,7 +540,9 @@ impl fmt::Display for Command {
 /// `<target> <sender>` prefix of daisy-chain frames (the PC is address 0).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Address {
+    /// Address of the receiving controller.
     pub target: u8,
+    /// Address of the sending device (0 for the PC).
     pub sender: u8,
 }
 
@@ -516,17 +550,21 @@ pub struct Address {
 /// Bytes are mapped 1:1 to chars (Latin-1), so the #7 reply 0xB1 is `'\u{B1}'`.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Reply {
+    /// Daisy-chain prefix, if the reply had one.
     pub address: Option<Address>,
+    /// The reply's lines, in order.
     pub lines: Vec<String>,
 }
 
 impl Reply {
+    /// A one-line reply without an address.
     pub fn line(s: impl Into<String>) -> Self {
         Self {
             address: None,
             lines: vec![s.into()],
         }
     }
+    /// A multi-line reply without an address.
     pub fn lines(lines: Vec<String>) -> Self {
         Self {
             address: None,
@@ -554,10 +592,12 @@ impl Reply {
         }
         Ok(v.trim())
     }
+    /// `axis=value` of a one-axis reply as a finite number.
     pub fn axis_f64(&self, axis: &str) -> Result<f64, String> {
         let v = self.axis_value(axis)?;
         parse_float(v).map_err(|_| format!("not a number in reply: {v:?}"))
     }
+    /// `axis=value` of a one-axis reply as a 0|1 boolean.
     pub fn axis_bool(&self, axis: &str) -> Result<bool, String> {
         match self.axis_value(axis)? {
             "0" => Ok(false),

@@ -1,9 +1,7 @@
-//! The seams between the csmetro service and its devices, in the spirit of embedded-hal:
-//! small traits that a real driver (PI C-863 over GCS, an Aravis camera) and its simulated
-//! twin both implement, so the service never knows which one it talks to.
-//!
-//! Units at this boundary are always micrometres and seconds; drivers convert to their
-//! device's units (GCS speaks millimetres).
+#![doc = include_str!("../README.md")]
+// Lints: the workspace wall (Cargo.toml `[workspace.lints]`), plus docs on everything public.
+#![warn(missing_docs)]
+
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
@@ -12,17 +10,21 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum AxisId {
+    /// The X axis.
     X,
+    /// The Y axis.
     Y,
 }
 
 impl AxisId {
+    /// Lowercase name, `x` or `y` (as in JSON and the CLI).
     pub fn as_str(self) -> &'static str {
         match self {
             AxisId::X => "x",
             AxisId::Y => "y",
         }
     }
+    /// The other axis of the XY pair.
     pub fn other(self) -> AxisId {
         match self {
             AxisId::X => AxisId::Y,
@@ -49,7 +51,9 @@ impl std::fmt::Display for AxisId {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Direction {
+    /// Approach from below: increasing position.
     Forward,
+    /// Approach from above: decreasing position.
     Backward,
 }
 
@@ -61,6 +65,7 @@ impl Direction {
             Direction::Backward => -1.0,
         }
     }
+    /// Lowercase name, `forward` or `backward` (as in JSON).
     pub fn as_str(self) -> &'static str {
         match self {
             Direction::Forward => "forward",
@@ -86,16 +91,29 @@ pub enum AxisError {
     /// Refused before anything was sent: the target lies outside the configured soft limits.
     #[error("target {target_um} µm is outside the soft limits [{lo_um}, {hi_um}] µm; not moved")]
     OutsideSoftLimits {
+        /// Requested target, µm.
         target_um: f64,
+        /// Lower soft limit, µm.
         lo_um: f64,
+        /// Upper soft limit, µm.
         hi_um: f64,
     },
     /// The controller reported an error code (GCS `ERR?`).
     #[error("controller error {code}: {message}")]
-    Controller { code: i32, message: String },
+    Controller {
+        /// GCS error code.
+        code: i32,
+        /// The code's text from the GCS error table.
+        message: String,
+    },
     /// No (complete) reply in time.
     #[error("timeout after {:.3} s waiting for {what}", after.as_secs_f64())]
-    Timeout { what: String, after: Duration },
+    Timeout {
+        /// What was awaited (the request or condition).
+        what: String,
+        /// How long was waited.
+        after: Duration,
+    },
     /// A reply that does not parse as the protocol says.
     #[error("protocol error: {0}")]
     Protocol(String),
@@ -131,6 +149,7 @@ pub trait Axis: Send {
 /// Pixel data of one camera frame, row-major, `width * height` values.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Pixels {
+    /// 8-bit pixels.
     Mono8(Vec<u8>),
     /// Mono10/12/16 delivered in 16-bit words; `bit_depth` says how many bits are significant.
     Mono16(Vec<u16>),
@@ -139,9 +158,13 @@ pub enum Pixels {
 /// One frame as delivered by a camera.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
+    /// Width, pixels.
     pub width: usize,
+    /// Height, pixels.
     pub height: usize,
+    /// Significant bits per pixel (8 to 16).
     pub bit_depth: u8,
+    /// The pixel values, row-major.
     pub pixels: Pixels,
     /// Device or host timestamp, seconds (monotonic within one camera session).
     pub timestamp_s: f64,
@@ -160,14 +183,19 @@ impl Frame {
 /// Camera errors. Frames with missing packets or timeouts are errors, never silent.
 #[derive(Debug, thiserror::Error)]
 pub enum CameraError {
+    /// No frame arrived within the given time.
     #[error("no frame within {:.3} s", .0.as_secs_f64())]
     Timeout(Duration),
+    /// The frame arrived with missing packets or lines.
     #[error("incomplete frame: {0}")]
     Incomplete(String),
+    /// The camera is absent or its connection was lost.
     #[error("camera not found or disconnected: {0}")]
     Disconnected(String),
+    /// The camera refused a setting (exposure, ROI, pixel format).
     #[error("camera setting refused: {0}")]
     Setting(String),
+    /// Any other camera failure.
     #[error("camera error: {0}")]
     Other(String),
 }

@@ -6,23 +6,44 @@ use std::path::Path;
 
 use csmetro_hal::{Frame, Pixels};
 
+/// Why a PNG frame could not be written or read; messages name the file where there is one.
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
+    /// Opening or creating the file failed.
     #[error("{path}: {source}")]
     File {
+        /// The file.
         path: String,
+        /// The operating system's error.
         source: std::io::Error,
     },
+    /// The PNG encoder or decoder failed (corrupt or truncated file).
     #[error("{path}: not a readable PNG: {message}")]
-    Png { path: String, message: String },
+    Png {
+        /// The file.
+        path: String,
+        /// The PNG library's message.
+        message: String,
+    },
+    /// A readable PNG that is not 8- or 16-bit grayscale: (what it is, the file).
     #[error("{path}: unsupported PNG ({0}); expected 8- or 16-bit grayscale", path = .1)]
     Unsupported(String, String),
+    /// The frame's pixel buffer does not hold `width * height` values.
     #[error("frame has {got} pixels, expected {expected}")]
-    Size { got: usize, expected: usize },
+    Size {
+        /// Pixels in the buffer.
+        got: usize,
+        /// `width * height`.
+        expected: usize,
+    },
+    /// The PNG header announces a frame above [`MAX_FRAME_SIDE`] or [`MAX_FRAME_PIXELS`].
     #[error("{path}: {width} x {height} px is larger than a frame may be ({MAX_FRAME_SIDE} px a side, {MAX_FRAME_PIXELS} px in all)")]
     TooLarge {
+        /// The file.
         path: String,
+        /// Announced width, px.
         width: u32,
+        /// Announced height, px.
         height: u32,
     },
 }

@@ -12,6 +12,7 @@ use csmetro_ppp::{Optics, Pattern, Pose};
 
 /// The true stage position (µm) at the current instant.
 pub trait PositionSource: Send {
+    /// `(x, y)` true position now, µm.
     fn position_um(&mut self) -> (f64, f64);
 }
 
@@ -70,6 +71,7 @@ impl SimCamera {
         Ok(())
     }
 
+    /// The optics used for the next frame.
     pub fn optics(&self) -> &Optics {
         &self.optics
     }

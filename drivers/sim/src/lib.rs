@@ -1,4 +1,6 @@
 #![doc = include_str!("../README.md")]
+// Lints: the workspace wall (Cargo.toml `[workspace.lints]`), plus docs on everything public.
+#![warn(missing_docs)]
 pub mod camera;
 pub mod controller;
 pub mod model;

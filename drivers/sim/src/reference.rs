@@ -16,31 +16,39 @@ use crate::model::{AxisId, Component, Effect, EffectKind, SampleContext, StageMo
 pub struct ReferenceCurveParams {
     /// Axis travel, µm.
     pub travel_um: [f64; 2],
+    /// Leadscrew pitch, µm.
     pub leadscrew_period_um: f64,
     /// Harmonic amplitudes of the leadscrew error (h = 1..), µm.
     pub leadscrew_amp_um: Vec<f64>,
     /// Linear envelope variation over the stroke (±, fraction).
     pub envelope_linear: f64,
-    /// Slow envelope wave amplitude (fraction) and its period range, µm.
+    /// Slow envelope wave amplitude (fraction).
     pub envelope_wave: f64,
+    /// Range `[lo, hi]` the envelope wave's period is drawn from, µm.
     pub envelope_wave_period_um: [f64; 2],
     /// Maximum phase drift over the stroke, rad.
     pub phase_drift_rad: f64,
-    /// Secondary periodicity: amplitude and period.
+    /// Secondary periodicity: amplitude, µm.
     pub secondary_amp_um: f64,
+    /// Secondary periodicity: period, µm.
     pub secondary_period_um: f64,
-    /// Slow trend: scale error (ppm), bow (parabola peak, µm), one stroke-long sine (µm).
+    /// Slow trend: scale error, ppm.
     pub scale_ppm: f64,
+    /// Slow trend: bow (parabola peak-to-chord height), µm.
     pub bow_um: f64,
+    /// Slow trend: amplitude of one stroke-long sine, µm.
     pub stroke_sine_um: f64,
-    /// Localized defects: count, height range and width (sigma) range.
+    /// Number of localized defects.
     pub defects: usize,
+    /// Range `[lo, hi]` of the defects' heights (random sign), µm.
     pub defect_height_um: [f64; 2],
+    /// Range `[lo, hi]` of the defects' widths (Gaussian sigma), µm.
     pub defect_sigma_um: [f64; 2],
-    /// Correlated roughness (AR(1)): sigma and correlation length.
+    /// Correlated roughness (AR(1)): RMS, µm.
     pub roughness_sigma_um: f64,
+    /// Correlated roughness: correlation length, µm.
     pub roughness_corr_um: f64,
-    /// White measurement noise sigma.
+    /// White measurement noise: standard deviation, µm.
     pub noise_sigma_um: f64,
 }
 

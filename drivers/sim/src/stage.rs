@@ -15,6 +15,7 @@ pub struct SimClock {
 }
 
 impl SimClock {
+    /// A clock starting now; a non-finite or non-positive `scale` means 1 (real time).
     pub fn new(scale: f64) -> Self {
         let scale = if scale.is_finite() && scale > 0.0 {
             scale
@@ -26,6 +27,7 @@ impl SimClock {
             scale,
         }
     }
+    /// Physical seconds per real second.
     pub fn scale(&self) -> f64 {
         self.scale
     }
@@ -42,11 +44,17 @@ impl SimClock {
 /// A trapezoidal (or triangular) move from `p0` to `p1`, mm and s.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Profile {
+    /// Physical start time, s.
     pub t0: f64,
+    /// Start position, mm.
     pub p0: f64,
+    /// End position, mm.
     pub p1: f64,
+    /// Cruise velocity, mm/s.
     pub vel: f64,
+    /// Acceleration, mm/s².
     pub acc: f64,
+    /// Deceleration, mm/s².
     pub dec: f64,
 }
 
@@ -70,6 +78,7 @@ impl Profile {
         };
         (v, ta, tc, tb)
     }
+    /// Length of the move, physical s (0 when it goes nowhere).
     pub fn duration(&self) -> f64 {
         if self.p0 == self.p1 {
             return 0.0;
@@ -77,6 +86,7 @@ impl Profile {
         let (_, ta, tc, tb) = self.phases();
         ta + tc + tb
     }
+    /// Physical time the move ends, s.
     pub fn end(&self) -> f64 {
         self.t0 + self.duration()
     }
@@ -122,14 +132,18 @@ impl Profile {
 /// What a motion is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MotionKind {
+    /// An ordinary move to a target.
     Move,
     /// A reference move; on arrival the axis is referenced.
     Reference,
 }
 
+/// One motion under way on an axis.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Motion {
+    /// Its trajectory.
     pub profile: Profile,
+    /// Plain move or reference move.
     pub kind: MotionKind,
     /// Injected motion error: at this physical time, servo off and this error code.
     pub fail_at: Option<(f64, i32)>,
@@ -138,26 +152,34 @@ pub struct Motion {
 /// One axis as its controller sees it (mm, s).
 #[derive(Debug, Clone, PartialEq)]
 pub struct AxisState {
+    /// Servo on (SVO 1).
     pub servo: bool,
+    /// Referenced (FRF? answers 1).
     pub referenced: bool,
     /// Reference mode on (RON 1): absolute moves need a reference first.
     pub ron: bool,
     /// Encoder position at rest (valid when `motion` is None).
     pub pos_mm: f64,
+    /// Commanded position, mm.
     pub target_mm: f64,
+    /// The motion under way, if any.
     pub motion: Option<Motion>,
     /// Physical time when the last motion ended (settling starts there).
     pub settled_from_s: f64,
     /// Last approach direction: +1 forward, -1 backward.
     pub last_dir: f64,
+    /// Velocity for the next move, mm/s.
     pub vel: f64,
+    /// Acceleration for the next move, mm/s².
     pub acc: f64,
+    /// Deceleration for the next move, mm/s².
     pub dec: f64,
     /// Latched GCS error (ERR? reads and clears).
     pub error: i32,
 }
 
 impl AxisState {
+    /// An axis at rest at `pos_mm`, servo off, not referenced, RON 1, deceleration = `acc` (mm, mm/s, mm/s²).
     pub fn new(pos_mm: f64, vel: f64, acc: f64) -> Self {
         Self {
             servo: false,
@@ -206,10 +228,12 @@ impl AxisState {
         }
     }
 
+    /// A motion is under way.
     pub fn is_moving(&self) -> bool {
         self.motion.is_some()
     }
 
+    /// The motion under way is a reference move.
     pub fn is_referencing(&self) -> bool {
         matches!(
             self.motion,
@@ -320,10 +344,12 @@ impl SimStage {
         }
     }
 
+    /// The stage's clock.
     pub fn clock(&self) -> SimClock {
         self.clock
     }
 
+    /// The stage model that turns encoder positions into true ones.
     pub fn model(&self) -> &StageModel {
         &self.model
     }

@@ -102,14 +102,21 @@ pub struct ControllerConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RandomFaults {
+    /// Seed of the fault generator.
     pub seed: u64,
+    /// Probability per reply of a delay.
     pub delay_rate: f64,
     /// Range of the delay, real milliseconds.
     pub delay_ms: [u64; 2],
+    /// Probability per reply of a drop.
     pub drop_rate: f64,
+    /// Probability per reply of garbage in its place.
     pub garbage_rate: f64,
+    /// Probability per reply of a latched error.
     pub error_rate: f64,
+    /// GCS error code a random error latches.
     pub error_code: i32,
+    /// Probability per reply of the port vanishing.
     pub vanish_rate: f64,
     /// How long the port stays away, real milliseconds.
     pub vanish_ms: u64,
@@ -204,31 +211,40 @@ impl Default for ControllerConfig {
 pub enum Fault {
     /// The next `count` replies are never sent.
     DropReply {
+        /// How many replies.
         #[serde(default = "one")]
         count: u32,
     },
     /// The next `count` replies are sent `ms` real milliseconds late.
     DelayReply {
+        /// Delay, real milliseconds.
         ms: u64,
+        /// How many replies.
         #[serde(default = "one")]
         count: u32,
     },
     /// The next `count` replies are replaced by garbage bytes.
     Garbage {
+        /// How many replies.
         #[serde(default = "one")]
         count: u32,
     },
     /// The controller latches `code` (1024 also switches the servo off). With `during_motion`,
     /// the error strikes halfway through the next move instead, stopping it.
     Error {
+        /// GCS error code to latch.
         code: i32,
+        /// Strike halfway through the next move instead of now.
         #[serde(default)]
         during_motion: bool,
     },
     /// The port disappears (TCP listener and connections closed, pty removed) for `ms` real
     /// milliseconds, then comes back at the same address or path. The reply to the command
     /// that triggers it is lost.
-    Vanish { ms: u64 },
+    Vanish {
+        /// How long the port stays away, real milliseconds.
+        ms: u64,
+    },
 }
 
 fn one() -> u32 {
@@ -238,6 +254,7 @@ fn one() -> u32 {
 /// A fault and when it strikes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FaultSpec {
+    /// The fault.
     #[serde(flatten)]
     pub fault: Fault,
     /// Strikes once this many commands have been received (0 = from the start).
@@ -261,10 +278,15 @@ struct FaultState {
 /// dropped counts as a drop only.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct FaultCounts {
+    /// Replies delayed.
     pub delay: u64,
+    /// Replies dropped.
     pub drop: u64,
+    /// Replies replaced by garbage.
     pub garbage: u64,
+    /// Errors latched.
     pub error: u64,
+    /// Times the port vanished.
     pub vanish: u64,
 }
 
@@ -352,10 +374,12 @@ impl Controller {
         }
     }
 
+    /// The simulated stage this controller drives.
     pub fn stage(&self) -> &SimStage {
         &self.stage
     }
 
+    /// The stage axis this controller drives.
     pub fn axis(&self) -> AxisId {
         self.axis
     }

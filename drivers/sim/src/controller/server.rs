@@ -24,6 +24,7 @@ use crate::stage::SimStage;
 /// Where a simulated controller listens.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Endpoint {
+    /// A TCP listener at this address.
     Tcp(SocketAddr),
     /// A stable path (symlink) to the current pty slave; open it like a serial device.
     Pty(PathBuf),
@@ -296,6 +297,7 @@ impl SimController {
         })
     }
 
+    /// Where the server listens.
     pub fn endpoint(&self) -> &Endpoint {
         &self.endpoint
     }
@@ -305,14 +307,17 @@ impl SimController {
         &self.ctl
     }
 
+    /// The simulated stage behind the controller.
     pub fn stage(&self) -> &SimStage {
         self.ctl.stage()
     }
 
+    /// Injects a fault now (see [`Controller::inject`]).
     pub fn inject(&self, fault: Fault) {
         self.ctl.inject(fault)
     }
 
+    /// Number of commands received so far (every line and control byte).
     pub fn command_count(&self) -> u64 {
         self.ctl.command_count()
     }

@@ -32,9 +32,11 @@ pub struct SoakOptions {
     pub seed: u64,
     /// Simulated seconds per real second (moves are part of the mix).
     pub time_scale: f64,
+    /// Random faults of the simulated controller.
     pub faults: RandomFaults,
     /// The driver's reply timeout; delays longer than this are the dangerous ones.
     pub reply_timeout_ms: u64,
+    /// The driver's extra attempts of one exchange after a timeout or a garbled reply.
     pub retries: u32,
 }
 
@@ -63,6 +65,7 @@ impl SoakOptions {
 /// What happened.
 #[derive(Debug, Clone, Serialize)]
 pub struct SoakReport {
+    /// Driver calls made.
     pub commands: u64,
     /// Faults that struck, by kind.
     pub faults: FaultCounts,
@@ -83,6 +86,7 @@ pub struct SoakReport {
     pub unchecked: u64,
     /// The first few stale or misaligned answers, described.
     pub examples: Vec<String>,
+    /// Real duration of the soak, s.
     pub wall_s: f64,
 }
 

@@ -12,8 +12,10 @@ use super::{AxisId, Deviation, SampleContext, StageModel};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Component {
+    /// The effect's own axis (the moving one).
     #[default]
     Axis,
+    /// The other axis of the pair.
     Other,
 }
 
@@ -33,120 +35,172 @@ fn envelope_period() -> f64 {
 pub enum EffectKind {
     /// δ_axis = ppm·1e-6·(p - ref_um)
     Scale {
+        /// Scale error, ppm (1 ppm = 1 µm per m of travel).
         ppm: f64,
+        /// Position of zero error, µm (default 0).
         #[serde(default)]
         ref_um: f64,
     },
     /// δ_axis = Σ_h cos_h·cos(2πh p/period) + sin_h·sin(2πh p/period)
     LeadscrewCyclic {
+        /// Leadscrew pitch, µm (default 400).
         #[serde(default = "leadscrew_period")]
         period_um: f64,
+        /// Cosine amplitude of each harmonic h = 1, 2, ..., µm.
         #[serde(default)]
         cos_um: Vec<f64>,
+        /// Sine amplitude of each harmonic, µm; see `cos_um`.
         #[serde(default)]
         sin_um: Vec<f64>,
     },
     /// Same form as the leadscrew, one short period (motor revolution / encoder).
     MotorCyclic {
+        /// Period (motor revolution or encoder line), µm.
         period_um: f64,
+        /// Cosine amplitude of each harmonic h = 1, 2, ..., µm.
         #[serde(default)]
         cos_um: Vec<f64>,
+        /// Sine amplitude of each harmonic, µm; see `cos_um`.
         #[serde(default)]
         sin_um: Vec<f64>,
     },
     /// δ_axis = (b/2)·d
-    Backlash { reversal_um: f64 },
+    Backlash {
+        /// Reversal width `b`, µm.
+        reversal_um: f64,
+    },
     /// δ_axis = ((b0 + b1·s)/2)·d
     Hysteresis {
+        /// Reversal width at mid-travel (`b0`), µm.
         b0_um: f64,
+        /// Change of the reversal width from mid-travel to the travel end (`b1`), µm (default 0).
         #[serde(default)]
         b1_um: f64,
     },
     /// δ_other = Σ_k c_k P_k(s), k = 2, 3, ...
     Straightness {
+        /// Coefficients `c_2, c_3, ...` of the Legendre profile, µm.
         #[serde(default)]
         legendre_um: Vec<f64>,
     },
     /// δ_axis = -(e0 + e1·s)·1e-6·(p_other - offset_um)
     YawAbbe {
-        /// Written as [e0, e1]; read as [e0] or [e0, e1].
+        /// Angles e0, e1, µrad: written as `[e0, e1]`; read as `[e0]` or `[e0, e1]`.
         #[serde(deserialize_with = "one_or_two")]
         yaw_urad: [f64; 2],
+        /// Abbe offset: the other axis' position of zero error, µm (default 0).
         #[serde(default)]
         offset_um: f64,
     },
     /// δ_other = angle·1e-6·p_axis (declared on y: δ_x = α·p_y)
-    Squareness { angle_urad: f64 },
+    Squareness {
+        /// Angle α, µrad.
+        angle_urad: f64,
+    },
     /// δ_x = -θ p_y, δ_y = θ p_x (every sample)
-    CameraRotation { angle_urad: f64 },
+    CameraRotation {
+        /// Angle θ, µrad.
+        angle_urad: f64,
+    },
     /// δ = ppm·1e-6·(p_x, p_y) (every sample)
-    CameraScale { ppm: f64 },
+    CameraScale {
+        /// Scale error, ppm.
+        ppm: f64,
+    },
     /// δ_component = amp·(1 - e^(-t/τ)) + rate·t/3600 (every sample). In a file, a missing
     /// `component` is the effect's `axis`.
     ThermalDrift {
+        /// Component that drifts (`x` or `y`).
         component: AxisId,
+        /// Exponential amplitude, µm (default 0).
         #[serde(default)]
         amp_um: f64,
+        /// Time constant τ, s (default 1800); ≤ 0: the full amplitude from the start.
         #[serde(default = "thermal_tau")]
         tau_s: f64,
+        /// Linear drift rate, µm/h (default 0).
         #[serde(default)]
         rate_um_per_h: f64,
     },
     /// White measurement noise (simulator only).
-    Noise { sigma_um: f64 },
+    Noise {
+        /// Standard deviation, µm.
+        sigma_um: f64,
+    },
 
     // ---- simulator-only kinds (the paper-like generator and "outside the library" cases) ----
     /// Leadscrew cyclic error with a slowly varying envelope and phase:
     /// Σ_h amp_h·E(s)·cos(2πh p/period + phase_h + drift·(s+1)/2),
     /// E(s) = 1 + env_linear·s + env_wave_amp·sin(2π p/env_wave_period_um + env_wave_phase_rad).
     LeadscrewModulated {
+        /// Leadscrew pitch, µm (default 400).
         #[serde(default = "leadscrew_period")]
         period_um: f64,
+        /// Amplitude `amp_h` of each harmonic h = 1, 2, ..., µm.
         #[serde(default)]
         amp_um: Vec<f64>,
+        /// Phase `phase_h` of each harmonic, rad (missing ones 0).
         #[serde(default)]
         phase_rad: Vec<f64>,
+        /// Linear envelope slope over `s` (dimensionless, default 0).
         #[serde(default)]
         env_linear: f64,
+        /// Relative amplitude of the envelope's wave (dimensionless, default 0).
         #[serde(default)]
         env_wave_amp: f64,
+        /// Period of the envelope's wave, µm (default 4000).
         #[serde(default = "envelope_period")]
         env_wave_period_um: f64,
+        /// Phase of the envelope's wave, rad (default 0).
         #[serde(default)]
         env_wave_phase_rad: f64,
+        /// Phase drift from one travel end to the other, rad (default 0).
         #[serde(default)]
         phase_drift_rad: f64,
     },
     /// A sinusoidal profile of any period on a chosen component.
     Harmonic {
+        /// Component the profile moves (default the effect's axis).
         #[serde(default)]
         component: Component,
+        /// Period of the fundamental, µm.
         period_um: f64,
+        /// Cosine amplitude of each harmonic h = 1, 2, ..., µm.
         #[serde(default)]
         cos_um: Vec<f64>,
+        /// Sine amplitude of each harmonic, µm; see `cos_um`.
         #[serde(default)]
         sin_um: Vec<f64>,
     },
     /// Legendre profile Σ_k c_k P_k(s), k = 1, 2, ... on a chosen component (bows, trends).
     Legendre {
+        /// Component the profile moves (default the effect's axis).
         #[serde(default)]
         component: Component,
+        /// Coefficients `c_1, c_2, ...` of the Legendre profile, µm.
         #[serde(default)]
         coef_um: Vec<f64>,
     },
     /// Localized Gaussian defect (a dent in the leadscrew or guide).
     Defect {
+        /// Component the defect moves (default the effect's axis).
         #[serde(default)]
         component: Component,
+        /// Position of the defect's centre on the moving axis, µm.
         center_um: f64,
+        /// Peak deviation (signed), µm.
         height_um: f64,
+        /// Gaussian width (standard deviation), µm.
         sigma_um: f64,
     },
     /// Correlated roughness: a seeded AR(1) profile with correlation length `corr_um`.
     Roughness {
+        /// Component the profile moves (default the effect's axis).
         #[serde(default)]
         component: Component,
+        /// RMS of the profile, µm.
         sigma_um: f64,
+        /// Correlation length, µm.
         corr_um: f64,
         /// TOML integers are i64: written as its bit pattern, so any u64 seed reads back.
         #[serde(default, with = "seed_bits")]
@@ -184,6 +238,7 @@ pub struct Effect {
     pub axis: AxisId,
     /// Travel over which `s` runs from -1 to 1; `None` = the model's axis range.
     pub travel_um: Option<[f64; 2]>,
+    /// Kind and parameters.
     pub kind: EffectKind,
     /// Precomputed profile for `Roughness` (grid 1 µm over the travel).
     table: Option<RoughTable>,
@@ -196,6 +251,7 @@ struct RoughTable {
     values: Vec<f64>,
 }
 
+/// Kinds of the effect library, as named in a model file.
 pub const LIBRARY_KINDS: &[&str] = &[
     "scale",
     "leadscrew_cyclic",
@@ -211,6 +267,7 @@ pub const LIBRARY_KINDS: &[&str] = &[
     "noise",
 ];
 
+/// Kinds only the simulator knows (ground-truth error outside the library), as named in a model file.
 pub const SIM_ONLY_KINDS: &[&str] = &[
     "leadscrew_modulated",
     "harmonic",
@@ -220,6 +277,7 @@ pub const SIM_ONLY_KINDS: &[&str] = &[
 ];
 
 impl EffectKind {
+    /// The `kind` name of a model file.
     pub fn name(&self) -> &'static str {
         match self {
             EffectKind::Scale { .. } => "scale",
@@ -284,6 +342,7 @@ fn fourier(p: f64, period: f64, cos: &[f64], sin: &[f64]) -> f64 {
 }
 
 impl Effect {
+    /// An effect on `axis` over the model's axis range.
     pub fn new(axis: AxisId, kind: EffectKind) -> Self {
         let mut e = Self {
             axis,
@@ -295,6 +354,7 @@ impl Effect {
         e
     }
 
+    /// The same effect with its own travel `[lo, hi]`, µm, over which `s` runs from -1 to 1.
     pub fn with_travel(mut self, travel_um: [f64; 2]) -> Self {
         self.travel_um = Some(travel_um);
         self

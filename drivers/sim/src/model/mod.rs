@@ -37,13 +37,16 @@ pub struct SampleContext {
     pub moving: AxisId,
     /// Approach direction: +1 forward, -1 backward.
     pub direction: f64,
+    /// Target position on x, µm.
     pub target_x_um: f64,
+    /// Target position on y, µm.
     pub target_y_um: f64,
     /// Seconds since the start of the data (campaign).
     pub time_s: f64,
 }
 
 impl SampleContext {
+    /// Target position on `axis`, µm.
     pub fn target(&self, axis: AxisId) -> f64 {
         match axis {
             AxisId::X => self.target_x_um,
@@ -55,7 +58,9 @@ impl SampleContext {
 /// A deviation vector (δx, δy) in µm.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Deviation {
+    /// Deviation along x, µm.
     pub x_um: f64,
+    /// Deviation along y, µm.
     pub y_um: f64,
 }
 
@@ -66,6 +71,7 @@ impl Deviation {
             AxisId::Y => self.y_um += v,
         }
     }
+    /// Deviation along `axis`, µm.
     pub fn get(&self, axis: AxisId) -> f64 {
         match axis {
             AxisId::X => self.x_um,
@@ -77,21 +83,35 @@ impl Deviation {
 /// Model-file errors, one line each, naming the line (and the file when read from one).
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
-    /// `path` is `FILE` or `FILE:LINE`.
+    /// A problem in a model file.
     #[error("{path}: {message}")]
-    File { path: String, message: String },
+    File {
+        /// Where: `FILE` or `FILE:LINE`.
+        path: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A model that cannot be written out as TOML text (no line to name).
     #[error("{0}")]
     Invalid(String),
-    /// A problem at a line of the TOML text (1-based).
+    /// A problem at a line of the TOML text.
     #[error("line {line}: {message}")]
-    Line { line: usize, message: String },
+    Line {
+        /// Line number, 1-based.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
 }
 
 /// The stage model: axis ranges and effects.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StageModel {
+    /// Travel range of x `[lo, hi]`, µm; an effect's `s` runs from -1 to 1 over it.
     pub travel_x_um: [f64; 2],
+    /// Travel range of y `[lo, hi]`, µm.
     pub travel_y_um: [f64; 2],
+    /// The effects, in file order.
     pub effects: Vec<Effect>,
 }
 
@@ -107,6 +127,7 @@ impl Default for StageModel {
 }
 
 impl StageModel {
+    /// An ideal stage (no effects) over the given travel ranges, µm.
     pub fn new(travel_x_um: [f64; 2], travel_y_um: [f64; 2]) -> Self {
         Self {
             travel_x_um,
@@ -115,6 +136,7 @@ impl StageModel {
         }
     }
 
+    /// Travel range `[lo, hi]` of `axis`, µm.
     pub fn travel(&self, axis: AxisId) -> [f64; 2] {
         match axis {
             AxisId::X => self.travel_x_um,
@@ -128,6 +150,7 @@ impl StageModel {
         self.effects.push(effect);
     }
 
+    /// This model with `effect` added (builder form of `push`).
     pub fn with(mut self, effect: Effect) -> Self {
         self.push(effect);
         self
