@@ -151,3 +151,23 @@ fn submitted_names_are_bounded_and_plain() {
     let t = good.replace("name = \"t\"", "name = \"a/../../x\"");
     refused(&srv, dir.path(), &t, "campaign.name");
 }
+
+/// A stage lock that cannot be taken for an I/O reason (here a directory stands where the lock
+/// file goes) is not "another process drives the stage": the campaign ends interrupted with the
+/// reason at once, no server path in it, instead of waiting in the queue for ever.
+#[test]
+fn a_stage_lock_io_error_interrupts_instead_of_waiting_forever() {
+    let dir = tempfile::tempdir().unwrap();
+    let lock = common::test_lock_dir().join("csmetro-stage-s1.lock");
+    std::fs::create_dir_all(&lock).unwrap();
+    let s = service(dir.path());
+    let id = s.submit(&campaign("t", "s1", 5, 1000.0));
+    let st = s.wait_for(id, 20.0, |st| st["state"] == "interrupted");
+    let msg = st["message"].as_str().unwrap_or_default().to_string();
+    assert!(msg.contains("cannot take the lock of stage"), "{st}");
+    assert!(
+        !msg.contains("csmetro-stage-s1.lock"),
+        "server path shown: {msg}"
+    );
+    std::fs::remove_dir(&lock).unwrap();
+}

@@ -338,7 +338,9 @@ fn shipped_models_load_and_round_trip() {
 fn non_regular_files_are_refused_without_reading() {
     let t0 = std::time::Instant::now();
     for p in ["/dev/zero", "/proc/self/environ", "/tmp"] {
-        let e = StageModel::load(std::path::Path::new(p)).unwrap_err().to_string();
+        let e = StageModel::load(std::path::Path::new(p))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("not a regular file"), "{p}: {e}");
     }
     assert!(t0.elapsed().as_secs_f64() < 2.0);
