@@ -12,3 +12,4 @@ pub mod sampling;
 pub mod store;
 pub mod synth;
 mod tomlpos;
+pub mod types;

@@ -32,9 +32,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use rusqlite::{params, Connection, ErrorCode, OptionalExtension, Row, TransactionBehavior};
 use serde::Serialize;
 
-use crate::campaign::types::{
-    AxisId, CampaignState, Direction, Phase, RunKey, SampleRecord, Target,
-};
+use crate::types::{AxisId, CampaignState, Direction, Phase, RunKey, SampleRecord, Target};
 
 /// The schema this build writes. Bump it and append to [`MIGRATIONS`] to change the schema.
 pub const SCHEMA_VERSION: i32 = 1;

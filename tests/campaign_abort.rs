@@ -9,7 +9,7 @@ use csmetro::campaign::engine::{Control, EndState, Engine, Recorder};
 use csmetro::campaign::plan::plan;
 use csmetro::campaign::rig;
 use csmetro::campaign::spec::Campaign;
-use csmetro::campaign::types::{RunKey, SampleRecord};
+use csmetro::types::{RunKey, SampleRecord};
 use csmetro_hal::{Axis, AxisError, AxisInfo};
 use tokio::sync::watch;
 

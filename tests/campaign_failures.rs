@@ -7,7 +7,7 @@ use std::path::Path;
 use std::process::Output;
 
 use common::{bin, repo};
-use csmetro::campaign::types::CampaignState;
+use csmetro::types::CampaignState;
 use csmetro::store::Store;
 use serde_json::Value;
 

@@ -8,7 +8,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{bin, json_of, repo};
-use csmetro::campaign::types::CampaignState;
+use csmetro::types::CampaignState;
 use csmetro::store::Store;
 
 /// A small Y campaign: `points` grid points, `m` random targets per direction, full scan.

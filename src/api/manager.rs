@@ -29,8 +29,8 @@ use crate::campaign::engine::Control;
 use crate::campaign::session::{self, Event, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock, StageLockError};
-use crate::campaign::types::CampaignState;
 use crate::store::{CampaignRow, EventRow, StoreError};
+use crate::types::CampaignState;
 
 /// How often a campaign waiting for a stage held by another process tries again.
 const STAGE_RETRY: Duration = Duration::from_secs(2);
@@ -733,7 +733,7 @@ impl Manager {
         id: i64,
         after: i64,
         limit: usize,
-    ) -> Result<Vec<(i64, crate::campaign::types::SampleRecord)>, ApiError> {
+    ) -> Result<Vec<(i64, crate::types::SampleRecord)>, ApiError> {
         self.row(id)?;
         self.db().samples_after(id, after, limit).map_err(store_err)
     }

@@ -39,7 +39,7 @@ use tokio::sync::{broadcast, mpsc};
 use super::{ApiError, CampaignStatus, Manager};
 use crate::campaign::session::Event;
 use crate::campaign::spec::{Campaign, SubmitPolicy};
-use crate::campaign::types::CampaignState;
+use crate::types::CampaignState;
 
 #[derive(Clone)]
 struct App {

@@ -17,7 +17,7 @@ use tokio::task::JoinHandle;
 use super::plan::{Batch, Plan};
 use super::rig::Rig;
 use super::spec::Campaign;
-use super::types::{AxisId, Phase, RunKey, SampleRecord, Target};
+use crate::types::{AxisId, Phase, RunKey, SampleRecord, Target};
 
 /// What the operator (or the service) asks of a running campaign.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

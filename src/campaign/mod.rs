@@ -7,7 +7,7 @@ pub mod rig;
 pub mod session;
 pub mod spec;
 pub mod stagelock;
-pub mod types;
 pub mod worker;
 
-pub use types::*;
+// The campaign vocabulary lives below campaign, store and report (`crate::types`).
+pub use crate::types::*;

@@ -6,8 +6,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::spec::{AxisPlan, Campaign};
-use super::types::{AxisId, Direction, Phase, RunKey, Target};
 use crate::sampling::{Design, DesignKind};
+use crate::types::{AxisId, Direction, Phase, RunKey, Target};
 
 /// A monotonic sweep of one run: approached from its direction, targets in visiting order.
 #[derive(Debug, Clone)]

@@ -11,10 +11,10 @@ use super::engine::{stats_key, PhaseStats};
 use super::plan::Plan;
 use super::rig::Rig;
 use super::spec::Campaign;
-use super::types::{AxisId, Component, Phase, RunKey, SampleRecord};
 use super::worker::Curve;
 use crate::report::{build_report, ComponentCurve, ReportOptions};
 use crate::store::EventRow;
+use crate::types::{AxisId, Component, Phase, RunKey, SampleRecord};
 
 /// The figures of a campaign as the store holds them: every count and physical time comes from
 /// the stored samples and events, so a campaign interrupted, restarted or resumed any number of

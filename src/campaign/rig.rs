@@ -17,7 +17,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 use super::spec::{Campaign, HardwareKind, SimTransport};
-use super::types::AxisId;
+use crate::types::AxisId;
 
 /// Physical time: the wall clock on hardware, the scaled simulator clock in simulation.
 #[derive(Debug, Clone, Copy)]

@@ -15,9 +15,9 @@ pub use super::results::TruthSource;
 use super::results::{problems, tally};
 use super::rig::{self, Rig};
 use super::spec::Campaign;
-use super::types::{CampaignState, RunKey, SampleRecord};
 use super::worker::{reconstruct_run, settings, Worker};
 use crate::store::Store;
+use crate::types::{CampaignState, RunKey, SampleRecord};
 
 /// A campaign event as stored and streamed (server-sent events, `csmetro watch`).
 #[derive(Debug, Clone, Serialize, serde::Deserialize)]

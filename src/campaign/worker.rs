@@ -8,10 +8,10 @@ use std::thread::JoinHandle;
 use serde::Serialize;
 
 use super::spec::Campaign;
-use super::types::{Component, Phase, RunKey, SampleRecord};
 use crate::grid::Grid;
 use crate::recon::{reconstruct, Method, ReconSettings};
 use crate::samples::GridSamples;
+use crate::types::{Component, Phase, RunKey, SampleRecord};
 
 /// A reconstructed (CS) or measured (full scan) curve of one component of one run.
 #[derive(Debug, Clone, Serialize)]

@@ -13,7 +13,7 @@ use serde_json::{json, Value};
 
 use super::{CliError, CliResult};
 use crate::api::CampaignStatus;
-use crate::campaign::types::CampaignState;
+use crate::types::CampaignState;
 
 /// Default address of the service (`[server] bind` of the shipped configuration).
 pub const DEFAULT_SERVER: &str = "http://127.0.0.1:8463";

@@ -12,8 +12,8 @@ use crate::campaign::engine::Control;
 use crate::campaign::session::{self, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock};
-use crate::campaign::types::CampaignState;
 use crate::store::Store;
+use crate::types::CampaignState;
 
 /// Default store of foreground runs (the service's config names its own).
 pub const DEFAULT_DB: &str = "csmetro-data/csmetro.db";
@@ -166,7 +166,7 @@ fn foreground(
             }
         });
         let b3 = bar.clone();
-        let on_sample = Box::new(move |_: &crate::campaign::types::SampleRecord| b3.inc(1));
+        let on_sample = Box::new(move |_: &crate::types::SampleRecord| b3.inc(1));
         let r = session::execute_with(store, id, c, ctl_rx, ev_tx, on_sample, opts).await;
         bar.finish_and_clear();
         let fin = r.map_err(CliError::failure)?;

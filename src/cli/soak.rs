@@ -20,8 +20,8 @@ use serde::Serialize;
 use serde_json::{json, Value};
 
 use super::{CliError, CliResult};
-use crate::campaign::types::CampaignState;
 use crate::store::Store;
+use crate::types::CampaignState;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -41,8 +41,8 @@ pub struct Sample {
 /// A campaign's stored samples as gap data: one run per cycle and phase (run = 2·cycle, +1
 /// for the full scan), so the diagnosis can hold a whole sweep out; time is the campaign's
 /// physical time.
-pub fn from_campaign(records: &[crate::campaign::types::SampleRecord]) -> Vec<Sample> {
-    use crate::campaign::types::{AxisId as A, Phase};
+pub fn from_campaign(records: &[crate::types::SampleRecord]) -> Vec<Sample> {
+    use crate::types::{AxisId as A, Phase};
     records
         .iter()
         .map(|r| {

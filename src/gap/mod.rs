@@ -1,4 +1,9 @@
-//! Sim-to-real gap diagnosis (see the gap-diagnosis issue and shared/notes/gap-contract.md).
+//! Sim-to-real gap diagnosis: where measured line data leave the stage model, which effect of the
+//! candidate library explains the difference, and how far the held-out gap shrinks once it is
+//! added. A sample is predicted as its target plus the deviations of the effects acting on it
+//! (those of its moving axis, and the camera and thermal effects) plus a constant offset per line:
+//! one run, one moving axis, one static position, both directions (the static axis' own error and
+//! the sensor's zero are not known).
 //!
 //! Pipeline: residual = measured - baseline prediction; every line (run, moving axis, static
 //! position) × component gets its own constant offset (nuisance), removed exactly by demeaning the

@@ -8,7 +8,7 @@
 use std::fmt::Write;
 
 use super::{ComponentCurve, ReportError};
-use crate::campaign::types::{AxisId, Component, Direction};
+use crate::types::{AxisId, Component, Direction};
 
 /// Errors and corrections are written with this many decimals (µm): 1 pm resolution.
 const DECIMALS: usize = 6;

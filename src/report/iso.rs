@@ -12,8 +12,8 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use super::{ComponentCurve, ReportError};
-use crate::campaign::types::{AxisId, Component, Direction};
 use crate::iso230::{evaluate, Approach, Iso230Summary};
+use crate::types::{AxisId, Component, Direction};
 
 /// ISO 230-2 figures, µm: one type with [`crate::iso230::evaluate`]'s.
 pub type IsoFigures = Iso230Summary;

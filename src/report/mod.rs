@@ -22,7 +22,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::campaign::types::{AxisId, Component};
+use crate::types::{AxisId, Component};
 
 pub use compensation::{compensation_columns, compensation_csv};
 pub use iso::{iso230_axis, AxisIso230, IsoFigures};

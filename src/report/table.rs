@@ -2,7 +2,7 @@
 //! design (full scan / CS), as a serializable table and an aligned plain-text rendering.
 use serde::Serialize;
 
-use crate::campaign::types::Phase;
+use crate::types::Phase;
 
 /// Recovery error of a curve g against a reference f, µm.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]

@@ -1,5 +1,6 @@
 //! The stage model: one effect library for the error-curve generator, the simulated controller
-//! and camera, and `csmetro gap` (see `shared/notes/gap-contract.md`).
+//! and camera, and `csmetro gap`: a sample is the model's deviation at its target, direction and
+//! time (see [`StageModel`]).
 //!
 //! A model is a list of effects, each an `[[effect]]` table in a TOML file:
 //!
