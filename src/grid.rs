@@ -19,47 +19,6 @@ pub const ON_GRID_TOL_UM: f64 = 1e-6;
 /// otherwise ask for ~10^11 points and abort on the allocation.
 pub const MAX_GRID_POINTS: usize = 1_000_000;
 
-/// Largest grid basis pursuit (`bp`, `bpdn`) is asked to solve: n = 65 536 at 10 % sampling
-/// takes < 1 s (BENCHMARKS.md), a grid of millions of points would take hours.
-pub const MAX_BP_POINTS: usize = 65_536;
-/// Largest grid the physics model (`physics`, `auto`) fits; its design matrix has a row per
-/// grid point.
-pub const MAX_PHYSICS_POINTS: usize = 262_144;
-/// Largest n·m given to the interior-point solver (`clarabel`): its constraint matrix holds
-/// every entry of the sampled basis (n = 1901, m = 600 is 1.1 million).
-pub const MAX_CLARABEL_ENTRIES: usize = 4_000_000;
-
-/// Whether `method` (with `solver`) may reconstruct `m` samples on an `n`-point grid in bounded
-/// time and memory; the error says which limit and how to get below it.
-pub fn check_solve_size(
-    method: crate::recon::Method,
-    solver: crate::recon::Solver,
-    n: usize,
-    m: usize,
-) -> Result<(), String> {
-    use crate::recon::{Method, Solver};
-    match method {
-        Method::Bp | Method::Bpdn if n > MAX_BP_POINTS => Err(format!(
-            "{} on {n} grid points: at most {MAX_BP_POINTS} (use a coarser grid, or pchip/linear)",
-            method.as_str()
-        )),
-        Method::Bp | Method::Bpdn
-            if solver == Solver::Clarabel && n.saturating_mul(m) > MAX_CLARABEL_ENTRIES =>
-        {
-            Err(format!(
-                "the clarabel solver on {n} grid points x {m} samples: at most \
-                 {MAX_CLARABEL_ENTRIES} (use --solver fast)"
-            ))
-        }
-        Method::Physics | Method::Auto if n > MAX_PHYSICS_POINTS => Err(format!(
-            "{} on {n} grid points: at most {MAX_PHYSICS_POINTS} (use a coarser grid, or \
-             pchip/linear)",
-            method.as_str()
-        )),
-        _ => Ok(()),
-    }
-}
-
 impl Grid {
     /// A grid from start to end inclusive; `end - start` must be a whole number of steps.
     pub fn new(start_um: f64, step_um: f64, end_um: f64) -> Result<Self, String> {

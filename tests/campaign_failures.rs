@@ -7,8 +7,8 @@ use std::path::Path;
 use std::process::Output;
 
 use common::{bin, repo};
-use csmetro::types::CampaignState;
 use csmetro::store::Store;
+use csmetro::types::CampaignState;
 use serde_json::Value;
 
 /// `m` random targets per direction on x from `lo_um` over 250 µm (step 25 µm), results to `out`.

@@ -8,8 +8,8 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{bin, json_of, repo};
-use csmetro::types::CampaignState;
 use csmetro::store::Store;
+use csmetro::types::CampaignState;
 
 /// A small Y campaign: `points` grid points, `m` random targets per direction, full scan.
 fn campaign(dir: &Path, range_um: f64, m: usize) -> PathBuf {

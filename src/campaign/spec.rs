@@ -971,7 +971,7 @@ fn validate(
             ));
         }
         let m = if s.design == DesignKind::Full { n } else { m };
-        crate::grid::check_solve_size(method, solver, n, m)
+        crate::recon::limits::check_solve_size(method, solver, n, m)
             .map_err(|e| fail(&key("range_um"), e))?;
         let per_run = m as u64 + if s.full_scan { n as u64 } else { 0 };
         planned += per_run * a.directions.len() as u64 * u64::from(a.cycles);

@@ -62,10 +62,10 @@ pub fn run(a: Args) -> CliResult {
         return Err(CliError::input("--gap-tol must be a number in (0, 1)"));
     }
     // Before reading the samples: a grid too large for the method is refused at once.
-    crate::grid::check_solve_size(method, solver, grid.n, 2)
+    crate::recon::limits::check_solve_size(method, solver, grid.n, 2)
         .map_err(|e| CliError::input(format!("--grid: {e}")))?;
     let s = samples::read_samples_csv(&a.samples, &grid).map_err(CliError::input)?;
-    crate::grid::check_solve_size(method, solver, grid.n, s.len())
+    crate::recon::limits::check_solve_size(method, solver, grid.n, s.len())
         .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
     if s.len() > grid.n {
         return Err(CliError::input(format!(
