@@ -515,7 +515,7 @@ pub fn report(a: ReportArgs) -> CliResult {
     let mut written = Vec::new();
     for name in &names {
         let Some(rel) = safe_relative(name) else {
-            eprintln!("warning: skipped result with an unsafe name {name:?}");
+            eprintln!("warning: skipped result whose name leaves the folder {name:?}");
             continue;
         };
         let r = c.get(&format!("/campaigns/{}/results/{name}", a.id))?;
