@@ -515,7 +515,7 @@ pub fn report(a: ReportArgs) -> CliResult {
     let mut written = Vec::new();
     for name in &names {
         let Some(rel) = safe_relative(name) else {
-            eprintln!("warning: skipped result whose name leaves the folder {name:?}");
+            eprintln!("warning: skipped result {name:?}: not a plain relative file name");
             continue;
         };
         let r = c.get(&format!("/campaigns/{}/results/{name}", a.id))?;
