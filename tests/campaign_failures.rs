@@ -131,9 +131,12 @@ fn points_rejected_beyond_the_pattern_fail_the_campaign() {
 fn results_that_cannot_be_written_are_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
-    let file = dir.path().join("a-file");
-    std::fs::write(&file, "not a directory").unwrap();
-    let c = campaign(dir.path(), 1000.0, &file.join("results"), "");
+    // The directory passes the writability check at validation (exit 2 before anything runs
+    // is `an_unwritable_output_directory_is_refused_before_anything_runs`); writing the
+    // summary into it fails at the end: a directory stands where `summary.json` goes.
+    let out = dir.path().join("results");
+    std::fs::create_dir_all(out.join("summary.json")).unwrap();
+    let c = campaign(dir.path(), 1000.0, &out, "");
     let o = run(&c, &db);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
