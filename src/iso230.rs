@@ -36,7 +36,7 @@ pub struct TargetRow {
     pub r_bidir_um: f64,
 }
 
-/// ISO 230-2 figures of an axis, µm: the one figures type (the reports' `IsoFigures`, the
+/// ISO 230-2 figures of an axis, µm: the one figures type (the reports', the
 /// objects of `iso230.json` and of `summary.json`'s `iso230`). Unidirectional figures are
 /// `None` when that direction is absent, bidirectional ones (B, B̄, M) unless both are present,
 /// R unless every target has at least two approaches per direction (s is 0 with one).

@@ -15,9 +15,6 @@ use super::{ComponentCurve, ReportError};
 use crate::iso230::{evaluate, Approach, Iso230Summary};
 use crate::types::{AxisId, Component, Direction};
 
-/// ISO 230-2 figures, µm: one type with [`crate::iso230::evaluate`]'s.
-pub type IsoFigures = Iso230Summary;
-
 /// ISO 230-2 figures of one moving axis.
 #[derive(Debug, Clone, Serialize)]
 pub struct AxisIso230 {
@@ -27,9 +24,9 @@ pub struct AxisIso230 {
     pub forward_component: Option<String>,
     pub backward_component: Option<String>,
     /// From the reconstructed curves at every grid point.
-    pub reconstructed: IsoFigures,
+    pub reconstructed: Iso230Summary,
     /// From the measured samples, when repeated cycles exist.
-    pub measured: Option<IsoFigures>,
+    pub measured: Option<Iso230Summary>,
     /// What was left out and why, and departures from ISO 230-2's test conditions.
     pub notes: Vec<String>,
 }
@@ -127,7 +124,7 @@ fn measured_figures(
     used: &[(&ComponentCurve, bool)],
     tol_um: f64,
     notes: &mut Vec<String>,
-) -> Option<IsoFigures> {
+) -> Option<Iso230Summary> {
     let key = |p: f64| (p / tol_um.max(1e-12)).round() as i64;
     // target key -> (approaches forward, approaches backward)
     let mut counts: BTreeMap<i64, [usize; 2]> = BTreeMap::new();

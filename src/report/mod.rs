@@ -25,7 +25,7 @@ use serde::Serialize;
 use crate::types::{AxisId, Component};
 
 pub use compensation::{compensation_columns, compensation_csv};
-pub use iso::{iso230_axis, AxisIso230, IsoFigures};
+pub use iso::{iso230_axis, AxisIso230};
 pub use plot::{plot_png, plot_svg, register_fonts, PlotOptions, FONT_FAMILY};
 pub use table::{
     format_hms, recovery_error, render_table, time_saved_pct, ErrorStats, SummaryRow, SummaryTable,
