@@ -207,6 +207,9 @@ pub struct Engine<'a> {
     planned_from_um: Option<f64>,
     /// Decode jobs in flight at most (2 cores: keep both busy while the stage moves).
     pub depth: usize,
+    /// Applied to every commanded target of the moving axis (verification runs,
+    /// `[compensation]`); samples keep the wanted target, so their error is the residual.
+    pub compensation: Option<std::sync::Arc<crate::compensation::Compensation>>,
 }
 
 impl<'a> Engine<'a> {
@@ -234,7 +237,19 @@ impl<'a> Engine<'a> {
             depth: std::thread::available_parallelism()
                 .map_or(2, |n| n.get())
                 .clamp(2, 8),
+            compensation: None,
         }
+    }
+
+    /// The command for target `t`: the target itself, or its compensated command. A command the
+    /// compensation refuses (outside its table or the soft limits) ends the run; nothing moves.
+    fn commanded_um(&mut self, t: &Target) -> Result<f64, EngineError> {
+        let Some(c) = self.compensation.clone() else {
+            return Ok(t.target_um());
+        };
+        let limits = self.rig.axis(t.run.axis).soft_limits_um();
+        c.command(t.run.axis, t.run.direction, t.target_um(), limits)
+            .map_err(|e| EngineError::Other(format!("compensation: {e}")))
     }
 
     fn stat(&mut self, run: RunKey) -> &mut PhaseStats {
@@ -441,7 +456,8 @@ impl<'a> Engine<'a> {
         let acq = &self.campaign.spec.acquisition;
         let (settle, dwell, frames) = (acq.settle_s, acq.dwell_s, acq.frames_per_point);
         let from = self.planned_from_um.take();
-        let move_s = self.move_axis(t.run.axis, t.target_um(), from).await?;
+        let command_um = self.commanded_um(t)?;
+        let move_s = self.move_axis(t.run.axis, command_um, from).await?;
         let wait = settle + dwell;
         tokio::time::sleep(self.rig.time.wall(wait)).await;
         let encoder_um = self

@@ -1,0 +1,663 @@
+//! Verification run: measure a characterised axis again, without and with its compensation, at
+//! ISO 230-2 style targets (from the characterisation's grid, repeated cycles, both directions)
+//! and at random targets between grid points the characterisation never visited; report the
+//! ISO 230-2 figures and the residual errors before and after side by side.
+use std::sync::Arc;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use serde_json::{json, Value};
+use tokio::sync::watch;
+
+use super::Compensation;
+use crate::campaign::engine::{Control, EndState, Engine, Recorder};
+use crate::campaign::plan::{Batch, Plan};
+use crate::campaign::rig;
+use crate::campaign::spec::{AxisPlan, Campaign};
+use crate::iso230::{evaluate, Approach, Iso230Summary};
+use crate::types::{AxisId, Direction, Phase, RunKey, SampleRecord, Target};
+
+/// What a verification measures and what it expects.
+#[derive(Debug, Clone)]
+pub struct VerifyOptions {
+    /// Measurement cycles per direction (ISO 230-2: 5).
+    pub cycles: u32,
+    /// Targets chosen from the characterisation's grid (ISO 230-2: at least 5 per metre, 5 at
+    /// least).
+    pub iso_targets: usize,
+    /// Random targets between grid points (never visited by the characterisation).
+    pub unvisited_targets: usize,
+    pub seed: u64,
+    /// Largest |residual| that passes, µm; default per axis: 3 × the characterisation's CV error
+    /// estimate + the repeatability R.
+    pub expected_um: Option<f64>,
+}
+
+impl Default for VerifyOptions {
+    fn default() -> Self {
+        Self {
+            cycles: 5,
+            iso_targets: 11,
+            unvisited_targets: 10,
+            seed: 1,
+            expected_um: None,
+        }
+    }
+}
+
+/// Most targets and cycles a verification accepts (bounds on what a flag can ask).
+pub const MAX_TARGETS: usize = 1000;
+pub const MAX_CYCLES: u32 = 50;
+
+/// The verification targets of one axis, µm, ascending: (ISO targets on the grid, unvisited).
+pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>) {
+    let g = ax.grid;
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ (ax.axis as u64 + 1) * 0x5DEE_CE66);
+    let n = opts.iso_targets.clamp(2, g.n);
+    // Evenly spread grid indices, each moved by a random fraction of the spacing (ISO 230-2
+    // spaces targets unevenly so that periodic errors are not sampled at one phase).
+    let span = (g.n - 1) as f64;
+    let mut iso: Vec<usize> = (0..n)
+        .map(|i| {
+            let base = span * i as f64 / (n - 1) as f64;
+            let jitter = if i == 0 || i == n - 1 {
+                0.0
+            } else {
+                rng.random_range(-0.3..0.3) * span / (n - 1) as f64
+            };
+            (base + jitter).round().clamp(0.0, span) as usize
+        })
+        .collect();
+    iso.sort_unstable();
+    iso.dedup();
+    let iso: Vec<f64> = iso.into_iter().map(|i| g.position(i)).collect();
+    let mut un: Vec<f64> = (0..opts.unvisited_targets)
+        .map(|_| {
+            // Strictly between two grid points, at least 20 % of a step from either.
+            let i = rng.random_range(0..g.n - 1);
+            g.position(i) + g.step_um * rng.random_range(0.2..0.8)
+        })
+        .collect();
+    un.sort_by(f64::total_cmp);
+    (iso, un)
+}
+
+/// The runs of one pass: per axis, cycle and direction, one sweep over all its targets.
+fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<(AxisId, Vec<f64>, Vec<f64>)>) {
+    let mut batches = Vec::new();
+    let mut seq = seq0;
+    let mut sets = Vec::new();
+    for ax in &c.axes {
+        let (iso, un) = targets(ax, opts);
+        let mut all: Vec<f64> = iso.iter().chain(&un).copied().collect();
+        all.sort_by(f64::total_cmp);
+        for cycle in 0..opts.cycles {
+            for &direction in &c.spec.acquisition.directions {
+                let run = RunKey {
+                    phase: Phase::Full,
+                    axis: ax.axis,
+                    direction,
+                    cycle,
+                };
+                let mut order = all.clone();
+                if direction == Direction::Backward {
+                    order.reverse();
+                }
+                let targets = order
+                    .into_iter()
+                    .map(|p| {
+                        let (tx, ty) = match ax.axis {
+                            AxisId::X => (p, ax.other_at_um),
+                            AxisId::Y => (ax.other_at_um, p),
+                        };
+                        let t = Target {
+                            seq,
+                            run,
+                            grid_index: (((p - ax.grid.start_um) / ax.grid.step_um).round().max(0.0)
+                                as usize)
+                                .min(ax.grid.n - 1),
+                            target_x_um: tx,
+                            target_y_um: ty,
+                        };
+                        seq += 1;
+                        t
+                    })
+                    .collect();
+                batches.push(Batch {
+                    run,
+                    index: 0,
+                    targets,
+                    target_error_um: None,
+                });
+            }
+        }
+        sets.push((ax.axis, iso, un));
+    }
+    (Plan { batches }, sets)
+}
+
+/// Keeps the samples; events go to an optional progress callback.
+struct Collect<'a> {
+    samples: Vec<SampleRecord>,
+    on_event: &'a mut (dyn FnMut(&str, &Value) + Send),
+}
+
+impl Recorder for Collect<'_> {
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
+        self.samples.push(*s);
+        Ok(true)
+    }
+    fn event(&mut self, kind: &str, data: Value) {
+        (self.on_event)(kind, &data);
+    }
+    fn run_done(&mut self, _run: RunKey) {}
+    fn cv_error_um(&mut self, _run: RunKey) -> Option<f64> {
+        None
+    }
+}
+
+/// ISO 230-2 figures as the verification reports them (fixed names).
+#[derive(Debug, Clone, Serialize)]
+pub struct Figures {
+    pub a_um: f64,
+    pub b_um: Option<f64>,
+    pub e_um: f64,
+    pub m_um: Option<f64>,
+    pub r_um: Option<f64>,
+}
+
+impl From<&Iso230Summary> for Figures {
+    fn from(s: &Iso230Summary) -> Self {
+        Self {
+            a_um: s.a_um,
+            b_um: s.b_um,
+            e_um: s.e_um,
+            m_um: s.m_um,
+            r_um: s.r_um,
+        }
+    }
+}
+
+/// Before/after of one axis.
+#[derive(Debug, Clone, Serialize)]
+pub struct AxisVerdict {
+    pub axis: String,
+    pub before: Figures,
+    pub after: Figures,
+    pub max_abs_after_um: f64,
+    pub expected_um: f64,
+    pub passed: bool,
+    pub max_abs_before_um: f64,
+    pub mean_abs_before_um: f64,
+    pub mean_abs_after_um: f64,
+    /// At the random targets between grid points only.
+    pub max_abs_after_unvisited_um: f64,
+    pub max_abs_before_unvisited_um: f64,
+    /// before.e_um / after.e_um.
+    pub e_reduction: f64,
+    /// What `expected_um` was made of (when not given).
+    pub cv_error_um: Option<f64>,
+    pub repeatability_um: Option<f64>,
+    pub iso_targets_um: Vec<f64>,
+    pub unvisited_targets_um: Vec<f64>,
+    pub cycles: u32,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Verdict {
+    pub campaign: i64,
+    pub passed: bool,
+    pub axes: Vec<AxisVerdict>,
+    pub stage: String,
+    pub compensation: String,
+    /// Physical time of both passes, s.
+    pub acquisition_s: f64,
+    /// Samples per pass (before, after) and compensated commands computed, with their time.
+    pub samples: [usize; 2],
+    pub command_compute_us_max: f64,
+    #[serde(skip)]
+    pub raw: Vec<(bool, SampleRecord)>,
+}
+
+/// What the characterisation says about an axis: the driving components' CV error estimate
+/// (worst direction) and the measured repeatability R, when it had repeated cycles.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Prior {
+    pub cv_error_um: Option<f64>,
+    pub repeatability_um: Option<f64>,
+}
+
+/// Reads [`Prior`] of `axis` from a results summary (`summary.json`).
+pub fn prior_from_summary(summary: &Value, axis: AxisId) -> Prior {
+    let a = axis.as_str();
+    let own = format!("_{a}{a}");
+    let ax = summary["axes"]
+        .as_array()
+        .and_then(|v| v.iter().find(|x| x["axis"] == a));
+    let cv = ax
+        .and_then(|x| x["components"].as_array())
+        .map(|cs| {
+            cs.iter()
+                .filter(|c| c["component"].as_str().is_some_and(|n| n.ends_with(&own)))
+                .filter_map(|c| c["cs"]["cv_error_um"].as_f64())
+                .fold(f64::NAN, f64::max)
+        })
+        .filter(|v| v.is_finite());
+    let r = summary["iso230"][a]["measured"]["r_um"].as_f64();
+    Prior {
+        cv_error_um: cv,
+        repeatability_um: r,
+    }
+}
+
+fn approaches(samples: &[SampleRecord], axis: AxisId, keep: &dyn Fn(f64) -> bool) -> Vec<Approach> {
+    samples
+        .iter()
+        .filter(|s| s.target.run.axis == axis && keep(s.target.target_um()))
+        .map(|s| Approach {
+            target_um: s.target.target_um(),
+            forward: s.target.run.direction == Direction::Forward,
+            deviation_um: s.error_um(axis),
+        })
+        .collect()
+}
+
+fn abs_stats(a: &[Approach]) -> (f64, f64) {
+    if a.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    let max = a.iter().map(|x| x.deviation_um.abs()).fold(0.0, f64::max);
+    let mean = a.iter().map(|x| x.deviation_um.abs()).sum::<f64>() / a.len() as f64;
+    (mean, max)
+}
+
+/// Runs the verification of characterisation `id` (campaign `c`, its compensation `comp`) on
+/// the campaign's hardware: a pass without, then a pass with the compensation. Every
+/// compensated command is computed (and any refused) before the stage moves.
+pub async fn run(
+    id: i64,
+    c: &Campaign,
+    comp: Arc<Compensation>,
+    prior: &dyn Fn(AxisId) -> Prior,
+    opts: &VerifyOptions,
+    control: watch::Receiver<Control>,
+    on_event: &mut (dyn FnMut(&str, &Value) + Send),
+) -> Result<Verdict, String> {
+    if opts.cycles == 0 || opts.cycles > MAX_CYCLES {
+        return Err(format!("cycles must be 1..={MAX_CYCLES}"));
+    }
+    if opts.iso_targets < 2 || opts.iso_targets + opts.unvisited_targets > MAX_TARGETS {
+        return Err(format!(
+            "targets: at least 2 on the grid, at most {MAX_TARGETS} in all"
+        ));
+    }
+    comp.check_stage(&c.spec.campaign.stage)
+        .map_err(|e| e.to_string())?;
+    for ax in &c.axes {
+        comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
+            .map_err(|e| e.to_string())?;
+    }
+    let (before_plan, sets) = plan_of(c, opts, 0);
+    let (after_plan, _) = plan_of(c, opts, before_plan.total() as u64);
+    let mut rig = rig::build(c).await.map_err(|e| format!("hardware: {e}"))?;
+    // Every compensated command before anything moves; the time of the computation per move.
+    let mut compute_us_max: f64 = 0.0;
+    for t in after_plan.batches.iter().flat_map(|b| &b.targets) {
+        let limits = rig.axis(t.run.axis).soft_limits_um();
+        let t0 = std::time::Instant::now();
+        let r = comp.command(t.run.axis, t.run.direction, t.target_um(), limits);
+        compute_us_max = compute_us_max.max(t0.elapsed().as_secs_f64() * 1e6);
+        if let Err(e) = r {
+            rig.close().await;
+            return Err(format!("compensation: {e}"));
+        }
+    }
+    let mut acquisition_s = 0.0;
+    let mut passes: Vec<Vec<SampleRecord>> = Vec::new();
+    for (k, plan) in [&before_plan, &after_plan].into_iter().enumerate() {
+        let pass = ["before", "after"][k];
+        on_event("pass", &json!({"pass": pass, "targets": plan.total()}));
+        let mut rec = Collect {
+            samples: Vec::new(),
+            on_event,
+        };
+        let r = {
+            let mut e = Engine::new(c, &mut rig, &mut rec, control.clone(), Default::default());
+            if k == 1 {
+                e.compensation = Some(comp.clone());
+            }
+            e.run(plan).await
+        };
+        let out = match r {
+            Ok(o) => o,
+            Err(e) => {
+                rig.stop_all().await;
+                rig.close().await;
+                return Err(format!("stopped: {e}"));
+            }
+        };
+        if out.end != EndState::Done {
+            rig.close().await;
+            return Err("verification aborted; motion stopped".into());
+        }
+        acquisition_s += out.stats.values().map(|s| s.acquisition_s + s.positioning_s).sum::<f64>();
+        passes.push(rec.samples);
+    }
+    rig.close().await;
+    let (before, after) = (&passes[0], &passes[1]);
+    let mut axes = Vec::new();
+    for (axis, iso, un) in &sets {
+        let on = |list: &Vec<f64>| {
+            let list = list.clone();
+            move |p: f64| list.iter().any(|q| (q - p).abs() < 1e-9)
+        };
+        let (is_iso, is_un) = (on(iso), on(un));
+        let tol = 1e-6;
+        let fig = |s: &[SampleRecord]| {
+            evaluate(&approaches(s, *axis, &is_iso), tol)
+                .ok_or_else(|| format!("axis {axis}: no samples at the ISO targets"))
+        };
+        let (fb, fa) = (fig(before)?, fig(after)?);
+        let all = |_: f64| true;
+        let (mean_b, max_b) = abs_stats(&approaches(before, *axis, &all));
+        let (mean_a, max_a) = abs_stats(&approaches(after, *axis, &all));
+        let (_, max_b_un) = abs_stats(&approaches(before, *axis, &is_un));
+        let (_, max_a_un) = abs_stats(&approaches(after, *axis, &is_un));
+        let p = prior(*axis);
+        // Without a measured repeatability from the characterisation, the verification's own
+        // uncompensated pass gives it (same targets, same cycles).
+        let repeat = p.repeatability_um.or(fb.r_um);
+        let expected = match opts.expected_um {
+            Some(e) => e,
+            None => 3.0 * p.cv_error_um.unwrap_or(f64::NAN) + repeat.unwrap_or(0.0),
+        };
+        let passed = expected.is_finite() && max_a <= expected;
+        axes.push(AxisVerdict {
+            axis: axis.as_str().into(),
+            before: Figures::from(&fb),
+            after: Figures::from(&fa),
+            max_abs_after_um: max_a,
+            expected_um: expected,
+            passed,
+            max_abs_before_um: max_b,
+            mean_abs_before_um: mean_b,
+            mean_abs_after_um: mean_a,
+            max_abs_after_unvisited_um: max_a_un,
+            max_abs_before_unvisited_um: max_b_un,
+            e_reduction: fb.e_um / fa.e_um,
+            cv_error_um: p.cv_error_um,
+            repeatability_um: repeat,
+            iso_targets_um: iso.clone(),
+            unvisited_targets_um: un.clone(),
+            cycles: opts.cycles,
+        });
+    }
+    let raw = before
+        .iter()
+        .map(|s| (false, *s))
+        .chain(after.iter().map(|s| (true, *s)))
+        .collect();
+    Ok(Verdict {
+        campaign: id,
+        passed: !axes.is_empty() && axes.iter().all(|a| a.passed),
+        axes,
+        stage: c.spec.campaign.stage.clone(),
+        compensation: comp.source.clone(),
+        acquisition_s,
+        samples: [before.len(), after.len()],
+        command_compute_us_max: compute_us_max,
+        raw,
+    })
+}
+
+fn opt(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.3}"))
+}
+
+/// The side-by-side table (`summary.txt` of the verification).
+pub fn table(v: &Verdict) -> String {
+    let mut s = format!(
+        "verification of campaign {} on stage {} (compensation: {})\n",
+        v.campaign, v.stage, v.compensation
+    );
+    s.push_str(&format!(
+        "{:<5} {:<7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>10} {:>10}\n",
+        "axis", "", "A µm", "B µm", "E µm", "M µm", "R µm", "mean|e| µm", "max|e| µm"
+    ));
+    for a in &v.axes {
+        for (name, f, mean, max) in [
+            ("before", &a.before, a.mean_abs_before_um, a.max_abs_before_um),
+            ("after", &a.after, a.mean_abs_after_um, a.max_abs_after_um),
+        ] {
+            s.push_str(&format!(
+                "{:<5} {:<7} {:>8.3} {:>8} {:>8.3} {:>8} {:>8} {:>10.3} {:>10.3}\n",
+                a.axis.to_uppercase(),
+                name,
+                f.a_um,
+                opt(f.b_um),
+                f.e_um,
+                opt(f.m_um),
+                opt(f.r_um),
+                mean,
+                max
+            ));
+        }
+        s.push_str(&format!(
+            "{:<5} E reduced {:.1}x; max |after| {:.3} µm ({:.3} µm at never-visited targets) vs expected {:.3} µm (3 x CV error {} + R {}): {}\n",
+            a.axis.to_uppercase(),
+            a.e_reduction,
+            a.max_abs_after_um,
+            a.max_abs_after_unvisited_um,
+            a.expected_um,
+            opt(a.cv_error_um),
+            opt(a.repeatability_um),
+            if a.passed { "passed" } else { "FAILED" }
+        ));
+    }
+    s.push_str(&format!(
+        "{}\n",
+        if v.passed {
+            "verification passed"
+        } else {
+            "verification FAILED"
+        }
+    ));
+    s
+}
+
+/// The one JSON object of `csmetro verify --json` (and `verify.json`).
+pub fn json(v: &Verdict) -> Value {
+    serde_json::to_value(v).unwrap_or(Value::Null)
+}
+
+/// Raw samples of both passes as CSV.
+pub fn samples_csv(v: &Verdict) -> String {
+    let mut s = String::from(
+        "pass,axis,direction,cycle,target_um,meas_x_um,meas_y_um,error_um\n",
+    );
+    for (after, r) in &v.raw {
+        let a = r.target.run.axis;
+        s.push_str(&format!(
+            "{},{},{},{},{},{:.6},{:.6},{:.6}\n",
+            if *after { "after" } else { "before" },
+            a.as_str(),
+            r.target.run.direction.as_str(),
+            r.target.run.cycle,
+            r.target.target_um(),
+            r.meas_x_um,
+            r.meas_y_um,
+            r.error_um(a)
+        ));
+    }
+    s
+}
+
+/// Both curves of one axis (mean deviation per target and direction, before and after) as SVG.
+pub fn plot_svg(v: &Verdict, axis: &str) -> Result<String, String> {
+    use plotters::prelude::*;
+    crate::report::register_fonts();
+    let series = |after: bool, forward: bool| -> Vec<(f64, f64)> {
+        let mut pts: std::collections::BTreeMap<i64, (f64, f64, usize)> = Default::default();
+        for (a, r) in &v.raw {
+            if *a != after
+                || r.target.run.axis.as_str() != axis
+                || (r.target.run.direction == Direction::Forward) != forward
+            {
+                continue;
+            }
+            let p = r.target.target_um();
+            let e = pts.entry((p * 1e6).round() as i64).or_insert((p, 0.0, 0));
+            e.1 += r.error_um(r.target.run.axis);
+            e.2 += 1;
+        }
+        pts.values().map(|(p, s, n)| (*p, s / *n as f64)).collect()
+    };
+    let all: Vec<(f64, f64)> = [(false, true), (false, false), (true, true), (true, false)]
+        .into_iter()
+        .flat_map(|(a, f)| series(a, f))
+        .collect();
+    if all.is_empty() {
+        return Err(format!("no samples of axis {axis}"));
+    }
+    let (x0, x1) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (y0, y1) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let pad = ((y1 - y0) * 0.05).max(1e-3);
+    let mut out = String::new();
+    {
+        let root = SVGBackend::with_string(&mut out, (1200, 700)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(
+                format!("axis {axis}: positioning deviation before / after compensation"),
+                (crate::report::FONT_FAMILY, 24),
+            )
+            .margin(20)
+            .x_label_area_size(50)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
+            .map_err(|e| e.to_string())?;
+        chart
+            .configure_mesh()
+            .x_desc("target (µm)")
+            .y_desc("deviation (µm)")
+            .draw()
+            .map_err(|e| e.to_string())?;
+        for (after, forward, color, label) in [
+            (false, true, RED, "before, forward"),
+            (false, false, MAGENTA, "before, backward"),
+            (true, true, BLUE, "after, forward"),
+            (true, false, CYAN, "after, backward"),
+        ] {
+            let s = series(after, forward);
+            chart
+                .draw_series(LineSeries::new(s.clone(), color.stroke_width(2)))
+                .map_err(|e| e.to_string())?
+                .label(label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
+            chart
+                .draw_series(s.into_iter().map(|p| Circle::new(p, 3, color.filled())))
+                .map_err(|e| e.to_string())?;
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| e.to_string())?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    Ok(out)
+}
+
+/// The verification's result files (name relative to the characterisation's results, content
+/// type, bytes).
+pub fn files(v: &Verdict) -> Vec<(String, String, Vec<u8>)> {
+    let mut f = vec![
+        (
+            "verify/summary.txt".to_string(),
+            "text/plain".to_string(),
+            table(v).into_bytes(),
+        ),
+        (
+            "verify/verify.json".into(),
+            "application/json".into(),
+            serde_json::to_vec_pretty(&json(v)).unwrap_or_default(),
+        ),
+        (
+            "verify/samples.csv".into(),
+            "text/csv".into(),
+            samples_csv(v).into_bytes(),
+        ),
+    ];
+    for a in &v.axes {
+        if let Ok(svg) = plot_svg(v, &a.axis) {
+            f.push((
+                format!("verify/verify_{}.svg", a.axis),
+                "image/svg+xml".into(),
+                svg.into_bytes(),
+            ));
+        }
+    }
+    f
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn campaign() -> Campaign {
+        let t = r#"
+[campaign]
+name = "v"
+[hardware]
+kind = "sim"
+[axes.x]
+range_um = [100.0, 1100.0]
+step_um = 5.0
+other_at_um = 100.0
+m = 40
+"#;
+        Campaign::parse(t, "v.toml", Path::new(".")).unwrap()
+    }
+
+    #[test]
+    fn iso_targets_are_on_the_grid_and_the_others_never_are() {
+        let c = campaign();
+        let ax = &c.axes[0];
+        let (iso, un) = targets(ax, &VerifyOptions::default());
+        assert_eq!(iso.len(), 11);
+        assert_eq!(iso[0], 100.0);
+        assert_eq!(*iso.last().unwrap(), 1100.0);
+        for p in &iso {
+            assert!(ax.grid.index_of(*p).is_some());
+        }
+        // Uneven spacing: not all gaps equal.
+        let gaps: Vec<f64> = iso.windows(2).map(|w| w[1] - w[0]).collect();
+        assert!(gaps.iter().any(|g| (g - gaps[0]).abs() > 1.0));
+        assert_eq!(un.len(), 10);
+        for p in &un {
+            let off = (p - 100.0).rem_euclid(5.0);
+            assert!((1.0 - 1e-9..=4.0 + 1e-9).contains(&off), "{p}");
+            assert!((100.0..=1100.0).contains(p));
+        }
+        let (p, _) = plan_of(&c, &VerifyOptions::default(), 0);
+        // 5 cycles x 2 directions of 21 targets.
+        assert_eq!(p.total(), 5 * 2 * 21);
+    }
+
+    #[test]
+    fn prior_reads_the_driving_components_and_r() {
+        let s = json!({"axes": [{"axis": "x", "components": [
+            {"component": "ef_xx", "cs": {"cv_error_um": 0.05}},
+            {"component": "eb_xx", "cs": {"cv_error_um": 0.07}},
+            {"component": "ef_xy", "cs": {"cv_error_um": 0.9}}]}],
+            "iso230": {"x": {"measured": {"r_um": 0.04}}}});
+        let p = prior_from_summary(&s, AxisId::X);
+        assert_eq!(p.cv_error_um, Some(0.07));
+        assert_eq!(p.repeatability_um, Some(0.04));
+        let q = prior_from_summary(&s, AxisId::Y);
+        assert!(q.cv_error_um.is_none() && q.repeatability_um.is_none());
+    }
+}
