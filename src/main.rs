@@ -53,6 +53,10 @@ enum Command {
     Report(cli::client::ReportArgs),
     /// Fault soak: simulated campaigns with random faults and kills, checked against the truth (JSON).
     Soak(cli::soak::Args),
+    /// Move the stage to wanted positions, with the measured compensation applied.
+    Move(cli::move_cmd::Args),
+    /// Verification run: measure a characterised stage again without and with its compensation.
+    Verify(cli::verify::Args),
 }
 
 fn main() -> ExitCode {
@@ -76,6 +80,8 @@ fn main() -> ExitCode {
         Command::Abort(a) => cli::client::abort(a),
         Command::Report(a) => cli::client::report(a),
         Command::Soak(a) => cli::soak::run(a),
+        Command::Move(a) => cli::move_cmd::run(a),
+        Command::Verify(a) => cli::verify::run(a),
     };
     cli::finish(result)
 }

@@ -421,6 +421,7 @@ pub fn build(
     let summary = json!({
         "id": id,
         "name": c.spec.campaign.name,
+        "stage": c.spec.campaign.stage,
         "state": if problems.is_empty() { "done" } else { "failed" },
         "errors": problems,
         "wall_s": wall_s,

@@ -6,12 +6,14 @@ pub mod client;
 pub mod demo;
 pub mod gap;
 pub mod generate;
+pub mod move_cmd;
 pub mod ppp;
 pub mod reconstruct;
 pub mod run;
 pub mod serve;
 pub mod sim;
 pub mod soak;
+pub mod verify;
 
 /// An error that ends a command: a one-line message and the process exit code.
 #[derive(Debug)]

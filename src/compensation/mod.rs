@@ -263,8 +263,7 @@ impl AxisTable {
             return Err(CommandError::NotFinite { axis, wanted_um });
         }
         let (lo, hi) = self.range_um();
-        let outside = |p: f64| p < lo - 1e-9 || p > hi + 1e-9;
-        if outside(wanted_um) {
+        if wanted_um < lo - 1e-9 || wanted_um > hi + 1e-9 {
             return Err(CommandError::OutsideTable {
                 axis,
                 wanted_um,
@@ -272,15 +271,17 @@ impl AxisTable {
                 hi_um: hi,
             });
         }
+        // A wanted position at the table's edge may need a command just beyond it: the edge
+        // value holds there for up to one grid step (the table's resolution), no further.
+        let x = &self.positions_um;
+        let (m_lo, m_hi) = (x[1] - x[0], x[x.len() - 1] - x[x.len() - 2]);
         let mut c = wanted_um;
         for _ in 0..MAX_STEPS {
-            // The table is defined on its grid only: an iterate beyond it uses the edge value,
-            // and a command that ends up beyond it is refused below.
             let next = wanted_um - self.error_at(d, c.clamp(lo, hi));
             let done = (next - c).abs() <= CONVERGED_UM;
             c = next;
             if done {
-                if outside(c) {
+                if c < lo - m_lo || c > hi + m_hi {
                     return Err(CommandError::OutsideTable {
                         axis,
                         wanted_um,
@@ -529,7 +530,8 @@ fn table_axis(path: &Path) -> Result<AxisId, TableError> {
     Err(TableError {
         origin,
         line: 1,
-        message: "cannot tell the axis: name the file compensation_x.csv or compensation_y.csv".into(),
+        message: "cannot tell the axis: name the file compensation_x.csv or compensation_y.csv"
+            .into(),
     })
 }
 
@@ -546,10 +548,7 @@ fn summary_identity(path: &Path) -> Result<(Option<String>, Option<i64>), TableE
         line: e.line(),
         message: "not a results summary (JSON)".into(),
     })?;
-    Ok((
-        v["stage"].as_str().map(str::to_string),
-        v["id"].as_i64(),
-    ))
+    Ok((v["stage"].as_str().map(str::to_string), v["id"].as_i64()))
 }
 
 /// Where `[compensation]` of a campaign comes from, resolved.
@@ -578,11 +577,15 @@ mod tests {
     }
 
     fn table_text(step: f64, both: bool) -> String {
-        let mut s = String::from("position_um,ef_xx_um,eb_xx_um,corr_forward_um,corr_backward_um\n");
+        let mut s =
+            String::from("position_um,ef_xx_um,eb_xx_um,corr_forward_um,corr_backward_um\n");
         let n = (2000.0 / step) as usize;
         for i in 0..=n {
             let p = i as f64 * step;
-            let (f, b) = (e_true(Direction::Forward, p), e_true(Direction::Backward, p));
+            let (f, b) = (
+                e_true(Direction::Forward, p),
+                e_true(Direction::Backward, p),
+            );
             if both {
                 s.push_str(&format!("{p},{f:.6},{b:.6},{:.6},{:.6}\n", -f, -b));
             } else {

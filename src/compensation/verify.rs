@@ -84,7 +84,11 @@ pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>) {
 }
 
 /// The runs of one pass: per axis, cycle and direction, one sweep over all its targets.
-fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<(AxisId, Vec<f64>, Vec<f64>)>) {
+fn plan_of(
+    c: &Campaign,
+    opts: &VerifyOptions,
+    seq0: u64,
+) -> (Plan, Vec<(AxisId, Vec<f64>, Vec<f64>)>) {
     let mut batches = Vec::new();
     let mut seq = seq0;
     let mut sets = Vec::new();
@@ -114,9 +118,10 @@ fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<(AxisId,
                         let t = Target {
                             seq,
                             run,
-                            grid_index: (((p - ax.grid.start_um) / ax.grid.step_um).round().max(0.0)
-                                as usize)
-                                .min(ax.grid.n - 1),
+                            grid_index:
+                                (((p - ax.grid.start_um) / ax.grid.step_um).round().max(0.0)
+                                    as usize)
+                                    .min(ax.grid.n - 1),
                             target_x_um: tx,
                             target_y_um: ty,
                         };
@@ -221,7 +226,7 @@ pub struct Verdict {
 }
 
 /// What the characterisation says about an axis: the driving components' CV error estimate
-/// (worst direction) and the measured repeatability R, when it had repeated cycles.
+/// (worst direction) and the measured unidirectional repeatability, when it had repeated cycles.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Prior {
     pub cv_error_um: Option<f64>,
@@ -244,7 +249,13 @@ pub fn prior_from_summary(summary: &Value, axis: AxisId) -> Prior {
                 .fold(f64::NAN, f64::max)
         })
         .filter(|v| v.is_finite());
-    let r = summary["iso230"][a]["measured"]["r_um"].as_f64();
+    // Unidirectional repeatability (max of R↑, R↓): the bidirectional R contains the reversal,
+    // which the compensation corrects per direction.
+    let m = &summary["iso230"][a]["measured"];
+    let r = [m["r_up_um"].as_f64(), m["r_down_um"].as_f64()]
+        .into_iter()
+        .flatten()
+        .reduce(f64::max);
     Prior {
         cv_error_um: cv,
         repeatability_um: r,
@@ -341,7 +352,11 @@ pub async fn run(
             rig.close().await;
             return Err("verification aborted; motion stopped".into());
         }
-        acquisition_s += out.stats.values().map(|s| s.acquisition_s + s.positioning_s).sum::<f64>();
+        acquisition_s += out
+            .stats
+            .values()
+            .map(|s| s.acquisition_s + s.positioning_s)
+            .sum::<f64>();
         passes.push(rec.samples);
     }
     rig.close().await;
@@ -367,7 +382,11 @@ pub async fn run(
         let p = prior(*axis);
         // Without a measured repeatability from the characterisation, the verification's own
         // uncompensated pass gives it (same targets, same cycles).
-        let repeat = p.repeatability_um.or(fb.r_um);
+        let own = [fb.r_up_um, fb.r_down_um]
+            .into_iter()
+            .flatten()
+            .reduce(f64::max);
+        let repeat = p.repeatability_um.or(own);
         let expected = match opts.expected_um {
             Some(e) => e,
             None => 3.0 * p.cv_error_um.unwrap_or(f64::NAN) + repeat.unwrap_or(0.0),
@@ -427,7 +446,12 @@ pub fn table(v: &Verdict) -> String {
     ));
     for a in &v.axes {
         for (name, f, mean, max) in [
-            ("before", &a.before, a.mean_abs_before_um, a.max_abs_before_um),
+            (
+                "before",
+                &a.before,
+                a.mean_abs_before_um,
+                a.max_abs_before_um,
+            ),
             ("after", &a.after, a.mean_abs_after_um, a.max_abs_after_um),
         ] {
             s.push_str(&format!(
@@ -473,9 +497,7 @@ pub fn json(v: &Verdict) -> Value {
 
 /// Raw samples of both passes as CSV.
 pub fn samples_csv(v: &Verdict) -> String {
-    let mut s = String::from(
-        "pass,axis,direction,cycle,target_um,meas_x_um,meas_y_um,error_um\n",
-    );
+    let mut s = String::from("pass,axis,direction,cycle,target_um,meas_x_um,meas_y_um,error_um\n");
     for (after, r) in &v.raw {
         let a = r.target.run.axis;
         s.push_str(&format!(
@@ -520,8 +542,16 @@ pub fn plot_svg(v: &Verdict, axis: &str) -> Result<String, String> {
     if all.is_empty() {
         return Err(format!("no samples of axis {axis}"));
     }
-    let (x0, x1) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.0), b.max(p.0)));
-    let (y0, y1) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let (x0, x1) = all
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.0), b.max(p.0))
+        });
+    let (y0, y1) = all
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.1), b.max(p.1))
+        });
     let pad = ((y1 - y0) * 0.05).max(1e-3);
     let mut out = String::new();
     {
@@ -653,7 +683,7 @@ m = 40
             {"component": "ef_xx", "cs": {"cv_error_um": 0.05}},
             {"component": "eb_xx", "cs": {"cv_error_um": 0.07}},
             {"component": "ef_xy", "cs": {"cv_error_um": 0.9}}]}],
-            "iso230": {"x": {"measured": {"r_um": 0.04}}}});
+            "iso230": {"x": {"measured": {"r_um": 2.5, "r_up_um": 0.04, "r_down_um": 0.03}}}});
         let p = prior_from_summary(&s, AxisId::X);
         assert_eq!(p.cv_error_um, Some(0.07));
         assert_eq!(p.repeatability_um, Some(0.04));

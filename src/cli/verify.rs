@@ -1,0 +1,186 @@
+//! `csmetro verify ID`: measures a characterised stage again without and with its compensation
+//! and reports before/after side by side; exit 1 ("passed": false) when the compensated residual
+//! exceeds the expected one.
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::{Arc, Mutex};
+
+use tokio::sync::watch;
+
+use super::run::DEFAULT_DB;
+use super::{CliError, CliResult};
+use crate::campaign::engine::Control;
+use crate::campaign::session;
+use crate::campaign::stagelock;
+use crate::compensation::verify::{self, prior_from_summary, Prior, VerifyOptions};
+use crate::compensation::Compensation;
+use crate::store::Store;
+use crate::types::{AxisId, CampaignState};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The characterisation campaign (its hardware, grid and compensation tables).
+    id: i64,
+    #[arg(long, env = "CSMETRO_DB", default_value = DEFAULT_DB)]
+    db: PathBuf,
+    /// Print exactly one JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Another compensation than the campaign's own: a results directory or a table file.
+    #[arg(long)]
+    compensation: Option<PathBuf>,
+    /// Measurement cycles per direction (ISO 230-2: 5).
+    #[arg(long, default_value_t = 5)]
+    cycles: u32,
+    /// Targets chosen from the characterisation's grid.
+    #[arg(long, default_value_t = 11)]
+    targets: usize,
+    /// Random targets between grid points (never visited by the characterisation).
+    #[arg(long, default_value_t = 10)]
+    unvisited: usize,
+    /// Seed of the target choice.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Largest |compensated error| that passes, µm (default per axis: 3 x the
+    /// characterisation's CV error + the repeatability R).
+    #[arg(long)]
+    expected_um: Option<f64>,
+    /// No progress on stderr.
+    #[arg(long)]
+    quiet: bool,
+}
+
+pub fn run(a: Args) -> CliResult {
+    if let Some(e) = a.expected_um {
+        if !(e.is_finite() && e > 0.0) {
+            return Err(CliError::input("--expected-um must be a positive number"));
+        }
+    }
+    if a.cycles == 0 || a.cycles > verify::MAX_CYCLES {
+        return Err(CliError::input(format!(
+            "--cycles must be 1..={}",
+            verify::MAX_CYCLES
+        )));
+    }
+    if a.targets < 2 || a.targets + a.unvisited > verify::MAX_TARGETS {
+        return Err(CliError::input(format!(
+            "--targets at least 2, --targets + --unvisited at most {}",
+            verify::MAX_TARGETS
+        )));
+    }
+    if !a.db.exists() {
+        return Err(CliError::input(format!("no store at {}", a.db.display())));
+    }
+    let store = Store::open(&a.db)
+        .map_err(|e| CliError::failure(format!("store {}: {e}", a.db.display())))?;
+    let row = store
+        .campaign(a.id)
+        .map_err(|e| CliError::failure(e.to_string()))?
+        .ok_or_else(|| CliError::input(format!("no campaign {} in {}", a.id, a.db.display())))?;
+    if row.state != CampaignState::Done {
+        return Err(CliError::input(format!(
+            "campaign {} is {}: only a finished characterisation can be verified",
+            a.id,
+            row.state.as_str()
+        )));
+    }
+    // A bad table is refused here, before any hardware is touched.
+    let comp = match &a.compensation {
+        Some(p) => Compensation::load(p),
+        None => Compensation::from_store(&store, a.id, &row.stage),
+    }
+    .map_err(|e| CliError::input(e.to_string()))?;
+    comp.check_stage(&row.stage)
+        .map_err(|e| CliError::input(e.to_string()))?;
+    let summary: serde_json::Value = store
+        .result(a.id, "summary.json")
+        .ok()
+        .flatten()
+        .and_then(|(_, b)| serde_json::from_slice(&b).ok())
+        .unwrap_or_default();
+    let shared = Arc::new(Mutex::new(store));
+    let c = session::load_stored(&shared, a.id).map_err(CliError::failure)?;
+    for ax in &c.axes {
+        comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
+            .map_err(|e| CliError::input(e.to_string()))?;
+    }
+    let _stage =
+        stagelock::try_lock(&a.db, &row.stage).map_err(|e| CliError::failure(e.to_string()))?;
+    let opts = VerifyOptions {
+        cycles: a.cycles,
+        iso_targets: a.targets,
+        unvisited_targets: a.unvisited,
+        seed: a.seed,
+        expected_um: a.expected_um,
+    };
+    let prior = move |axis: AxisId| -> Prior { prior_from_summary(&summary, axis) };
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::failure(e.to_string()))?;
+    let quiet = a.quiet;
+    let verdict = rt.block_on(async {
+        let (tx, rx) = watch::channel(Control::Run);
+        // Ctrl-C or SIGTERM: motion stops, the verification ends without a verdict.
+        tokio::spawn(async move {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {},
+                _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending::<()>().await } } => {},
+            }
+            let _ = tx.send(Control::Abort);
+        });
+        let mut progress = move |kind: &str, data: &serde_json::Value| {
+            if !quiet && matches!(kind, "pass" | "frame_rejected" | "point_failed") {
+                eprintln!("{kind}: {data}");
+            }
+        };
+        verify::run(a.id, &c, Arc::new(comp), &prior, &opts, rx, &mut progress).await
+    });
+    let v = verdict.map_err(|e| {
+        if e.starts_with("compensation:") {
+            CliError::input(e)
+        } else {
+            CliError::failure(e)
+        }
+    })?;
+    // Results next to the characterisation's: in the store (so `report` and the API serve
+    // them) and in its output directory.
+    let files = verify::files(&v);
+    {
+        let s = shared.lock().unwrap_or_else(|e| e.into_inner());
+        for (name, ctype, bytes) in &files {
+            if let Err(e) = s.put_result(a.id, name, ctype, bytes) {
+                eprintln!("warning: {name} not stored: {e}");
+            }
+        }
+    }
+    let dir = crate::campaign::results::out_dir(&c, a.id);
+    let mut written = true;
+    for (name, _, bytes) in &files {
+        let p = dir.join(name);
+        let ok = p
+            .parent()
+            .map_or(Ok(()), std::fs::create_dir_all)
+            .and_then(|()| std::fs::write(&p, bytes));
+        written &= ok.is_ok();
+    }
+    if a.json {
+        println!("{}", verify::json(&v));
+    } else {
+        print!("{}", verify::table(&v));
+    }
+    if written && !a.quiet {
+        eprintln!(
+            "results: {} (and in the store, campaign {})",
+            dir.join("verify").display(),
+            a.id
+        );
+    }
+    Ok(if v.passed {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}

@@ -1,0 +1,295 @@
+//! Compensated motion and the verification run on the simulated demo stage (leadscrew cyclic
+//! error, 2 µm backlash, scale error, straightness): characterise a short stretch of x once,
+//! then `csmetro verify` and `csmetro move` with the compensation it wrote, and the bad tables
+//! they must refuse before anything moves.
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Output;
+use std::sync::OnceLock;
+
+use common::{bin, repo};
+use serde_json::Value;
+
+const STAGE: &str = "comp-sim-xy";
+
+/// The tests share one store and stage: one at a time (the stage lock would refuse the others).
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static M: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    M.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The characterisation: x over [1000, 3000] µm on a 5 µm grid, 120 random targets per
+/// direction, two cycles. Run once for every test of this file.
+fn characterised() -> &'static (PathBuf, PathBuf) {
+    static ONCE: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
+    ONCE.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap().keep();
+        let text = format!(
+            r#"[campaign]
+name = "char"
+stage = "{STAGE}"
+[hardware]
+kind = "sim"
+optics = {{ width = 640, height = 640 }}
+[hardware.sim]
+model = "{model}"
+time_scale = 1000
+seed = 5
+[axes.x]
+range_um = [1000.0, 3000.0]
+step_um = 5.0
+other_at_um = 2100.0
+m = 120
+[sampling]
+design = "random"
+seed = 11
+[acquisition]
+directions = ["forward", "backward"]
+cycles = 2
+settle_s = 2.0
+dwell_s = 0.5
+[reconstruction]
+noise_um = 0.01
+[outputs]
+dir = "{out}/{{name}}-{{id}}"
+"#,
+            model = repo("config/sim/demo_xy.toml").display(),
+            out = dir.display(),
+        );
+        let camp = dir.join("char.toml");
+        std::fs::write(&camp, text).unwrap();
+        let db = dir.join("csmetro.db");
+        let o = bin()
+            .args(["run", "--quiet", "--db"])
+            .arg(&db)
+            .arg(&camp)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        (db, dir.join("char-1"))
+    })
+}
+
+fn verify(extra: &[&str]) -> Output {
+    let (db, _) = characterised();
+    bin()
+        .args(["verify", "1", "--quiet", "--cycles", "2", "--db"])
+        .arg(db)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+/// The one JSON object on stdout, whatever the exit code.
+fn only_json(o: &Output) -> Value {
+    let s = String::from_utf8_lossy(&o.stdout);
+    let v: Value =
+        serde_json::from_str(s.trim()).unwrap_or_else(|e| panic!("not one JSON object ({e}): {s}"));
+    v
+}
+
+fn figure(v: &Value, k: &str) -> f64 {
+    v[k].as_f64()
+        .unwrap_or_else(|| panic!("{k} missing in {v}"))
+}
+
+#[test]
+fn verification_shows_the_compensation_removing_the_systematic_error() {
+    let _one = serial();
+    let o = verify(&["--json"]);
+    let v = only_json(&o);
+    assert_eq!(v["campaign"], 1);
+    let passed = v["passed"].as_bool().unwrap();
+    // The exit code says the same as "passed".
+    assert_eq!(o.status.code(), Some(if passed { 0 } else { 1 }));
+    let axes = v["axes"].as_array().unwrap();
+    assert_eq!(axes.len(), 1);
+    let x = &axes[0];
+    assert_eq!(x["axis"], "x");
+    let (b, a) = (&x["before"], &x["after"]);
+    for f in [b, a] {
+        for k in ["a_um", "b_um", "e_um", "m_um", "r_um"] {
+            assert!(f[k].is_number(), "{k} in {f}");
+        }
+    }
+    // The stage's 2 µm backlash and its cyclic error dominate before; the compensation takes
+    // out the systematic part (E) by close to 10x even at this small size (120 of 401 points).
+    assert!(figure(b, "b_um") > 1.5, "{x}");
+    assert!(figure(a, "b_um").abs() < 0.3, "{x}");
+    let ratio = figure(b, "e_um") / figure(a, "e_um");
+    assert!(ratio > 8.0, "E before/after {ratio}: {x}");
+    // At never-visited targets (between grid points) too.
+    let un = figure(x, "max_abs_after_unvisited_um");
+    assert!(
+        un < 0.6 && figure(x, "max_abs_before_unvisited_um") > 2.0,
+        "{x}"
+    );
+    assert!(figure(x, "max_abs_after_um") >= un);
+    assert!(figure(x, "expected_um") > 0.0);
+    // Both verdicts are reachable: the expected residual decides.
+    let lax = verify(&[
+        "--json",
+        "--expected-um",
+        "1.0",
+        "--targets",
+        "3",
+        "--unvisited",
+        "1",
+    ]);
+    assert_eq!(lax.status.code(), Some(0));
+    assert_eq!(only_json(&lax)["passed"], true);
+    let strict = verify(&[
+        "--json",
+        "--expected-um",
+        "0.05",
+        "--targets",
+        "3",
+        "--unvisited",
+        "1",
+    ]);
+    assert_eq!(strict.status.code(), Some(1));
+    assert_eq!(only_json(&strict)["passed"], false);
+    assert_eq!(only_json(&strict)["axes"][0]["expected_um"], 0.05);
+    // Results beside the characterisation's: table with both sides, the plot, the JSON.
+    let (_, results) = characterised();
+    let txt = std::fs::read_to_string(results.join("verify/summary.txt")).unwrap();
+    assert!(txt.contains("before") && txt.contains("after"), "{txt}");
+    let svg = std::fs::read_to_string(results.join("verify/verify_x.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("after, backward"));
+    let store = csmetro::store::Store::open(&characterised().0).unwrap();
+    assert!(store.result(1, "verify/verify.json").unwrap().is_some());
+}
+
+/// Copies the characterisation's results to a fresh directory, `edit` changes it.
+fn results_copy(name: &str, edit: impl FnOnce(&Path)) -> PathBuf {
+    let (_, results) = characterised();
+    let d = tempfile::tempdir().unwrap().keep().join(name);
+    std::fs::create_dir_all(&d).unwrap();
+    for f in ["compensation_x.csv", "summary.json"] {
+        std::fs::copy(results.join(f), d.join(f)).unwrap();
+    }
+    edit(&d);
+    d
+}
+
+fn refused(o: &Output, needle: &str) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains(needle), "{needle:?} not in {err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        o.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+}
+
+#[test]
+fn bad_tables_are_refused_at_load_with_file_and_line_and_nothing_moves() {
+    let _one = serial();
+    let nan = results_copy("nan", |d| {
+        let p = d.join("compensation_x.csv");
+        let t = std::fs::read_to_string(&p).unwrap();
+        let mut lines: Vec<String> = t.lines().map(String::from).collect();
+        let cells: Vec<&str> = lines[10].split(',').collect();
+        let n = cells.len();
+        lines[10] = format!("{},NaN,{}", cells[..n - 2].join(","), cells[n - 1]);
+        std::fs::write(&p, lines.join("\n")).unwrap();
+    });
+    let header = results_copy("header", |d| {
+        let p = d.join("compensation_x.csv");
+        let t = std::fs::read_to_string(&p).unwrap();
+        std::fs::write(&p, t.replacen("corr_forward_um", "corr_fwd", 1)).unwrap();
+    });
+    let other_stage = results_copy("stage", |d| {
+        let p = d.join("summary.json");
+        let t = std::fs::read_to_string(&p).unwrap();
+        std::fs::write(&p, t.replace(STAGE, "lab-xy")).unwrap();
+    });
+    let short = results_copy("short", |d| {
+        // Only the grid up to 2000 µm: the characterised travel is [1000, 3000].
+        let p = d.join("compensation_x.csv");
+        let t = std::fs::read_to_string(&p).unwrap();
+        let kept: Vec<&str> = t.lines().take(202).collect();
+        std::fs::write(&p, kept.join("\n")).unwrap();
+    });
+    let nan_file = nan.join("compensation_x.csv");
+    let cases: Vec<(PathBuf, String)> = vec![
+        (nan.clone(), format!("{}:11:", nan_file.display())),
+        (
+            header.clone(),
+            format!("{}:1:", header.join("compensation_x.csv").display()),
+        ),
+        (other_stage, "not on \"comp-sim-xy\"".into()),
+        (short, "does not cover the travel [1000, 3000]".into()),
+    ];
+    for (path, needle) in &cases {
+        let o = verify(&["--json", "--compensation", path.to_str().unwrap()]);
+        refused(&o, needle);
+    }
+    // The same tables through `move`, except coverage (a move needs its target only).
+    for (path, needle) in &cases[..3] {
+        let o = mv(&["--x-um", "2000", "--compensation", path.to_str().unwrap()]);
+        refused(&o, needle);
+    }
+}
+
+fn mv(extra: &[&str]) -> Output {
+    let (db, _) = characterised();
+    bin()
+        .args(["move", "--stage", STAGE, "--json", "--db"])
+        .arg(db)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn a_compensated_move_lands_where_asked_and_refuses_rather_than_clips() {
+    let _one = serial();
+    let (_, results) = characterised();
+    let res = results.to_str().unwrap();
+    // Off the grid, in both approach directions: on the characterisation's hardware (found
+    // through the results' campaign id in the store), measured by the camera.
+    for dir in ["forward", "backward"] {
+        let camp = results.parent().unwrap().join("char.toml");
+        let plain = mv(&[
+            "--x-um",
+            "2222.2",
+            "--direction",
+            dir,
+            "--measure",
+            "--campaign",
+            camp.to_str().unwrap(),
+        ]);
+        let comp = mv(&[
+            "--x-um",
+            "2222.2",
+            "--direction",
+            dir,
+            "--measure",
+            "--compensation",
+            res,
+        ]);
+        let (p, c) = (common::json_of(&plain), common::json_of(&comp));
+        assert!(
+            c["hardware"].as_str().unwrap().contains("campaign 1"),
+            "{c}"
+        );
+        let err = |v: &Value| v["measured_x_um"].as_f64().unwrap() - 2222.2;
+        assert!(err(&p).abs() > 0.5, "{dir}: uncompensated {p}");
+        assert!(err(&c).abs() < 0.3, "{dir}: compensated {c}");
+        let ax = &c["axes"][0];
+        assert_eq!(ax["approach"], dir);
+        assert!(ax["correction_um"].as_f64().unwrap().abs() > 0.5, "{ax}");
+        // The computation of a compensated command: well under 1 ms.
+        assert!(ax["compute_us"].as_f64().unwrap() < 1000.0, "{ax}");
+    }
+    // Outside the compensated range: refused, not clipped to the edge.
+    let o = mv(&["--x-um", "3100", "--compensation", res]);
+    refused(&o, "outside the compensated range");
+    // Outside the soft limits of the simulated axis ([-500, 13500] µm), with or without.
+    let o = mv(&["--x-um", "20000"]);
+    refused(&o, "soft limits");
+}
