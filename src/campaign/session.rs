@@ -228,6 +228,12 @@ pub async fn execute_with(
         let _ = s.set_state(id, CampaignState::Interrupted, Some(&msg));
         msg
     };
+    // `[compensation]`: resolved (and a bad table refused) before the hardware is touched.
+    let compensation = {
+        let s = lock(&store);
+        crate::compensation::for_campaign(&c, &s)
+    };
+    let compensation = compensation.map_err(|e| fail(format!("stopped: {e}")))?;
     let mut rig: Rig = rig::build(&c)
         .await
         .map_err(|e| fail(format!("hardware: {e}")))?;
@@ -276,6 +282,7 @@ pub async fn execute_with(
     };
     let outcome = {
         let mut engine = Engine::new(&c, &mut rig, &mut rec, control, done);
+        engine.compensation = compensation;
         engine.run(&p).await
     };
     let StoreRecorder { worker, .. } = rec;

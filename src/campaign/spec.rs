@@ -32,6 +32,9 @@ pub struct CampaignSpec {
     pub reconstruction: Reconstruction,
     #[serde(default)]
     pub outputs: Outputs,
+    /// `[compensation]`: run the whole campaign compensated (see [`crate::compensation`]).
+    #[serde(default)]
+    pub compensation: Option<crate::compensation::CompensationSpec>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -416,7 +419,7 @@ impl Campaign {
             key: path.to_string(),
             message,
         };
-        validate(&spec, trust, &fail).map(|(axes, method, solver)| Campaign {
+        let c = validate(&spec, trust, &fail).map(|(axes, method, solver)| Campaign {
             spec,
             text: text.to_string(),
             origin: origin.into(),
@@ -424,7 +427,10 @@ impl Campaign {
             axes,
             method,
             solver,
-        })
+        })?;
+        crate::compensation::check_spec(&c, matches!(trust, Trust::Submitted(_)))
+            .map_err(|(k, m)| fail(k, m))?;
+        Ok(c)
     }
 
     /// An error at `key` of this campaign's text.
