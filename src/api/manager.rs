@@ -127,6 +127,12 @@ impl Manager {
         self.store.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// A campaign of `stage` runs or waits in its queue: a move would cut in (409).
+    pub fn stage_busy(&self, stage: &str) -> bool {
+        let i = self.inner();
+        i.running.contains_key(stage) || i.queues.get(stage).is_some_and(|q| !q.is_empty())
+    }
+
     pub fn store(&self) -> &SharedStore {
         &self.store
     }

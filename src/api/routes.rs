@@ -12,6 +12,7 @@
 //! | `GET /campaigns/{id}/samples[?after=N&limit=L]` | committed samples in commit order: `{"id", "samples": [{"n", "sample"}], "next"}`; `next` is the `after` of the following page (live `sample` events a client missed are all here) |
 //! | `GET /campaigns/{id}/results` | `{"id": .., "results": [names]}` |
 //! | `GET /campaigns/{id}/results/{*name}` | the bytes, with their stored content type |
+//! | `POST /stages/{name}/move` | body `{"x_um", "y_um"?, "direction"?, "approach_um"?, "compensation_from"?, "hardware_from"?, "measure"?}`: a (compensated) move; 409 while a campaign runs or waits on that stage |
 //!
 //! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`.
 //!
@@ -76,6 +77,7 @@ pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy
         .route("/campaigns/{id}/samples", get(samples))
         .route("/campaigns/{id}/results", get(results))
         .route("/campaigns/{id}/results/{*name}", get(result))
+        .route("/stages/{name}/move", post(move_stage))
         .fallback(|| async { ApiError::not_found("no such route") })
         .layer(middleware::from_fn_with_state(app.clone(), auth))
         .with_state(app)
@@ -412,4 +414,23 @@ async fn follow(
             }
         }
     }
+}
+
+/// `POST /stages/{name}/move`, see [`crate::compensation::motion`].
+async fn move_stage(
+    State(app): State<App>,
+    Path(name): Path<String>,
+    body: Bytes,
+) -> ApiResult<Json<serde_json::Value>> {
+    let m = app.manager.clone();
+    let (c, comp, req, lock) =
+        blocking(move || crate::compensation::motion::api_prepare(&m, &name, &body)).await?;
+    let out = crate::compensation::motion::execute(&c, comp.as_ref(), &req, std::future::pending())
+        .await
+        .map_err(|e| match e {
+            crate::compensation::motion::MoveError::Refused(m) => ApiError::bad_request(m),
+            crate::compensation::motion::MoveError::Failed(m) => ApiError::internal(m),
+        });
+    drop(lock);
+    out.map(Json)
 }

@@ -7,15 +7,14 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
 
 use serde_json::json;
 
 use super::run::DEFAULT_DB;
 use super::{CliError, CliResult};
-use crate::campaign::rig::{self, Rig};
 use crate::campaign::spec::Campaign;
 use crate::campaign::{session, stagelock};
+use crate::compensation::motion::{self, MoveError, MoveRequest};
 use crate::compensation::Compensation;
 use crate::store::Store;
 use crate::types::{AxisId, Direction};
@@ -56,15 +55,6 @@ pub struct Args {
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
-}
-
-/// One axis's move, decided before anything moves.
-struct Planned {
-    axis: AxisId,
-    wanted_um: f64,
-    command_um: f64,
-    approach: Direction,
-    compute_us: f64,
 }
 
 fn sim_campaign(stage: &str, model: Option<&Path>) -> Result<Campaign, CliError> {
@@ -126,66 +116,12 @@ fn hardware(a: &Args, comp: Option<&Compensation>) -> Result<(Campaign, String),
     ))
 }
 
-async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64, String> {
-    let timeout = Duration::from_secs_f64(c.spec.hardware.move_timeout_s);
-    let rtimeout = Duration::from_secs_f64(c.spec.hardware.reference_timeout_s);
-    let a = rig.axis(p.axis);
-    let (lo, hi) = a.soft_limits_um();
-    let start = (p.command_um - p.approach.sign() * pre_um).clamp(lo, hi);
-    for (k, target) in [start, p.command_um].into_iter().enumerate() {
-        match a.move_to(target).await {
-            Err(csmetro_hal::AxisError::NotReferenced) if k == 0 => {
-                a.reference(rtimeout)
-                    .await
-                    .map_err(|e| format!("axis {}: reference: {e}", p.axis))?;
-                a.move_to(target)
-                    .await
-                    .map_err(|e| format!("axis {}: {e}", p.axis))?;
-            }
-            r => r.map_err(|e| format!("axis {}: {e}", p.axis))?,
-        }
-        a.wait_on_target(timeout)
-            .await
-            .map_err(|e| format!("axis {}: {e}", p.axis))?;
-    }
-    a.position_um()
-        .await
-        .map_err(|e| format!("axis {}: {e}", p.axis))
-}
-
-async fn measure(rig: &mut Rig) -> Result<(f64, f64), String> {
-    let mut cam = rig.camera.take().ok_or("no camera")?;
-    let decoder = rig.decoder.clone();
-    let (cam, r) = tokio::task::spawn_blocking(move || {
-        let r = cam
-            .trigger(Duration::from_secs(5))
-            .map_err(|e| e.to_string())
-            .and_then(|job| job().map_err(|e| e.to_string()))
-            .and_then(|frame| {
-                let d = decoder.decode(&frame);
-                if d.ok {
-                    Ok((d.x_um, d.y_um))
-                } else {
-                    Err(d.reason.unwrap_or_else(|| "frame rejected".into()))
-                }
-            });
-        (cam, r)
-    })
-    .await
-    .map_err(|e| e.to_string())?;
-    rig.camera = Some(cam);
-    r
-}
-
 pub fn run(a: Args) -> CliResult {
     let direction = match a.direction.as_str() {
         "forward" => Direction::Forward,
         "backward" => Direction::Backward,
         _ => return Err(CliError::input("--direction must be forward or backward")),
     };
-    if !(a.approach_um.is_finite() && (0.0..=10_000.0).contains(&a.approach_um)) {
-        return Err(CliError::input("--approach-um must be 0..=10000"));
-    }
     if a.stage.is_empty() || a.stage.len() > crate::campaign::spec::MAX_NAME_LEN {
         return Err(CliError::input("--stage: a stage name of 1 to 64 bytes"));
     }
@@ -193,11 +129,14 @@ pub fn run(a: Args) -> CliResult {
     if let Some(y) = a.y_um {
         wanted.push((AxisId::Y, y));
     }
-    if let Some((axis, _)) = wanted.iter().find(|(_, w)| !w.is_finite()) {
-        return Err(CliError::input(format!(
-            "--{axis}-um must be a finite number"
-        )));
-    }
+    let req = MoveRequest {
+        wanted,
+        direction,
+        approach_um: a.approach_um,
+        measure: a.measure,
+    };
+    req.check()
+        .map_err(|e| CliError::input(format!("--{}", e.replace('_', "-"))))?;
     // A bad table is refused here: nothing is built, nothing moves.
     let comp = match &a.compensation {
         Some(p) => {
@@ -219,113 +158,37 @@ pub fn run(a: Args) -> CliResult {
         .enable_all()
         .build()
         .map_err(|e| CliError::failure(e.to_string()))?;
-    rt.block_on(async {
-        let mut rig = rig::build(&c)
-            .await
-            .map_err(|e| CliError::failure(format!("hardware: {e}")))?;
-        // Every command first (soft limits, table range): a refused one moves nothing.
-        let mut planned = Vec::new();
-        for &(axis, w) in &wanted {
-            let limits = rig.axis(axis).soft_limits_um();
-            let t0 = Instant::now();
-            let r = match &comp {
-                Some(cmp) => {
-                    let approach = cmp
-                        .table(axis)
-                        .map_or(direction, |t| t.served_direction(direction));
-                    cmp.command(axis, approach, w, limits).map(|c| (c, approach))
-                }
-                None if w < limits.0 || w > limits.1 => Err(
-                    crate::compensation::CommandError::OutsideLimits {
-                        axis,
-                        wanted_um: w,
-                        command_um: w,
-                        lo_um: limits.0,
-                        hi_um: limits.1,
-                    },
-                ),
-                None => Ok((w, direction)),
-            };
-            let compute_us = t0.elapsed().as_secs_f64() * 1e6;
-            match r {
-                Ok((command_um, approach)) => planned.push(Planned {
-                    axis,
-                    wanted_um: w,
-                    command_um,
-                    approach,
-                    compute_us,
-                }),
-                Err(e) => {
-                    rig.close().await;
-                    return Err(CliError::input(e.to_string()));
-                }
-            }
+    let cancel = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    let mut out = rt
+        .block_on(motion::execute(&c, comp.as_ref(), &req, cancel))
+        .map_err(|e| match e {
+            MoveError::Refused(m) => CliError::input(m),
+            MoveError::Failed(m) => CliError::failure(m),
+        })?;
+    out["stage"] = json!(a.stage);
+    out["hardware"] = json!(hw);
+    if a.json {
+        println!("{out}");
+    } else {
+        println!("stage {} ({hw})", a.stage);
+        for p in out["axes"].as_array().into_iter().flatten() {
+            println!(
+                "{}: wanted {:.4} µm, commanded {:.4} µm (correction {:+.4} µm, approach {}, {:.1} µs)",
+                p["axis"].as_str().unwrap_or(""),
+                p["wanted_um"].as_f64().unwrap_or(f64::NAN),
+                p["command_um"].as_f64().unwrap_or(f64::NAN),
+                p["correction_um"].as_f64().unwrap_or(f64::NAN),
+                p["approach"].as_str().unwrap_or(""),
+                p["compute_us"].as_f64().unwrap_or(f64::NAN)
+            );
         }
-        let moves = async {
-            let mut enc = Vec::new();
-            for p in &planned {
-                enc.push(go(&mut rig, &c, p, a.approach_um).await?);
-            }
-            Ok::<_, String>(enc)
-        };
-        let r = tokio::select! {
-            r = moves => r,
-            _ = tokio::signal::ctrl_c() => Err("interrupted".to_string()),
-        };
-        let encoders = match r {
-            Ok(e) => e,
-            Err(e) => {
-                rig.stop_all().await;
-                rig.close().await;
-                return Err(CliError::failure(format!("{e}; motion stopped")));
-            }
-        };
-        let measured = if a.measure {
-            Some(measure(&mut rig).await)
-        } else {
-            None
-        };
-        rig.close().await;
-        let axes: Vec<_> = planned
-            .iter()
-            .zip(&encoders)
-            .map(|(p, e)| {
-                json!({"axis": p.axis.as_str(), "wanted_um": p.wanted_um, "command_um": p.command_um,
-                       "correction_um": p.command_um - p.wanted_um, "approach": p.approach.as_str(),
-                       "encoder_um": e, "compute_us": p.compute_us})
-            })
-            .collect();
-        let mut out = json!({"stage": a.stage, "hardware": hw,
-            "compensation": comp.as_ref().map(|c| c.source.clone()), "axes": axes});
-        match &measured {
-            Some(Ok((x, y))) => {
-                out["measured_x_um"] = json!(x);
-                out["measured_y_um"] = json!(y);
-            }
-            Some(Err(e)) => out["measure_error"] = json!(e),
-            None => {}
+        if let (Some(x), Some(y)) = (out["measured_x_um"].as_f64(), out["measured_y_um"].as_f64()) {
+            println!("measured: x {x:.4} µm, y {y:.4} µm");
+        } else if let Some(e) = out["measure_error"].as_str() {
+            println!("measured: no position ({e})");
         }
-        if a.json {
-            println!("{out}");
-        } else {
-            println!("stage {} ({hw})", a.stage);
-            for p in &planned {
-                println!(
-                    "{}: wanted {:.4} µm, commanded {:.4} µm (correction {:+.4} µm, approach {}, {:.1} µs)",
-                    p.axis,
-                    p.wanted_um,
-                    p.command_um,
-                    p.command_um - p.wanted_um,
-                    p.approach.as_str(),
-                    p.compute_us
-                );
-            }
-            match &measured {
-                Some(Ok((x, y))) => println!("measured: x {x:.4} µm, y {y:.4} µm"),
-                Some(Err(e)) => println!("measured: no position ({e})"),
-                None => {}
-            }
-        }
-        Ok(ExitCode::SUCCESS)
-    })
+    }
+    Ok(ExitCode::SUCCESS)
 }

@@ -13,6 +13,7 @@ use std::path::Path;
 use crate::report::compensation_columns;
 use crate::types::{AxisId, Direction};
 
+pub mod motion;
 pub mod verify;
 
 /// Largest compensation table read, bytes (1 M grid points at ~60 bytes a row).

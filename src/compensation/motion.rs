@@ -1,0 +1,328 @@
+//! One (compensated) move of a stage: every command decided before anything moves, each target
+//! approached from the side its correction was measured from, motion stopped on any error.
+//! Used by `csmetro move` and `POST /stages/{name}/move`.
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+use super::{CommandError, Compensation};
+use crate::campaign::rig::{self, Rig};
+use crate::campaign::spec::Campaign;
+use crate::types::{AxisId, Direction};
+
+/// What to move where.
+#[derive(Debug, Clone)]
+pub struct MoveRequest {
+    /// Wanted positions, µm, moved in this order.
+    pub wanted: Vec<(AxisId, f64)>,
+    /// The side each target is approached from (a one-direction table imposes its own).
+    pub direction: Direction,
+    /// Pre-travel before the final approach, µm.
+    pub approach_um: f64,
+    /// Take a camera frame at the end and report the decoded position.
+    pub measure: bool,
+}
+
+/// Largest pre-travel accepted, µm.
+pub const MAX_APPROACH_UM: f64 = 10_000.0;
+
+#[derive(Debug, Clone)]
+pub enum MoveError {
+    /// The request cannot be served (outside the table or the soft limits): nothing moved.
+    Refused(String),
+    /// The hardware failed (motion stopped).
+    Failed(String),
+}
+
+impl MoveRequest {
+    /// Checks the numbers themselves (before any hardware).
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.approach_um.is_finite() && (0.0..=MAX_APPROACH_UM).contains(&self.approach_um)) {
+            return Err(format!("approach_um must be 0..={MAX_APPROACH_UM}"));
+        }
+        if let Some((axis, _)) = self.wanted.iter().find(|(_, w)| !w.is_finite()) {
+            return Err(format!("{axis}_um must be a finite number"));
+        }
+        Ok(())
+    }
+}
+
+/// One axis's move, decided before anything moves.
+struct Planned {
+    axis: AxisId,
+    wanted_um: f64,
+    command_um: f64,
+    approach: Direction,
+    compute_us: f64,
+}
+
+async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64, String> {
+    let timeout = Duration::from_secs_f64(c.spec.hardware.move_timeout_s);
+    let rtimeout = Duration::from_secs_f64(c.spec.hardware.reference_timeout_s);
+    let a = rig.axis(p.axis);
+    let (lo, hi) = a.soft_limits_um();
+    let start = (p.command_um - p.approach.sign() * pre_um).clamp(lo, hi);
+    for (k, target) in [start, p.command_um].into_iter().enumerate() {
+        match a.move_to(target).await {
+            Err(csmetro_hal::AxisError::NotReferenced) if k == 0 => {
+                a.reference(rtimeout)
+                    .await
+                    .map_err(|e| format!("axis {}: reference: {e}", p.axis))?;
+                a.move_to(target)
+                    .await
+                    .map_err(|e| format!("axis {}: {e}", p.axis))?;
+            }
+            r => r.map_err(|e| format!("axis {}: {e}", p.axis))?,
+        }
+        a.wait_on_target(timeout)
+            .await
+            .map_err(|e| format!("axis {}: {e}", p.axis))?;
+    }
+    a.position_um()
+        .await
+        .map_err(|e| format!("axis {}: {e}", p.axis))
+}
+
+async fn measure(rig: &mut Rig) -> Result<(f64, f64), String> {
+    let mut cam = rig.camera.take().ok_or("no camera")?;
+    let decoder = rig.decoder.clone();
+    let (cam, r) = tokio::task::spawn_blocking(move || {
+        let r = cam
+            .trigger(Duration::from_secs(5))
+            .map_err(|e| e.to_string())
+            .and_then(|job| job().map_err(|e| e.to_string()))
+            .and_then(|frame| {
+                let d = decoder.decode(&frame);
+                if d.ok {
+                    Ok((d.x_um, d.y_um))
+                } else {
+                    Err(d.reason.unwrap_or_else(|| "frame rejected".into()))
+                }
+            });
+        (cam, r)
+    })
+    .await
+    .map_err(|e| e.to_string())?;
+    rig.camera = Some(cam);
+    r
+}
+
+/// Moves the stage of campaign `c`'s hardware as `req` asks; `cancel` resolving stops motion.
+/// The answer: per axis wanted, commanded, correction, approach, encoder, computation time (µs),
+/// and the measured position when asked.
+pub async fn execute(
+    c: &Campaign,
+    comp: Option<&Compensation>,
+    req: &MoveRequest,
+    cancel: impl std::future::Future<Output = ()>,
+) -> Result<Value, MoveError> {
+    req.check().map_err(MoveError::Refused)?;
+    let mut rig = rig::build(c)
+        .await
+        .map_err(|e| MoveError::Failed(format!("hardware: {e}")))?;
+    // Every command first (soft limits, table range): a refused one moves nothing.
+    let mut planned = Vec::new();
+    for &(axis, w) in &req.wanted {
+        let limits = rig.axis(axis).soft_limits_um();
+        let t0 = Instant::now();
+        let r = match comp {
+            Some(cmp) => {
+                let approach = cmp
+                    .table(axis)
+                    .map_or(req.direction, |t| t.served_direction(req.direction));
+                cmp.command(axis, approach, w, limits)
+                    .map(|c| (c, approach))
+            }
+            None if w < limits.0 || w > limits.1 => Err(CommandError::OutsideLimits {
+                axis,
+                wanted_um: w,
+                command_um: w,
+                lo_um: limits.0,
+                hi_um: limits.1,
+            }),
+            None => Ok((w, req.direction)),
+        };
+        let compute_us = t0.elapsed().as_secs_f64() * 1e6;
+        match r {
+            Ok((command_um, approach)) => planned.push(Planned {
+                axis,
+                wanted_um: w,
+                command_um,
+                approach,
+                compute_us,
+            }),
+            Err(e) => {
+                rig.close().await;
+                return Err(MoveError::Refused(e.to_string()));
+            }
+        }
+    }
+    let moves = async {
+        let mut enc = Vec::new();
+        for p in &planned {
+            enc.push(go(&mut rig, c, p, req.approach_um).await?);
+        }
+        Ok::<_, String>(enc)
+    };
+    let r = tokio::select! {
+        r = moves => r,
+        _ = cancel => Err("interrupted".to_string()),
+    };
+    let encoders = match r {
+        Ok(e) => e,
+        Err(e) => {
+            rig.stop_all().await;
+            rig.close().await;
+            return Err(MoveError::Failed(format!("{e}; motion stopped")));
+        }
+    };
+    let measured = if req.measure {
+        Some(measure(&mut rig).await)
+    } else {
+        None
+    };
+    rig.close().await;
+    let axes: Vec<_> = planned
+        .iter()
+        .zip(&encoders)
+        .map(|(p, e)| {
+            json!({"axis": p.axis.as_str(), "wanted_um": p.wanted_um, "command_um": p.command_um,
+                   "correction_um": p.command_um - p.wanted_um, "approach": p.approach.as_str(),
+                   "encoder_um": e, "compute_us": p.compute_us})
+        })
+        .collect();
+    let mut out = json!({"compensation": comp.map(|c| c.source.clone()), "axes": axes});
+    match &measured {
+        Some(Ok((x, y))) => {
+            out["measured_x_um"] = json!(x);
+            out["measured_y_um"] = json!(y);
+        }
+        Some(Err(e)) => out["measure_error"] = json!(e),
+        None => {}
+    }
+    Ok(out)
+}
+
+/// Body of `POST /stages/{name}/move`.
+#[derive(Debug, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MoveBody {
+    pub x_um: f64,
+    #[serde(default)]
+    pub y_um: Option<f64>,
+    /// `forward` (default) or `backward`.
+    #[serde(default)]
+    pub direction: Option<String>,
+    #[serde(default)]
+    pub approach_um: Option<f64>,
+    /// A stored characterisation of this stage whose compensation to apply.
+    #[serde(default)]
+    pub compensation_from: Option<i64>,
+    /// A stored campaign of this stage whose hardware to use; default the compensation's
+    /// campaign, else the stage's most recent campaign.
+    #[serde(default)]
+    pub hardware_from: Option<i64>,
+    #[serde(default)]
+    pub measure: bool,
+}
+
+/// The service's side of a move: the body checked, the stage free (409 while a campaign of it
+/// runs or waits), its lock taken (campaigns submitted meanwhile wait for it), the hardware and
+/// compensation resolved from the store. Blocking (store).
+pub fn api_prepare(
+    m: &crate::api::Manager,
+    stage: &str,
+    body: &[u8],
+) -> Result<
+    (
+        Campaign,
+        Option<Compensation>,
+        MoveRequest,
+        Option<crate::campaign::stagelock::StageLock>,
+    ),
+    crate::api::ApiError,
+> {
+    use crate::api::ApiError;
+    if stage.is_empty() || stage.len() > crate::campaign::spec::MAX_NAME_LEN {
+        return Err(ApiError::bad_request("stage: a name of 1 to 64 bytes"));
+    }
+    let b: MoveBody = serde_json::from_slice(body).map_err(|e| {
+        ApiError::bad_request(format!(
+            "body: expected {{\"x_um\": .., \"y_um\"?, \"direction\"?, \"approach_um\"?, \"compensation_from\"?, \"hardware_from\"?, \"measure\"?}}: {e}"
+        ))
+    })?;
+    let direction = match b.direction.as_deref().unwrap_or("forward") {
+        "forward" => Direction::Forward,
+        "backward" => Direction::Backward,
+        _ => return Err(ApiError::bad_request("direction: forward or backward")),
+    };
+    let mut wanted = vec![(AxisId::X, b.x_um)];
+    if let Some(y) = b.y_um {
+        wanted.push((AxisId::Y, y));
+    }
+    let req = MoveRequest {
+        wanted,
+        direction,
+        approach_um: b.approach_um.unwrap_or(50.0),
+        measure: b.measure,
+    };
+    req.check().map_err(ApiError::bad_request)?;
+    if m.shutting_down() {
+        return Err(ApiError::conflict("the service is shutting down"));
+    }
+    if m.stage_busy(stage) {
+        return Err(ApiError::conflict(format!(
+            "a campaign runs or waits on stage {stage}: the move would cut in"
+        )));
+    }
+    let store = m.store().clone();
+    let s = store.lock().unwrap_or_else(|e| e.into_inner());
+    let of_stage = |id: i64| -> Result<crate::store::CampaignRow, ApiError> {
+        let row = s
+            .campaign(id)
+            .map_err(|e| ApiError::internal(e.to_string()))?
+            .ok_or_else(|| ApiError::not_found(format!("no campaign {id}")))?;
+        if row.stage != stage {
+            return Err(ApiError::bad_request(format!(
+                "campaign {id} ran on stage {}, not {stage}",
+                row.stage
+            )));
+        }
+        Ok(row)
+    };
+    let comp = match b.compensation_from {
+        Some(id) => {
+            let row = of_stage(id)?;
+            Some(
+                Compensation::from_store(&s, id, &row.stage)
+                    .map_err(|e| ApiError::bad_request(e.to_string()))?,
+            )
+        }
+        None => None,
+    };
+    let hw = match b.hardware_from.or(b.compensation_from) {
+        Some(id) => of_stage(id)?.id,
+        None => s
+            .campaigns()
+            .map_err(|e| ApiError::internal(e.to_string()))?
+            .into_iter()
+            .find(|r| r.stage == stage)
+            .map(|r| r.id)
+            .ok_or_else(|| {
+                ApiError::not_found(format!(
+                    "no campaign of stage {stage} in the store to take the hardware from"
+                ))
+            })?,
+    };
+    let db_path = s.path().map(std::path::Path::to_path_buf);
+    drop(s);
+    let c = crate::campaign::session::load_stored(&store, hw).map_err(ApiError::internal)?;
+    let lock = match db_path {
+        Some(p) => Some(
+            crate::campaign::stagelock::try_lock(&p, stage)
+                .map_err(|e| ApiError::conflict(e.to_string()))?,
+        ),
+        None => None,
+    };
+    Ok((c, comp, req, lock))
+}
