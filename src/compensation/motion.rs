@@ -226,6 +226,15 @@ pub struct MoveBody {
     pub measure: bool,
 }
 
+/// What [`api_prepare`] resolved: the hardware's campaign, the compensation, the request and
+/// the stage lock held while the move runs.
+pub type Prepared = (
+    Campaign,
+    Option<Compensation>,
+    MoveRequest,
+    Option<crate::campaign::stagelock::StageLock>,
+);
+
 /// The service's side of a move: the body checked, the stage free (409 while a campaign of it
 /// runs or waits), its lock taken (campaigns submitted meanwhile wait for it), the hardware and
 /// compensation resolved from the store. Blocking (store).
@@ -233,15 +242,7 @@ pub fn api_prepare(
     m: &crate::api::Manager,
     stage: &str,
     body: &[u8],
-) -> Result<
-    (
-        Campaign,
-        Option<Compensation>,
-        MoveRequest,
-        Option<crate::campaign::stagelock::StageLock>,
-    ),
-    crate::api::ApiError,
-> {
+) -> Result<Prepared, crate::api::ApiError> {
     use crate::api::ApiError;
     if stage.is_empty() || stage.len() > crate::campaign::spec::MAX_NAME_LEN {
         return Err(ApiError::bad_request("stage: a name of 1 to 64 bytes"));

@@ -53,7 +53,7 @@ pub const MAX_CYCLES: u32 = 50;
 /// The verification targets of one axis, µm, ascending: (ISO targets on the grid, unvisited).
 pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>) {
     let g = ax.grid;
-    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ (ax.axis as u64 + 1) * 0x5DEE_CE66);
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ ((ax.axis as u64 + 1) * 0x5DEE_CE66));
     let n = opts.iso_targets.clamp(2, g.n);
     // Evenly spread grid indices, each moved by a random fraction of the spacing (ISO 230-2
     // spaces targets unevenly so that periodic errors are not sampled at one phase).
@@ -83,12 +83,11 @@ pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>) {
     (iso, un)
 }
 
+/// An axis's verification targets: (axis, ISO targets, never-visited targets), µm.
+type TargetSet = (AxisId, Vec<f64>, Vec<f64>);
+
 /// The runs of one pass: per axis, cycle and direction, one sweep over all its targets.
-fn plan_of(
-    c: &Campaign,
-    opts: &VerifyOptions,
-    seq0: u64,
-) -> (Plan, Vec<(AxisId, Vec<f64>, Vec<f64>)>) {
+fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<TargetSet>) {
     let mut batches = Vec::new();
     let mut seq = seq0;
     let mut sets = Vec::new();
