@@ -467,7 +467,7 @@ pub fn table(v: &Verdict) -> String {
             ));
         }
         s.push_str(&format!(
-            "{:<5} E reduced {:.1}x; max |after| {:.3} µm ({:.3} µm at never-visited targets) vs expected {:.3} µm (3 x CV error {} + R {}): {}\n",
+            "{:<5} E reduced {:.1}x; max |after| {:.3} µm ({:.3} µm at never-visited targets) vs expected {:.3} µm (3 x CV error {} + unidirectional R {}): {}\n",
             a.axis.to_uppercase(),
             a.e_reduction,
             a.max_abs_after_um,
