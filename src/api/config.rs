@@ -55,7 +55,7 @@ pub struct ServiceConfig {
     pub campaigns_dir: PathBuf,
     /// Where else relative paths of submitted campaigns may lead (stage models).
     pub models_dir: Option<PathBuf>,
-    /// tracing-subscriber `EnvFilter` directives.
+    /// `target=level` directives, comma separated (tracing-subscriber `Targets`), e.g. `info,csmetro=debug`.
     pub log_filter: String,
 }
 
@@ -210,7 +210,11 @@ impl ServiceConfig {
                 return Err(fail(key, "must not be empty".into()));
             }
         }
-        if let Err(e) = tracing_subscriber::EnvFilter::try_new(&raw.log.filter) {
+        if let Err(e) = raw
+            .log
+            .filter
+            .parse::<tracing_subscriber::filter::Targets>()
+        {
             return Err(fail("log.filter", format!("not a tracing filter: {e}")));
         }
         let campaigns_dir = raw
