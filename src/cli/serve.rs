@@ -18,7 +18,7 @@ pub struct Args {
 fn init_tracing(filter: &str) {
     use tracing_subscriber::{layer::SubscriberExt, util::SubscriberInitExt, Layer};
     // RUST_LOG wins over the config file when it parses; a bad config value was refused at load.
-    let targets = |s: &str| s.parse::<tracing_subscriber::filter::Targets>().ok();
+    let targets = |s: &str| crate::api::config::parse_log_filter(s).ok();
     let filter = std::env::var("RUST_LOG")
         .ok()
         .and_then(|s| targets(&s))
