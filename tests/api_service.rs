@@ -474,3 +474,76 @@ fn notifies_systemd_ready_watchdog_and_stopping() {
     assert_eq!(stopping.trim(), "STOPPING=1");
     assert!(child.wait().unwrap().success());
 }
+
+#[test]
+fn status_has_elapsed_time_and_an_eta_that_matches_the_time_left() {
+    let dir = tempfile::tempdir().unwrap();
+    let srv = Server::start(dir.path(), None);
+    let id = srv.submit(&slow("eta", "s1"));
+    let st = srv.wait_for(id, 60.0, |s| {
+        state(s) == "running" && s["stored"].as_u64() >= Some(20) && s["eta_s"].is_f64()
+    });
+    let t1 = std::time::Instant::now();
+    let eta = st["eta_s"].as_f64().unwrap();
+    let elapsed = st["elapsed_s"].as_f64().unwrap();
+    assert!(eta > 0.0 && elapsed > 0.0, "{st}");
+    // Paused: no ETA (the rate is unknown until it runs again); the elapsed time goes on.
+    let (s, v) = srv.post(&format!("/campaigns/{id}/pause"), None);
+    assert_eq!(s, 200, "{v}");
+    let p = srv.status(id);
+    assert!(p["eta_s"].is_null(), "{p}");
+    assert!(p["elapsed_s"].as_f64().unwrap() >= elapsed, "{p}");
+    std::thread::sleep(Duration::from_millis(1000));
+    let paused_s = t1.elapsed().as_secs_f64();
+    let (s, v) = srv.post(&format!("/campaigns/{id}/resume"), None);
+    assert_eq!(s, 200, "{v}");
+    srv.wait_for(id, 120.0, |s| s["stored"] == s["planned"]);
+    // The time it took to measure the rest, the pause left out.
+    let took = t1.elapsed().as_secs_f64() - paused_s;
+    assert!(
+        eta > took / 3.0 && eta < took * 3.0,
+        "ETA {eta:.1} s, the rest took {took:.1} s"
+    );
+    let done = srv.wait_for(id, 120.0, |s| state(s) == "done");
+    assert!(
+        done["eta_s"].is_null() && done["elapsed_s"].is_null(),
+        "{done}"
+    );
+}
+
+#[test]
+fn watch_without_samples_prints_progress_lines_with_an_eta() {
+    let dir = tempfile::tempdir().unwrap();
+    let srv = Server::start(dir.path(), None);
+    let id = srv.submit(&slow("watched", "s1"));
+    let out = bin()
+        .args(["watch", &id.to_string(), "--progress-s", "0.5"])
+        .env("CSMETRO_SERVER", &srv.url)
+        .env_remove("CSMETRO_TOKEN")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    let progress: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("progress "))
+        .collect();
+    assert!(progress.len() >= 2, "{text}");
+    assert!(
+        progress
+            .iter()
+            .any(|l| l.contains("/80 samples") && l.contains(", ETA 0:")),
+        "{text}"
+    );
+    assert!(!text.contains("sample seq"), "{text}");
+    assert!(
+        text.lines().last().unwrap().starts_with("finished "),
+        "{text}"
+    );
+    let bad = bin()
+        .args(["watch", &id.to_string(), "--progress-s", "0"])
+        .env("CSMETRO_SERVER", &srv.url)
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+}
