@@ -475,6 +475,58 @@ fn notifies_systemd_ready_watchdog_and_stopping() {
     assert!(child.wait().unwrap().success());
 }
 
+/// (status, content type, CSP header, body) of a GET without any token.
+fn get_plain(url: &str) -> (u16, String, String, String) {
+    let a: ureq::Agent = ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .build()
+        .into();
+    let mut r = a.get(url).call().unwrap();
+    let h = |n: &str| {
+        r.headers()
+            .get(n)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("")
+            .to_string()
+    };
+    let (ctype, csp) = (h("content-type"), h("content-security-policy"));
+    let status = r.status().as_u16();
+    let body = r.body_mut().read_to_string().unwrap_or_default();
+    (status, ctype, csp, body)
+}
+
+#[test]
+fn the_page_and_its_assets_load_without_a_token_and_nothing_else_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let srv = Server::start(dir.path(), Some("s3cret-token-0123456789"));
+    let (s, ctype, csp, body) = get_plain(&format!("{}/", srv.url));
+    assert_eq!(s, 200, "{body}");
+    assert!(ctype.starts_with("text/html"), "{ctype}");
+    assert!(body.contains("<title>csmetro</title>"), "{body}");
+    // Scripts from this origin only: the page works offline and runs no injected code.
+    assert!(csp.contains("script-src 'self'"), "{csp}");
+    for (path, want) in [
+        ("/ui/app.js", "text/javascript"),
+        ("/ui/style.css", "text/css"),
+    ] {
+        assert!(body.contains(path), "the page loads {path}");
+        let (s, ctype, _, text) = get_plain(&format!("{}{path}", srv.url));
+        assert_eq!(s, 200, "{path}");
+        assert!(ctype.starts_with(want), "{path}: {ctype}");
+        assert!(!text.is_empty());
+    }
+    // The data stay behind the token, as do unknown assets.
+    for path in ["/health", "/campaigns", "/ui/other.js", "/ui/"] {
+        assert_eq!(
+            get_plain(&format!("{}{path}", srv.url)).0,
+            401,
+            "{path} without a token"
+        );
+    }
+    let (s, b, _) = srv.request("POST", "/", None, Some(""));
+    assert_eq!(s, 401, "{}", String::from_utf8_lossy(&b));
+}
+
 #[test]
 fn status_has_elapsed_time_and_an_eta_that_matches_the_time_left() {
     let dir = tempfile::tempdir().unwrap();
