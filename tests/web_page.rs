@@ -482,6 +482,24 @@ fn the_page_follows_a_campaign_live_pauses_it_and_shows_its_results() {
     let (s, served) = srv.get(&format!("/campaigns/{id}/results"));
     assert_eq!(s, 200);
     assert_eq!(links, served["results"], "every result file is linked");
+    // A campaign whose report draws the ISO 230-2 chart: the page shows it, loaded.
+    let iso_charts = served["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(Value::as_str)
+        .filter(|n| n.starts_with("plots/iso230_") && n.ends_with(".svg"))
+        .count();
+    if iso_charts > 0 {
+        b.wait(
+            "the ISO 230-2 chart",
+            20.0,
+            &format!(
+                "const i = [...document.querySelectorAll('#iso-body img')]; \
+                 return i.length === {iso_charts} && i.every(x => x.complete && x.naturalWidth > 0)"
+            ),
+        );
+    }
 
     let stats = b.js("return window.csmetroStats");
     let live = stats["liveSamples"].as_f64().unwrap();
@@ -531,7 +549,7 @@ fn the_page_adds_little_to_a_campaigns_wall_time() {
     let dir = tempfile::tempdir().unwrap();
     let srv = Server::start(dir.path(), None);
     let b = Browser::start(&chrome, &driver, &dir.path().join("chromium-profile"));
-    let text = campaign("overhead", "s1", 100, 10.0);
+    let text = campaign("overhead", "s1", 40, 4.0);
     let (mut without, mut with) = (Vec::new(), Vec::new());
     for round in 0..2 * rounds {
         let watched = round % 2 == 1;
@@ -563,4 +581,6 @@ fn the_page_adds_little_to_a_campaigns_wall_time() {
         "web page overhead: wall {a:.2} s without the page, {p:.2} s with it: {:+.1} %",
         100.0 * (p / a - 1.0)
     );
+    // The target is 5 %; a shared machine's noise gets twice that before this fails.
+    assert!(p / a - 1.0 < 0.10, "{without:?} {with:?}");
 }

@@ -184,6 +184,7 @@ function select(id) {
   $('results').replaceChildren(el('li', { class: 'note' }, 'none yet'));
   $('iso').hidden = true;
   $('iso-body').replaceChildren();
+  $('report-link').hidden = true;
   $('control-msg').textContent = '';
   $('plot-count').textContent = '';
   renderList();
@@ -569,6 +570,17 @@ async function loadResults(sel) {
     const m = /^curves\/(.+)-(e[fb]_[xy][xy])\.csv$/.exec(n);
     if (m && !(sel.charts.get(m[2]) && sel.charts.get(m[2]).curves.has(m[1]))) loadCurve(sel, m[1], m[2]);
   }
+  // The printable report, when the campaign has one, also next to the title.
+  const rep = $('report-link');
+  if (names.includes('report.html')) {
+    const href = `/campaigns/${sel.id}/results/report.html`;
+    const a = el('a', { href, target: '_blank', rel: 'noopener' }, 'report.html');
+    a.addEventListener('click', (ev) => openResult(ev, href, 'report.html'));
+    rep.replaceChildren('Report: ', a);
+    rep.hidden = false;
+  } else {
+    rep.hidden = true;
+  }
   showIso(sel, names);
 }
 
@@ -629,13 +641,16 @@ async function showIso(sel, names) {
   $('iso').hidden = false;
 }
 
-// Which figures to show of one axis and how they were obtained.
+// Which figures to show of one axis and how they were obtained: the source the report names
+// (`source`: full_scan, measured or reconstructed, with its `source_label`) when there is one,
+// else the measured figures before the reconstruction's estimate.
 function isoSource(v) {
   if (!v || typeof v !== 'object') return null;
-  if ('a_um' in v) return { fig: v, label: v.source || '' };
-  if (v.measured && typeof v.measured === 'object') {
-    return { fig: v.measured, label: v.measured_source || v.source || 'from the measured approaches' };
-  }
+  if ('a_um' in v) return { fig: v, label: v.source_label || '' };
+  const pick = { full_scan: v.full_scan, measured: v.measured, reconstructed: v.reconstructed }[v.source];
+  if (pick && typeof pick === 'object') return { fig: pick, label: v.source_label || v.source };
+  if (v.full_scan && typeof v.full_scan === 'object') return { fig: v.full_scan, label: 'from the measured full scan' };
+  if (v.measured && typeof v.measured === 'object') return { fig: v.measured, label: 'from the measured approaches' };
   if (v.reconstructed && typeof v.reconstructed === 'object') {
     return { fig: v.reconstructed, label: 'estimated from the reconstruction' };
   }
