@@ -539,6 +539,31 @@ fn status_has_elapsed_time_and_an_eta_that_matches_the_time_left() {
     let eta = st["eta_s"].as_f64().unwrap();
     let elapsed = st["elapsed_s"].as_f64().unwrap();
     assert!(eta > 0.0 && elapsed > 0.0, "{st}");
+    // The CLI shows it: `status ID` on its line, `status` in a column.
+    let cli = |args: &[&str]| {
+        let o = bin()
+            .args(args)
+            .env("CSMETRO_SERVER", &srv.url)
+            .env_remove("CSMETRO_TOKEN")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8(o.stdout).unwrap()
+    };
+    let line = cli(&["status", &id.to_string()]);
+    assert!(
+        line.contains(": running ") && line.contains(", ETA 0:"),
+        "{line}"
+    );
+    let table = cli(&["status"]);
+    assert!(table.lines().next().unwrap().contains("ETA"), "{table}");
+    assert!(
+        table
+            .lines()
+            .nth(1)
+            .is_some_and(|l| l.contains("running") && l.contains(" 0:0")),
+        "{table}"
+    );
     // Paused: no ETA (the rate is unknown until it runs again); the elapsed time goes on.
     let (s, v) = srv.post(&format!("/campaigns/{id}/pause"), None);
     assert_eq!(s, 200, "{v}");

@@ -277,17 +277,18 @@ pub fn status(a: StatusArgs) -> CliResult {
                 print_json(&all);
             } else {
                 println!(
-                    "{:>5}  {:<11}  {:>15}  {:>6}  {:<12}  name",
-                    "id", "state", "stored/planned", "%", "stage"
+                    "{:>5}  {:<11}  {:>15}  {:>6}  {:<12}  {:>8}  name",
+                    "id", "state", "stored/planned", "%", "stage", "ETA"
                 );
                 for s in &all {
                     println!(
-                        "{:>5}  {:<11}  {:>15}  {:>6.1}  {:<12}  {}",
+                        "{:>5}  {:<11}  {:>15}  {:>6.1}  {:<12}  {:>8}  {}",
                         s.id,
                         s.state.as_str(),
                         format!("{}/{}", s.stored, s.planned),
                         s.percent,
                         s.stage,
+                        s.eta_s.map_or("-".into(), crate::report::format_hms),
                         s.name
                     );
                 }

@@ -202,6 +202,10 @@ function showStatus(st) {
   if (sel.state !== null && sel.state !== st.state) $('control-msg').textContent = '';
   sel.state = st.state;
   sel.live = LIVE.includes(st.state);
+  // Fewer samples drawn than were stored a refresh ago: live events were missed (a slow
+  // client, a reconnection); the store has them all.
+  if (sel.prevStored !== undefined && sel.samples.size < sel.prevStored) loadSamples(sel);
+  sel.prevStored = st.stored;
   $('detail-title').textContent = `Campaign ${st.id} “${st.name}” on ${st.stage}`;
   const parts = [`${st.state}`, `${st.stored} / ${st.planned} samples (${Number(st.percent).toFixed(1)} %)`];
   if (st.elapsed_s !== null && st.elapsed_s !== undefined) parts.push(`elapsed ${hms(st.elapsed_s)}`);
@@ -366,6 +370,8 @@ function logEvent(e) {
 
 // Committed samples (those a live stream missed too), page by page.
 async function loadSamples(sel) {
+  if (sel.loadingSamples) return;
+  sel.loadingSamples = true;
   let after = sel.samplesAfter || 0;
   try {
     for (;;) {
@@ -378,6 +384,8 @@ async function loadSamples(sel) {
     }
   } catch (e) {
     if (!(e instanceof AuthNeeded)) notice(`Samples: ${e.message}`);
+  } finally {
+    sel.loadingSamples = false;
   }
 }
 
