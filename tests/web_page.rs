@@ -226,16 +226,20 @@ impl Browser {
     /// Errors on the console. The browser logs every 4xx reply: the 401s of the first,
     /// tokenless load (the page then asks for the token) and the 400 of the refused campaign
     /// file are answers the page handles, not errors of the page.
-    fn console_errors(&self) -> Vec<String> {
+    /// Returns (errors, how many handled 4xx replies were logged).
+    fn console_errors(&self) -> (Vec<String>, usize) {
         let handled = |m: &str| {
             m.contains("Failed to load resource")
                 && (m.contains("status of 401") || m.contains("status of 400"))
         };
-        self.console()
+        let log = self.console();
+        let n = log.iter().filter(|(_, m)| handled(m)).count();
+        let errors = log
             .into_iter()
             .filter(|(l, m)| l == "SEVERE" && !handled(m))
             .map(|(_, m)| m)
-            .collect()
+            .collect();
+        (errors, n)
     }
 
     fn screenshot(&self, path: &Path) {
@@ -516,8 +520,13 @@ fn the_page_follows_a_campaign_live_pauses_it_and_shows_its_results() {
     let shot = output_dir().join("web_page.png");
     b.screenshot(&shot);
     eprintln!("web page: screenshot in {}", shot.display());
-    let errors = b.console_errors();
+    let (errors, handled) = b.console_errors();
     assert!(errors.is_empty(), "console errors: {errors:?}");
+    // The log was really read: the tokenless first load's 401s and the refused file's 400 are in it.
+    assert!(
+        handled >= 2,
+        "{handled} handled 4xx replies in the console log"
+    );
 }
 
 /// The campaign's `wall_s` from its summary, s.
