@@ -406,6 +406,7 @@ function addSample(sel, s) {
     const comp = `e${d}_${run.axis}${m}`;
     const c = chart(sel, comp);
     c.points.push([pos, err, run.phase === 'full']);
+    c.dirty = true;
   }
   scheduleDraw(sel);
   return true;
@@ -430,7 +431,10 @@ function scheduleDraw(sel) {
   requestAnimationFrame(() => {
     sel.drawPending = false;
     if (S.sel !== sel) return;
-    for (const c of sel.charts.values()) draw(c);
+    // Only the charts that changed: each sample touches two of them.
+    for (const c of sel.charts.values()) {
+      if (c.dirty) { c.dirty = false; draw(c); }
+    }
     $('plot-count').textContent = `${sel.samples.size} samples`;
     $('plots').dataset.samples = sel.samples.size;
     S.stats.samplesDrawn = sel.samples.size;
@@ -543,6 +547,7 @@ async function loadCurve(sel, run, comp) {
     if (!pts.length) return;
     const c = chart(sel, comp);
     c.curves.set(run, pts);
+    c.dirty = true;
     scheduleDraw(sel);
   } catch (_) { /* shown at the next event */ }
 }
@@ -808,8 +813,9 @@ function start() {
   if (!S.listTimer) {
     S.listTimer = setInterval(() => {
       refreshList();
-      // Plots and tables that appear during a run (and at its end).
-      if (S.sel) loadResults(S.sel);
+      // Plots and tables that appear during a run (and at its end); a finished campaign's
+      // results were read at its end.
+      if (S.sel && (S.sel.live || !S.sel.resultsKey)) loadResults(S.sel);
     }, LIST_EVERY_MS);
   }
 }
