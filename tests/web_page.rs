@@ -353,8 +353,9 @@ fn the_page_follows_a_campaign_live_pauses_it_and_shows_its_results() {
     // Target 1 s; the bound leaves room for a loaded CI machine.
     assert!(list_ms < 3000.0, "{paint}");
 
-    // A campaign file with a typo: refused, the error shown at its line.
-    let good = campaign("live", "s1", 40, 10.0);
+    // A campaign file with a typo: refused, the error shown at its line. The good one, at 5×
+    // real time, runs long enough to see it move and pause it on a loaded machine.
+    let good = campaign("live", "s1", 40, 5.0);
     let bad = good.replace("step_um = 25.0", "step_um = 25.0\nstpe = 3");
     let bad_line = bad.lines().position(|l| l.contains("stpe")).unwrap() + 1;
     let set_text = |t: &str| {
