@@ -57,6 +57,14 @@ pub struct CampaignStatus {
     pub queue_position: Option<usize>,
     pub created_unix_s: f64,
     pub updated_unix_s: f64,
+    /// Wall time of the attempt the service is running now (pauses included), s; `None` when
+    /// the service is not running the campaign.
+    #[serde(default)]
+    pub elapsed_s: Option<f64>,
+    /// Wall time until the last planned sample at this attempt's rate (paused time left out),
+    /// s; `None` unless running with at least two samples taken in this attempt.
+    #[serde(default)]
+    pub eta_s: Option<f64>,
 }
 
 struct Active {
@@ -66,6 +74,62 @@ struct Active {
     operator_abort: bool,
     /// Keeps other processes off the stage while this campaign drives it.
     _stage_lock: Option<StageLock>,
+    /// Progress of this attempt, for elapsed time and ETA.
+    progress: Progress,
+}
+
+/// When an attempt started and how fast it measures: the ETA's inputs.
+#[derive(Debug, Clone, Copy, Default)]
+struct Progress {
+    /// Wall clock at launch, s since the epoch.
+    started_unix_s: f64,
+    /// Samples stored before this attempt.
+    stored_at_start: u64,
+    /// (wall clock, samples stored) at the attempt's first sample: the rate is measured from
+    /// there, so the rig's start-up (connection, homing) does not slow it.
+    first_sample: Option<(f64, u64)>,
+    /// Time spent paused since the first sample, s, and when the current pause began.
+    paused_s: f64,
+    paused_since: Option<f64>,
+}
+
+impl Progress {
+    fn new(stored_at_start: u64) -> Self {
+        Progress {
+            started_unix_s: crate::store::now_unix_s(),
+            stored_at_start,
+            ..Progress::default()
+        }
+    }
+
+    fn pause(&mut self, now: f64) {
+        self.paused_since.get_or_insert(now);
+    }
+
+    fn resume(&mut self, now: f64) {
+        if let Some(t) = self.paused_since.take() {
+            // Pauses before the first sample do not enter the rate.
+            if self.first_sample.is_some() {
+                self.paused_s += (now - t).max(0.0);
+            }
+        }
+    }
+
+    /// (elapsed_s, eta_s) at `now` with `stored` of `planned` samples committed.
+    fn estimate(&self, now: f64, stored: u64, planned: u64, running: bool) -> (f64, Option<f64>) {
+        let elapsed = (now - self.started_unix_s).max(0.0);
+        let eta = self.first_sample.and_then(|(t0, n0)| {
+            let paused = self.paused_s + self.paused_since.map_or(0.0, |p| (now - p).max(0.0));
+            let dt = now - t0 - paused;
+            let done = stored.saturating_sub(n0);
+            if !running || done == 0 || dt <= 0.0 {
+                return None;
+            }
+            let left = planned.saturating_sub(stored) as f64;
+            Some(left * dt / done as f64)
+        });
+        (elapsed, eta)
+    }
 }
 
 #[derive(Default)]
@@ -205,6 +269,7 @@ impl Manager {
             ids.push(row.id);
         }
         self.follow_pauses();
+        self.follow_progress();
         self.watch_orphans();
         let stages: Vec<String> = self.inner().queues.keys().cloned().collect();
         for s in stages {
@@ -319,6 +384,33 @@ impl Manager {
         });
     }
 
+    /// Notes each running campaign's first sample of its attempt: where its ETA's rate starts.
+    fn follow_progress(self: &Arc<Self>) {
+        let mut rx = self.events.subscribe();
+        let me = Arc::downgrade(self);
+        tokio::spawn(async move {
+            loop {
+                let e = match rx.recv().await {
+                    Ok(e) => e,
+                    Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(broadcast::error::RecvError::Closed) => return,
+                };
+                if e.kind != "sample" {
+                    continue;
+                }
+                let Some(m) = me.upgrade() else { return };
+                let mut inner = m.inner();
+                if let Some(a) = inner.active(e.campaign) {
+                    if a.progress.first_sample.is_none() {
+                        // Counted from the start so a missed (lagged) first event costs nothing.
+                        let n = a.progress.stored_at_start + 1;
+                        a.progress.first_sample = Some((e.unix_s, n));
+                    }
+                }
+            }
+        });
+    }
+
     /// Validates and stores a campaign file sent by a client, and queues it. `name` is the
     /// file name the client gave (errors name it; relative paths resolve in `campaigns_dir`).
     pub fn submit(self: &Arc<Self>, text: &str, name: &str) -> Result<CampaignStatus, ApiError> {
@@ -402,6 +494,7 @@ impl Manager {
                         control: tx,
                         operator_abort: false,
                         _stage_lock: lock,
+                        progress: Progress::default(),
                     },
                 );
                 (id, rx)
@@ -485,6 +578,11 @@ impl Manager {
             c.spec.outputs.dir = self.results_dir.join(dir).display().to_string();
         }
         tracing::info!(campaign = id, name = %c.spec.campaign.name, stage = %stage, "starting");
+        // Nothing is measured before `execute` runs: this is what earlier attempts stored.
+        let stored = self.db().sample_count(id).unwrap_or(0);
+        if let Some(a) = self.inner().active(id) {
+            a.progress = Progress::new(stored);
+        }
         self.active.send_modify(|n| *n += 1);
         let me = Arc::clone(self);
         let run = session::execute(
@@ -559,6 +657,15 @@ impl Manager {
         } else {
             (100.0 * stored as f64 / row.planned as f64).min(100.0)
         };
+        let progress = self.inner().active(row.id).map(|a| a.progress);
+        let (elapsed_s, eta_s) = match progress {
+            Some(p) => {
+                let running = row.state == CampaignState::Running;
+                let (e, eta) = p.estimate(crate::store::now_unix_s(), stored, row.planned, running);
+                (Some(e), eta)
+            }
+            None => (None, None),
+        };
         Ok(CampaignStatus {
             id: row.id,
             name: row.name,
@@ -571,6 +678,8 @@ impl Manager {
             queue_position: queue,
             created_unix_s: row.created_unix_s,
             updated_unix_s: row.updated_unix_s,
+            elapsed_s,
+            eta_s,
         })
     }
 
@@ -624,6 +733,7 @@ impl Manager {
                 return Err(self.refuse(id, "pause"));
             }
             a.control.send_replace(Control::Pause);
+            a.progress.pause(crate::store::now_unix_s());
             self.db()
                 .set_state(id, CampaignState::Paused, Some("paused by the operator"))
                 .map_err(store_err)?;
@@ -646,6 +756,7 @@ impl Manager {
                     return Err(self.refuse(id, "resume"));
                 }
                 a.control.send_replace(Control::Run);
+                a.progress.resume(crate::store::now_unix_s());
                 self.db()
                     .set_state(id, CampaignState::Running, None)
                     .map_err(store_err)?;
@@ -765,5 +876,49 @@ impl Manager {
         let _ = tokio::time::timeout(grace, rx.wait_for(|n| *n == 0)).await;
         let left = *rx.borrow();
         left
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Progress;
+
+    fn at(started: f64, stored_at_start: u64) -> Progress {
+        Progress {
+            started_unix_s: started,
+            stored_at_start,
+            ..Progress::default()
+        }
+    }
+
+    #[test]
+    fn eta_is_the_rate_since_the_first_sample_times_what_is_left() {
+        // 10 s of start-up, then 2 samples/s after 100 resumed ones: 10 s in, 20 more stored.
+        let mut p = at(1000.0, 100);
+        assert_eq!(p.estimate(1005.0, 100, 200, true), (5.0, None));
+        p.first_sample = Some((1010.0, 101));
+        let (el, eta) = p.estimate(1020.0, 121, 200, true);
+        assert_eq!(el, 20.0);
+        // 20 samples in 10 s, 79 left: 39.5 s.
+        assert!((eta.unwrap() - 39.5).abs() < 1e-9, "{eta:?}");
+        // Not running (paused, reconstructing): no ETA; nothing left: 0.
+        assert_eq!(p.estimate(1020.0, 121, 200, false).1, None);
+        assert_eq!(p.estimate(1020.0, 200, 200, true).1, Some(0.0));
+    }
+
+    #[test]
+    fn paused_time_does_not_slow_the_rate() {
+        let mut p = at(0.0, 0);
+        p.first_sample = Some((0.0, 1));
+        p.pause(10.0);
+        // While paused: the 50 s of pause so far are left out.
+        let (_, eta) = p.estimate(60.0, 11, 21, true);
+        assert!((eta.unwrap() - 10.0).abs() < 1e-9, "{eta:?}");
+        p.resume(100.0);
+        // 90 s paused; 20 s measuring (0-10 s, 100-110 s) for 40 samples: 2 samples/s,
+        // 10 left: 5 s.
+        let (el, eta) = p.estimate(110.0, 41, 51, true);
+        assert_eq!(el, 110.0);
+        assert!((eta.unwrap() - 5.0).abs() < 1e-9, "{eta:?}");
     }
 }

@@ -9,6 +9,7 @@ use axum::http::StatusCode;
 
 pub mod config;
 pub mod manager;
+pub mod page;
 pub mod routes;
 
 pub use config::{ConfigError, ServiceConfig};

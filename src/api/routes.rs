@@ -3,6 +3,7 @@
 //!
 //! | route | |
 //! |---|---|
+//! | `GET /` | the operator's web page ([`super::page`]; its assets under `/ui/`) |
 //! | `GET /health` | service up; running and queued campaign ids |
 //! | `GET /campaigns` | every campaign with its state and progress, newest first |
 //! | `POST /campaigns` | body: campaign TOML (`text/plain`, `application/toml`) or JSON `{"toml": "...", "name": "file.toml"}`; 201 with its status |
@@ -13,7 +14,8 @@
 //! | `GET /campaigns/{id}/results` | `{"id": .., "results": [names]}` |
 //! | `GET /campaigns/{id}/results/{*name}` | the bytes, with their stored content type |
 //!
-//! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`.
+//! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`;
+//! only the page and its assets (the same for everyone, no data) load without it.
 //!
 //! A submitted campaign is untrusted: its stage model is a relative `.toml` path inside
 //! `[campaigns] base_dir` or `models_dir`, its `[outputs] dir` a relative directory below
@@ -66,6 +68,8 @@ pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy
         policy: Arc::new(policy),
     };
     Router::new()
+        .route("/", get(super::page::index))
+        .route("/ui/{file}", get(super::page::asset))
         .route("/health", get(health))
         .route("/campaigns", get(list).post(submit))
         .route("/campaigns/{id}", get(status))
@@ -82,7 +86,11 @@ pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy
 }
 
 async fn auth(State(app): State<App>, req: Request, next: Next) -> Response {
-    if let Some(token) = &app.token {
+    if let Some(token) = app
+        .token
+        .as_ref()
+        .filter(|_| !super::page::is_public(req.method(), req.uri().path()))
+    {
         let given = req
             .headers()
             .get(header::AUTHORIZATION)
