@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 pub use csmetro_hal::Direction;
-pub use csmetro_sim::model::AxisId;
+pub use csmetro_sim::AxisId;
 
 /// Which design a run belongs to: the compressive-sensing sample or the full reference scan.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]

@@ -505,7 +505,7 @@ fn drive_truth_full(comps: &[Value], a: AxisId) -> String {
 
 /// Ground truth of a simulated campaign, detached from the rig.
 pub struct TruthSource {
-    model: Option<Arc<csmetro_sim::model::StageModel>>,
+    model: Option<Arc<csmetro_sim::StageModel>>,
 }
 
 impl TruthSource {
@@ -528,7 +528,7 @@ impl TruthSource {
                         AxisId::X => (p, other_at_um),
                         AxisId::Y => (other_at_um, p),
                     };
-                    let d = m.deviation(&csmetro_sim::model::SampleContext {
+                    let d = m.deviation(&csmetro_sim::SampleContext {
                         moving: run.axis,
                         direction: run.direction.sign(),
                         target_x_um: tx,

@@ -132,7 +132,7 @@ pub struct SimHardware {
     pub acceleration_mm_s2: f64,
     /// `[hardware.sim.faults]`: random faults of both simulated controllers (soaks); each axis
     /// draws from its own seed, derived from `seed` here.
-    pub faults: Option<csmetro_sim::controller::RandomFaults>,
+    pub faults: Option<csmetro_sim::RandomFaults>,
 }
 
 impl Default for SimHardware {
@@ -477,7 +477,7 @@ fn check_name(v: &str) -> Result<(), String> {
 /// Resolves the stage model a campaign names and reads it (at most 1 MiB, a regular file).
 /// Submitted campaigns: the path resolves from the policy's base directory and must stay inside
 /// one of its read roots, symlinks followed; errors never show a server path or the file.
-fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::model::StageModel, String> {
+fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::StageModel, String> {
     if m.is_empty() || m.len() > MAX_PATH_LEN || m.contains('\0') {
         return Err(format!("must be a file name of 1..={MAX_PATH_LEN} bytes"));
     }
@@ -490,7 +490,7 @@ fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::model::StageModel, 
             };
             let text =
                 read_bounded(&p, MAX_TOML_BYTES).map_err(|e| format!("{}: {e}", p.display()))?;
-            return csmetro_sim::model::StageModel::from_toml_str(&text)
+            return csmetro_sim::StageModel::from_toml_str(&text)
                 .map_err(|e| format!("{}: {e}", p.display()));
         }
         Trust::Submitted(p) => p,
@@ -537,7 +537,7 @@ fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::model::StageModel, 
             "{shown}: not a stage model (TOML error at line {line})"
         ));
     }
-    csmetro_sim::model::StageModel::from_toml_str(&text).map_err(|e| format!("{shown}: {e}"))
+    csmetro_sim::StageModel::from_toml_str(&text).map_err(|e| format!("{shown}: {e}"))
 }
 
 /// `a/./b/../c` → `a/c`, without touching the file system.

@@ -11,13 +11,13 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use clap::Subcommand;
-use csmetro_gcs::frame::{AxisQuery, Command};
+use csmetro_gcs::{AxisQuery, Command};
 use csmetro_gcs::{C863Config, RefMode, C863};
 use csmetro_hal::Axis;
-use csmetro_sim::controller::soak::{soak_gcs, BindingCheck, SoakOptions};
-use csmetro_sim::controller::{ControllerConfig, SimController};
-use csmetro_sim::stage::SimStage;
+use csmetro_sim::SimStage;
+use csmetro_sim::{soak_gcs, BindingCheck, SoakOptions};
 use csmetro_sim::{AxisId, StageModel};
+use csmetro_sim::{ControllerConfig, SimController};
 use serde_json::json;
 
 use super::{CliError, CliResult};
