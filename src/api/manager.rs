@@ -30,7 +30,7 @@ use crate::campaign::session::{self, Event, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock, StageLockError};
 use crate::store::{CampaignRow, EventRow, StoreError};
-use crate::types::CampaignState;
+use crate::types::{CampaignState, Origin};
 
 /// How often a campaign waiting for a stage held by another process tries again.
 const STAGE_RETRY: Duration = Duration::from_secs(2);
@@ -322,6 +322,16 @@ impl Manager {
     /// Validates and stores a campaign file sent by a client, and queues it. `name` is the
     /// file name the client gave (errors name it; relative paths resolve in `campaigns_dir`).
     pub fn submit(self: &Arc<Self>, text: &str, name: &str) -> Result<CampaignStatus, ApiError> {
+        self.submit_by(text, name, &Origin::api(None, None))
+    }
+
+    /// [`Manager::submit`], the `queued` event naming who submitted it.
+    pub fn submit_by(
+        self: &Arc<Self>,
+        text: &str,
+        name: &str,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         if self.shutting_down() {
             return Err(ApiError::conflict("the service is shutting down"));
         }
@@ -346,7 +356,8 @@ impl Manager {
         self.emit(
             id,
             "queued",
-            json!({"stage": stage, "position": position, "name": c.spec.campaign.name}),
+            json!({"stage": stage, "position": position, "name": c.spec.campaign.name,
+                   "by": origin.describe(), "origin": origin}),
         );
         self.schedule(&stage);
         self.status(id)
@@ -480,10 +491,9 @@ impl Manager {
         mut c: Campaign,
         control: watch::Receiver<Control>,
     ) {
-        let dir = Path::new(&c.spec.outputs.dir);
-        if dir.is_relative() {
-            c.spec.outputs.dir = self.results_dir.join(dir).display().to_string();
-        }
+        // Below the service's results_dir whatever the template (absolute ones included).
+        c.spec.outputs.dir =
+            crate::campaign::results::service_outputs(&self.results_dir, &c.spec.outputs.dir);
         tracing::info!(campaign = id, name = %c.spec.campaign.name, stage = %stage, "starting");
         self.active.send_modify(|n| *n += 1);
         let me = Arc::clone(self);
@@ -613,6 +623,12 @@ impl Manager {
 
     /// Holds a running campaign between two points (motion ends on target, nothing is lost).
     pub fn pause(&self, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.pause_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::pause`]; the `paused` event and the status message say who paused it.
+    pub fn pause_by(&self, id: i64, origin: &Origin) -> Result<CampaignStatus, ApiError> {
+        let msg = format!("paused by {}", origin.describe());
         {
             let mut inner = self.inner();
             let Some(a) = inner.active(id) else {
@@ -625,16 +641,28 @@ impl Manager {
             }
             a.control.send_replace(Control::Pause);
             self.db()
-                .set_state(id, CampaignState::Paused, Some("paused by the operator"))
+                .set_state(id, CampaignState::Paused, Some(&msg))
                 .map_err(store_err)?;
         }
-        tracing::info!(campaign = id, "paused");
+        let mut data = origin.fields();
+        data["cause"] = json!("operator");
+        self.emit(id, "paused", data);
+        tracing::info!(campaign = id, by = %origin.describe(), "paused");
         self.status(id)
     }
 
     /// Continues a paused campaign, or queues an interrupted one again (it resumes from its
     /// last stored sample).
     pub fn resume(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.resume_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::resume`]; the `resumed` (running again) or `requeued` event says who.
+    pub fn resume_by(
+        self: &Arc<Self>,
+        id: i64,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         if self.shutting_down() {
             return Err(ApiError::conflict("the service is shutting down"));
         }
@@ -649,7 +677,12 @@ impl Manager {
                 self.db()
                     .set_state(id, CampaignState::Running, None)
                     .map_err(store_err)?;
-                None
+                drop(inner);
+                let mut data = origin.fields();
+                data["cause"] = json!("operator");
+                self.emit(id, "resumed", data);
+                tracing::info!(campaign = id, by = %origin.describe(), "resumed");
+                return self.status(id);
             } else if inner.queue_position(id).is_some() {
                 drop(inner);
                 return Err(self.refuse(id, "resume"));
@@ -664,7 +697,11 @@ impl Manager {
                     return Err(self.refuse(id, "resume"));
                 }
                 self.db()
-                    .set_state(id, CampaignState::Queued, Some("resumed by the operator"))
+                    .set_state(
+                        id,
+                        CampaignState::Queued,
+                        Some(&format!("resumed by {}", origin.describe())),
+                    )
                     .map_err(store_err)?;
                 inner
                     .queues
@@ -674,9 +711,11 @@ impl Manager {
                 Some(row.stage)
             }
         };
-        tracing::info!(campaign = id, "resumed");
+        tracing::info!(campaign = id, by = %origin.describe(), "resumed");
         if let Some(stage) = requeue_stage {
-            self.emit(id, "requeued", json!({"reason": "operator"}));
+            let mut data = origin.fields();
+            data["reason"] = json!("operator");
+            self.emit(id, "requeued", data);
             self.schedule(&stage);
         }
         self.status(id)
@@ -685,12 +724,22 @@ impl Manager {
     /// Aborts a campaign: a running one stops motion and ends `aborted`; a queued or
     /// interrupted one is marked aborted at once.
     pub fn abort(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.abort_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::abort`]; the `abort_requested` (running) or `finished` event says who.
+    pub fn abort_by(
+        self: &Arc<Self>,
+        id: i64,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         let mut inner = self.inner();
         if let Some(a) = inner.active(id) {
             a.operator_abort = true;
             a.control.send_replace(Control::Abort);
             drop(inner);
-            tracing::info!(campaign = id, "abort requested");
+            self.emit(id, "abort_requested", origin.fields());
+            tracing::info!(campaign = id, by = %origin.describe(), "abort requested");
             return self.status(id);
         }
         let queued = inner.queue_position(id);
@@ -712,10 +761,15 @@ impl Manager {
             .set_state(
                 id,
                 CampaignState::Aborted,
-                Some("aborted by the operator before it ran again"),
+                Some(&format!(
+                    "aborted by {} before it ran again",
+                    origin.describe()
+                )),
             )
             .map_err(store_err)?;
-        self.emit(id, "finished", json!({"state": "aborted"}));
+        let mut data = origin.fields();
+        data["state"] = json!("aborted");
+        self.emit(id, "finished", data);
         tracing::info!(campaign = id, "aborted while not running");
         self.status(id)
     }

@@ -541,6 +541,9 @@ pub fn report(a: ReportArgs) -> CliResult {
             st.state.as_str(),
             dir.display()
         );
+        if names.iter().any(|n| n == "report.html") {
+            eprintln!("report: {}", dir.join("report.html").display());
+        }
     }
     if names.is_empty() && st.state != CampaignState::Done {
         return Err(CliError::failure(format!(
