@@ -73,9 +73,21 @@ fn pause_and_resume_over_http_are_events_that_say_who_and_from_where() {
     let (s, v) = post_as(&srv, &format!("/campaigns/{id}/pause"), Some("ana"), None);
     assert_eq!((s, state(&v)), (200, "paused"), "{v}");
     assert!(v["message"].as_str().unwrap().contains("\"ana\""), "{v}");
-    // Resumed at once, anonymously: both changes are in the log even if the engine never held.
-    let (s, v) = post_as(&srv, &format!("/campaigns/{id}/resume"), None, None);
-    assert_eq!((s, state(&v)), (200, "running"), "{v}");
+    // Resumed at once, by `csmetro unpause --operator`: both changes are in the log even if
+    // the engine never held between them.
+    let o = bin()
+        .args(["unpause", &id.to_string(), "--json", "--operator", "cy"])
+        .env("CSMETRO_SERVER", &srv.url)
+        .env_remove("CSMETRO_TOKEN")
+        .output()
+        .unwrap();
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap_or(Value::Null);
+    assert_eq!(
+        state(&v),
+        "running",
+        "{v} {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     srv.wait_for(id, 120.0, |s| state(s) == "done");
 
     let ev = Store::open(&srv.db()).unwrap().events_after(id, 0).unwrap();
@@ -103,7 +115,7 @@ fn pause_and_resume_over_http_are_events_that_say_who_and_from_where() {
     assert!(paused.data["by"].as_str().unwrap().contains("ana"));
     let resumed = find("resumed");
     assert_eq!(resumed.data["origin"]["via"], "api", "{}", resumed.data);
-    assert!(resumed.data["origin"]["operator"].is_null());
+    assert_eq!(resumed.data["origin"]["operator"], "cy", "{}", resumed.data);
     assert!(resumed.data["origin"]["client"].is_string());
     let pos = |kind: &str| k.iter().position(|x| *x == kind).unwrap();
     assert!(

@@ -249,12 +249,10 @@ pub async fn execute_with(
         );
         msg
     };
-    let mut rig: Rig = rig::build(&c)
-        .await
-        .map_err(|e| {
-            let msg = fail("hardware", format!("hardware: {e}"));
-            format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
-        })?;
+    let mut rig: Rig = rig::build(&c).await.map_err(|e| {
+        let msg = fail("hardware", format!("hardware: {e}"));
+        format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
+    })?;
     emit(
         &store,
         &events,
