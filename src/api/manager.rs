@@ -100,6 +100,14 @@ pub struct Manager {
     active: watch::Sender<usize>,
 }
 
+/// `data` with the service named as the origin of the change (`by`, `origin`).
+fn by_service(mut data: Value) -> Value {
+    if let (Some(d), Value::Object(o)) = (data.as_object_mut(), Origin::service().fields()) {
+        d.extend(o);
+    }
+    data
+}
+
 fn store_err(e: StoreError) -> ApiError {
     ApiError::internal(e.to_string())
 }
@@ -193,7 +201,9 @@ impl Manager {
                 self.emit(
                     row.id,
                     "requeued",
-                    json!({"reason": "service start", "previous_state": row.state.as_str()}),
+                    by_service(
+                        json!({"reason": "service start", "previous_state": row.state.as_str()}),
+                    ),
                 );
             }
             tracing::info!(campaign = row.id, name = %row.name, stage = %row.stage, previous_state = row.state.as_str(), "queued again at start");
@@ -282,8 +292,8 @@ impl Manager {
             self.emit(
                 row.id,
                 "interrupted",
-                json!({"reason": "its process exited without finishing",
-                       "previous_state": now.state.as_str(), "stored": stored, "resumable": true}),
+                by_service(json!({"reason": "its process exited without finishing",
+                       "previous_state": now.state.as_str(), "stored": stored, "resumable": true})),
             );
         }
     }
@@ -459,7 +469,7 @@ impl Manager {
             self.emit(
                 id,
                 "waiting_for_stage",
-                json!({"stage": stage, "reason": msg}),
+                by_service(json!({"stage": stage, "reason": msg})),
             );
         }
         let (me, stage) = (Arc::clone(self), stage.to_string());
@@ -477,6 +487,11 @@ impl Manager {
         let _ = self
             .db()
             .set_state(id, CampaignState::Interrupted, Some(&msg));
+        self.emit(
+            id,
+            "error",
+            by_service(json!({"cause": "service", "error": msg, "resumable": true})),
+        );
         self.emit(
             id,
             "finished",
@@ -536,7 +551,7 @@ impl Manager {
                     self.emit(
                         id,
                         "interrupted",
-                        json!({"reason": "service shutdown", "resumable": true}),
+                        by_service(json!({"reason": "service shutdown", "resumable": true})),
                     );
                 }
             }
