@@ -262,5 +262,9 @@ dir = "out-{{id}}"
     assert!(first_error < requeued, "{k:?}");
     assert!(k[requeued..].contains(&"error"), "{k:?}");
     assert_eq!(ev[requeued].data["previous_state"], "interrupted");
-    assert_eq!(ev[requeued].data["by"], "the service", "{}", ev[requeued].data);
+    assert_eq!(
+        ev[requeued].data["by"], "the service",
+        "{}",
+        ev[requeued].data
+    );
 }

@@ -15,6 +15,10 @@
 //!
 //! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`.
 //!
+//! Submit, pause, resume and abort are logged with their origin: the client's address and,
+//! when the request carries an `X-Operator: NAME` header (UTF-8, at most 64 bytes, no control
+//! characters, else 400), the operator's name (`"by"` and `"origin"` in the events).
+//!
 //! A submitted campaign is untrusted: its stage model is a relative `.toml` path inside
 //! `[campaigns] base_dir` or `models_dir`, its `[outputs] dir` a relative directory below
 //! `results_dir`; anything else is a 400 that names the key and line but shows no server path

@@ -13,7 +13,8 @@
 //! | `plots/iso230_<axis>.svg`, `.png` | ISO 230-2 chart: x̄↑ x̄↓ per target, ±2s bands, A B E M R ([`iso_chart_files`]) |
 //!
 //! The summary table ([`SummaryTable`], [`render_table`]) needs the campaign's timings, so the
-//! engine renders it itself.
+//! engine renders it itself; so does `report.html` ([`html::report_html`]), which also needs
+//! the campaign's log (the rig's identification, the attempts).
 mod compensation;
 pub mod html;
 mod iso;
