@@ -160,11 +160,11 @@ pub struct Report {
 pub const MARKER: &str = ".csmetro-results.json";
 
 /// Where campaign `id` of store `store_id` writes its results, and marks the folder as its
-/// own: `dir` itself when it is new, empty, or already this campaign's; else, when `dir` is
-/// marked as another campaign's (the same `{id}` in another store, a template without `{id}`),
-/// `dir` with the store's identity and the campaign id in its name (`it-1.store-<id>-c1`).
-/// Refused (the results stay in the store) when the folder holds results nobody marked (an
-/// older csmetro's) or the fallback folder is taken too.
+/// own: `dir` itself when it is new, holds no results, or is already this campaign's; else,
+/// when `dir` holds another campaign's results (marked by another store with the same `{id}`,
+/// by this store under a template without `{id}`, or unmarked, from an older csmetro), `dir`
+/// with the store's identity and the campaign id in its name (`it-1.store-<id>-c1`). Refused
+/// (the results stay in the store) when that folder is taken too or cannot be marked.
 pub fn claim_out_dir(dir: &Path, store_id: &str, id: i64, name: &str) -> Result<PathBuf, String> {
     let mine = json!({"store_id": store_id, "campaign": id});
     let refused = |why: &str| {
@@ -202,12 +202,7 @@ pub fn claim_out_dir(dir: &Path, store_id: &str, id: i64, name: &str) -> Result<
                 }
             }
             Owner::Marked(m) if m == mine => return Ok(d.to_path_buf()),
-            Owner::Marked(_) => {}
-            Owner::Unmarked => {
-                return Err(refused(
-                    "it holds results of a campaign it does not name (not marked by this store)",
-                ))
-            }
+            Owner::Marked(_) | Owner::Unmarked => {}
         }
     }
     Err(refused("it and its fallback hold other campaigns' results"))
@@ -219,7 +214,7 @@ enum Owner {
     Free,
     /// The marker's `store_id` and `campaign`.
     Marked(Value),
-    /// Results (a `summary.json`) without a marker.
+    /// Results (a `summary.json` file) without a marker.
     Unmarked,
 }
 
@@ -229,7 +224,7 @@ fn owner(d: &Path) -> Owner {
             let v: Value = serde_json::from_slice(&b).unwrap_or(Value::Null);
             Owner::Marked(json!({"store_id": v["store_id"], "campaign": v["campaign"]}))
         }
-        Err(_) if d.join("summary.json").exists() => Owner::Unmarked,
+        Err(_) if d.join("summary.json").is_file() => Owner::Unmarked,
         Err(_) => Owner::Free,
     }
 }
@@ -697,13 +692,17 @@ mod tests {
         // Another campaign of the same store (a template without {id}): its own fallback.
         let c2 = claim_out_dir(&d, "aaaa", 2, "it").unwrap();
         assert_eq!(c2, tmp.path().join("it-1.store-aaaa-c2"));
-        // Results nobody marked: refused.
+        // Results nobody marked (an older csmetro's): kept, the new ones go beside them.
         let old = tmp.path().join("old");
         std::fs::create_dir_all(&old).unwrap();
         std::fs::write(old.join("summary.json"), "{}").unwrap();
+        let beside = claim_out_dir(&old, "aaaa", 3, "it").unwrap();
+        assert_eq!(beside, tmp.path().join("old.store-aaaa-c3"));
+        assert!(!old.join(MARKER).exists());
+        // Both folders taken by others: refused, the results stay in the store.
+        std::fs::write(beside.join(MARKER), r#"{"store_id":"cccc","campaign":3}"#).unwrap();
         let e = claim_out_dir(&old, "aaaa", 3, "it").unwrap_err();
         assert!(e.contains("results not written"), "{e}");
-        assert!(!old.join(MARKER).exists());
         // An empty existing folder is free.
         let empty = tmp.path().join("empty");
         std::fs::create_dir_all(&empty).unwrap();
