@@ -30,7 +30,7 @@ use crate::campaign::session::{self, Event, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock, StageLockError};
 use crate::store::{CampaignRow, EventRow, StoreError};
-use crate::types::CampaignState;
+use crate::types::{CampaignState, Origin};
 
 /// How often a campaign waiting for a stage held by another process tries again.
 const STAGE_RETRY: Duration = Duration::from_secs(2);
@@ -164,6 +164,14 @@ pub struct Manager {
     active: watch::Sender<usize>,
 }
 
+/// `data` with the service named as the origin of the change (`by`, `origin`).
+fn by_service(mut data: Value) -> Value {
+    if let (Some(d), Value::Object(o)) = (data.as_object_mut(), Origin::service().fields()) {
+        d.extend(o);
+    }
+    data
+}
+
 fn store_err(e: StoreError) -> ApiError {
     ApiError::internal(e.to_string())
 }
@@ -257,7 +265,9 @@ impl Manager {
                 self.emit(
                     row.id,
                     "requeued",
-                    json!({"reason": "service start", "previous_state": row.state.as_str()}),
+                    by_service(
+                        json!({"reason": "service start", "previous_state": row.state.as_str()}),
+                    ),
                 );
             }
             tracing::info!(campaign = row.id, name = %row.name, stage = %row.stage, previous_state = row.state.as_str(), "queued again at start");
@@ -347,8 +357,8 @@ impl Manager {
             self.emit(
                 row.id,
                 "interrupted",
-                json!({"reason": "its process exited without finishing",
-                       "previous_state": now.state.as_str(), "stored": stored, "resumable": true}),
+                by_service(json!({"reason": "its process exited without finishing",
+                       "previous_state": now.state.as_str(), "stored": stored, "resumable": true})),
             );
         }
     }
@@ -414,6 +424,16 @@ impl Manager {
     /// Validates and stores a campaign file sent by a client, and queues it. `name` is the
     /// file name the client gave (errors name it; relative paths resolve in `campaigns_dir`).
     pub fn submit(self: &Arc<Self>, text: &str, name: &str) -> Result<CampaignStatus, ApiError> {
+        self.submit_by(text, name, &Origin::api(None, None))
+    }
+
+    /// [`Manager::submit`], the `queued` event naming who submitted it.
+    pub fn submit_by(
+        self: &Arc<Self>,
+        text: &str,
+        name: &str,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         if self.shutting_down() {
             return Err(ApiError::conflict("the service is shutting down"));
         }
@@ -438,7 +458,8 @@ impl Manager {
         self.emit(
             id,
             "queued",
-            json!({"stage": stage, "position": position, "name": c.spec.campaign.name}),
+            json!({"stage": stage, "position": position, "name": c.spec.campaign.name,
+                   "by": origin.describe(), "origin": origin}),
         );
         self.schedule(&stage);
         self.status(id)
@@ -541,7 +562,7 @@ impl Manager {
             self.emit(
                 id,
                 "waiting_for_stage",
-                json!({"stage": stage, "reason": msg}),
+                by_service(json!({"stage": stage, "reason": msg})),
             );
         }
         let (me, stage) = (Arc::clone(self), stage.to_string());
@@ -561,6 +582,11 @@ impl Manager {
             .set_state(id, CampaignState::Interrupted, Some(&msg));
         self.emit(
             id,
+            "error",
+            by_service(json!({"cause": "service", "error": msg, "resumable": true})),
+        );
+        self.emit(
+            id,
             "finished",
             json!({"state": "interrupted", "error": msg}),
         );
@@ -573,10 +599,9 @@ impl Manager {
         mut c: Campaign,
         control: watch::Receiver<Control>,
     ) {
-        let dir = Path::new(&c.spec.outputs.dir);
-        if dir.is_relative() {
-            c.spec.outputs.dir = self.results_dir.join(dir).display().to_string();
-        }
+        // Below the service's results_dir whatever the template (absolute ones included).
+        c.spec.outputs.dir =
+            crate::campaign::results::service_outputs(&self.results_dir, &c.spec.outputs.dir);
         tracing::info!(campaign = id, name = %c.spec.campaign.name, stage = %stage, "starting");
         // Nothing is measured before `execute` runs: this is what earlier attempts stored.
         let stored = self.db().sample_count(id).unwrap_or(0);
@@ -624,7 +649,7 @@ impl Manager {
                     self.emit(
                         id,
                         "interrupted",
-                        json!({"reason": "service shutdown", "resumable": true}),
+                        by_service(json!({"reason": "service shutdown", "resumable": true})),
                     );
                 }
             }
@@ -722,6 +747,12 @@ impl Manager {
 
     /// Holds a running campaign between two points (motion ends on target, nothing is lost).
     pub fn pause(&self, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.pause_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::pause`]; the `paused` event and the status message say who paused it.
+    pub fn pause_by(&self, id: i64, origin: &Origin) -> Result<CampaignStatus, ApiError> {
+        let msg = format!("paused by {}", origin.describe());
         {
             let mut inner = self.inner();
             let Some(a) = inner.active(id) else {
@@ -735,16 +766,28 @@ impl Manager {
             a.control.send_replace(Control::Pause);
             a.progress.pause(crate::store::now_unix_s());
             self.db()
-                .set_state(id, CampaignState::Paused, Some("paused by the operator"))
+                .set_state(id, CampaignState::Paused, Some(&msg))
                 .map_err(store_err)?;
         }
-        tracing::info!(campaign = id, "paused");
+        let mut data = origin.fields();
+        data["cause"] = json!("operator");
+        self.emit(id, "paused", data);
+        tracing::info!(campaign = id, by = %origin.describe(), "paused");
         self.status(id)
     }
 
     /// Continues a paused campaign, or queues an interrupted one again (it resumes from its
     /// last stored sample).
     pub fn resume(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.resume_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::resume`]; the `resumed` (running again) or `requeued` event says who.
+    pub fn resume_by(
+        self: &Arc<Self>,
+        id: i64,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         if self.shutting_down() {
             return Err(ApiError::conflict("the service is shutting down"));
         }
@@ -760,7 +803,12 @@ impl Manager {
                 self.db()
                     .set_state(id, CampaignState::Running, None)
                     .map_err(store_err)?;
-                None
+                drop(inner);
+                let mut data = origin.fields();
+                data["cause"] = json!("operator");
+                self.emit(id, "resumed", data);
+                tracing::info!(campaign = id, by = %origin.describe(), "resumed");
+                return self.status(id);
             } else if inner.queue_position(id).is_some() {
                 drop(inner);
                 return Err(self.refuse(id, "resume"));
@@ -775,7 +823,11 @@ impl Manager {
                     return Err(self.refuse(id, "resume"));
                 }
                 self.db()
-                    .set_state(id, CampaignState::Queued, Some("resumed by the operator"))
+                    .set_state(
+                        id,
+                        CampaignState::Queued,
+                        Some(&format!("resumed by {}", origin.describe())),
+                    )
                     .map_err(store_err)?;
                 inner
                     .queues
@@ -785,9 +837,11 @@ impl Manager {
                 Some(row.stage)
             }
         };
-        tracing::info!(campaign = id, "resumed");
+        tracing::info!(campaign = id, by = %origin.describe(), "resumed");
         if let Some(stage) = requeue_stage {
-            self.emit(id, "requeued", json!({"reason": "operator"}));
+            let mut data = origin.fields();
+            data["reason"] = json!("operator");
+            self.emit(id, "requeued", data);
             self.schedule(&stage);
         }
         self.status(id)
@@ -796,12 +850,22 @@ impl Manager {
     /// Aborts a campaign: a running one stops motion and ends `aborted`; a queued or
     /// interrupted one is marked aborted at once.
     pub fn abort(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.abort_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::abort`]; the `abort_requested` (running) or `finished` event says who.
+    pub fn abort_by(
+        self: &Arc<Self>,
+        id: i64,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         let mut inner = self.inner();
         if let Some(a) = inner.active(id) {
             a.operator_abort = true;
             a.control.send_replace(Control::Abort);
             drop(inner);
-            tracing::info!(campaign = id, "abort requested");
+            self.emit(id, "abort_requested", origin.fields());
+            tracing::info!(campaign = id, by = %origin.describe(), "abort requested");
             return self.status(id);
         }
         let queued = inner.queue_position(id);
@@ -823,10 +887,15 @@ impl Manager {
             .set_state(
                 id,
                 CampaignState::Aborted,
-                Some("aborted by the operator before it ran again"),
+                Some(&format!(
+                    "aborted by {} before it ran again",
+                    origin.describe()
+                )),
             )
             .map_err(store_err)?;
-        self.emit(id, "finished", json!({"state": "aborted"}));
+        let mut data = origin.fields();
+        data["state"] = json!("aborted");
+        self.emit(id, "finished", data);
         tracing::info!(campaign = id, "aborted while not running");
         self.status(id)
     }

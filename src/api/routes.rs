@@ -17,6 +17,10 @@
 //! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`;
 //! only the page and its assets (the same for everyone, no data) load without it.
 //!
+//! Submit, pause, resume and abort are logged with their origin: the client's address and,
+//! when the request carries an `X-Operator: NAME` header (UTF-8, at most 64 bytes, no control
+//! characters, else 400), the operator's name (`"by"` and `"origin"` in the events).
+//!
 //! A submitted campaign is untrusted: its stage model is a relative `.toml` path inside
 //! `[campaigns] base_dir` or `models_dir`, its `[outputs] dir` a relative directory below
 //! `results_dir`; anything else is a 400 that names the key and line but shows no server path
@@ -41,7 +45,35 @@ use tokio::sync::{broadcast, mpsc};
 use super::{ApiError, CampaignStatus, Manager};
 use crate::campaign::session::Event;
 use crate::campaign::spec::{Campaign, SubmitPolicy};
-use crate::types::CampaignState;
+use crate::types::{check_operator, CampaignState, Origin};
+
+/// Who sent a request, for the event log: the client's address (when the server knows it)
+/// and the operator's name from the `X-Operator` header (optional; UTF-8, at most 64 bytes,
+/// no control characters, else 400).
+struct ApiOrigin(Origin);
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for ApiOrigin {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        _: &S,
+    ) -> Result<Self, ApiError> {
+        let client = parts
+            .extensions
+            .get::<axum::extract::ConnectInfo<std::net::SocketAddr>>()
+            .map(|c| c.0.to_string());
+        let operator = match parts.headers.get("x-operator") {
+            None => None,
+            Some(v) => {
+                let s = std::str::from_utf8(v.as_bytes())
+                    .map_err(|_| ApiError::bad_request("X-Operator: not UTF-8"))?;
+                check_operator(s).map_err(|e| ApiError::bad_request(format!("X-Operator: {e}")))?
+            }
+        };
+        Ok(ApiOrigin(Origin::api(client, operator)))
+    }
+}
 
 #[derive(Clone)]
 struct App {
@@ -145,6 +177,7 @@ struct SubmitJson {
 
 async fn submit(
     State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
     headers: HeaderMap,
     body: Bytes,
 ) -> ApiResult<(StatusCode, Json<CampaignStatus>)> {
@@ -181,7 +214,7 @@ async fn submit(
         Campaign::parse_submitted(&text, &origin, &policy)
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
         let _g = rt.enter();
-        m.submit(&text, &name)
+        m.submit_by(&text, &name, &who)
     })
     .await?;
     Ok((StatusCode::CREATED, Json(st)))
@@ -204,28 +237,40 @@ async fn status(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<C
     blocking(move || m.status(id)).await.map(Json)
 }
 
-async fn pause(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+async fn pause(
+    State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
+    Path(id): Path<i64>,
+) -> ApiResult<Json<CampaignStatus>> {
     let m = app.manager.clone();
-    blocking(move || m.pause(id)).await.map(Json)
+    blocking(move || m.pause_by(id, &who)).await.map(Json)
 }
 
-async fn resume(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+async fn resume(
+    State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
+    Path(id): Path<i64>,
+) -> ApiResult<Json<CampaignStatus>> {
     let m = app.manager.clone();
     let rt = tokio::runtime::Handle::current();
     blocking(move || {
         let _g = rt.enter();
-        m.resume(id)
+        m.resume_by(id, &who)
     })
     .await
     .map(Json)
 }
 
-async fn abort(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+async fn abort(
+    State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
+    Path(id): Path<i64>,
+) -> ApiResult<Json<CampaignStatus>> {
     let m = app.manager.clone();
     let rt = tokio::runtime::Handle::current();
     blocking(move || {
         let _g = rt.enter();
-        m.abort(id)
+        m.abort_by(id, &who)
     })
     .await
     .map(Json)

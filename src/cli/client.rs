@@ -32,6 +32,10 @@ pub struct Conn {
     /// Print JSON (one object, or one event per line for `watch`).
     #[arg(long, global = true)]
     json: bool,
+    /// Your name, sent as `X-Operator`: the campaign's event log says who submitted, paused,
+    /// resumed or aborted it (ASCII, at most 64 bytes).
+    #[arg(long, env = "CSMETRO_OPERATOR", global = true)]
+    operator: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -105,6 +109,7 @@ pub struct ReportArgs {
 struct Client {
     base: String,
     token: Option<String>,
+    operator: Option<String>,
     agent: ureq::Agent,
 }
 
@@ -124,6 +129,7 @@ impl Client {
         Self {
             base: c.server.trim_end_matches('/').to_string(),
             token: c.token.clone().filter(|t| !t.is_empty()),
+            operator: c.operator.clone().filter(|o| !o.trim().is_empty()),
             agent,
         }
     }
@@ -137,6 +143,10 @@ impl Client {
     }
 
     fn auth<B>(&self, r: ureq::RequestBuilder<B>) -> ureq::RequestBuilder<B> {
+        let r = match &self.operator {
+            Some(o) => r.header("X-Operator", o),
+            None => r,
+        };
         match &self.token {
             Some(t) => r.header("Authorization", &format!("Bearer {t}")),
             None => r,
@@ -584,6 +594,9 @@ pub fn report(a: ReportArgs) -> CliResult {
             st.state.as_str(),
             dir.display()
         );
+        if names.iter().any(|n| n == "report.html") {
+            eprintln!("report: {}", dir.join("report.html").display());
+        }
     }
     if names.is_empty() && st.state != CampaignState::Done {
         return Err(CliError::failure(format!(

@@ -13,7 +13,7 @@ use crate::campaign::session::{self, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock};
 use crate::store::Store;
-use crate::types::CampaignState;
+use crate::types::{check_operator, CampaignState, Origin};
 
 /// Default store of foreground runs (the service's config names its own).
 pub const DEFAULT_DB: &str = "csmetro-data/csmetro.db";
@@ -34,6 +34,9 @@ pub struct Args {
     /// Simulation only (soaks): append each sample's true position to this file.
     #[arg(long, hide = true)]
     truth_log: Option<PathBuf>,
+    /// Your name, for the campaign's event log (who started it).
+    #[arg(long, env = "CSMETRO_OPERATOR")]
+    operator: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -48,6 +51,18 @@ pub struct ResumeArgs {
     quiet: bool,
     #[arg(long, hide = true)]
     truth_log: Option<PathBuf>,
+    /// Your name, for the campaign's event log (who resumed it).
+    #[arg(long, env = "CSMETRO_OPERATOR")]
+    operator: Option<String>,
+}
+
+/// The event log's origin of a foreground run; a bad name is bad input (exit 2).
+fn origin(operator: Option<&str>) -> Result<Origin, CliError> {
+    let op = match operator {
+        Some(o) => check_operator(o).map_err(|e| CliError::input(format!("--operator: {e}")))?,
+        None => None,
+    };
+    Ok(Origin::cli(op))
 }
 
 fn open(db: &std::path::Path) -> Result<SharedStore, CliError> {
@@ -63,22 +78,26 @@ fn take_stage(db: &std::path::Path, stage: &str) -> Result<StageLock, CliError> 
 }
 
 pub fn run(a: Args) -> CliResult {
+    let origin = origin(a.operator.as_deref())?;
     let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
     let _stage = take_stage(&a.db, &c.spec.campaign.stage)?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
+    // A resume is offered where it applies: at the end of a run that did not finish.
     eprintln!(
-        "campaign {id} \"{}\" stored in {} (resume with `csmetro resume {id}`)",
+        "campaign {id} \"{}\" stored in {}",
         c.spec.campaign.name,
         a.db.display()
     );
     let opts = session::Options {
         truth_log: a.truth_log,
+        origin: Some(origin),
     };
     foreground(store, id, c, a.json, a.quiet, opts)
 }
 
 pub fn resume(a: ResumeArgs) -> CliResult {
+    let origin = origin(a.operator.as_deref())?;
     let store = open(&a.db)?;
     let row = store
         .lock()
@@ -97,6 +116,7 @@ pub fn resume(a: ResumeArgs) -> CliResult {
     let c = session::load_stored(&store, a.id).map_err(CliError::failure)?;
     let opts = session::Options {
         truth_log: a.truth_log,
+        origin: Some(origin),
     };
     foreground(store, a.id, c, a.json, a.quiet, opts)
 }
@@ -182,7 +202,10 @@ fn foreground(
             println!("{t}");
         }
         if let Some(d) = &fin.out_dir {
-            eprintln!("results: {} (and in the store, campaign {id})", d.display());
+            eprintln!(
+                "results: {} (report.html and the files; also in the store, campaign {id})",
+                d.display()
+            );
         }
         Ok(match fin.state {
             CampaignState::Done => ExitCode::SUCCESS,
