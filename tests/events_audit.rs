@@ -8,10 +8,10 @@ use std::time::Duration;
 use common::{bin, campaign, Server};
 use csmetro::store::{EventRow, Store};
 use csmetro::types::CampaignState;
-use csmetro_sim::controller::Endpoint;
-use csmetro_sim::controller::{ControllerConfig, SimController};
-use csmetro_sim::stage::SimStage;
+use csmetro_sim::Endpoint;
+use csmetro_sim::SimStage;
 use csmetro_sim::{AxisId, StageModel};
+use csmetro_sim::{ControllerConfig, SimController};
 use serde_json::Value;
 
 fn state(v: &Value) -> &str {
