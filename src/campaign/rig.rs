@@ -196,7 +196,9 @@ struct SimParts {
     triggers: TriggerLog,
 }
 
-async fn sim_parts(c: &Campaign, pattern: Pattern) -> Result<SimParts, String> {
+/// `faults`: whether the controllers strike `[hardware.sim.faults]` (a soak's random faults are
+/// the campaign's to meet, not the pre-flight's).
+async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimParts, String> {
     let s = &c.spec.hardware.sim;
     let model = match &s.model {
         Some(p) => {
@@ -228,7 +230,7 @@ async fn sim_parts(c: &Campaign, pattern: Pattern) -> Result<SimParts, String> {
             acceleration_mm_s2: s.acceleration_mm_s2,
             start_mm: start_mm[if a == AxisId::X { 0 } else { 1 }],
             reference_switch_mm: (s.travel_mm[0] + s.travel_mm[1]) / 2.0,
-            random_faults: s.faults.as_ref().map(|f| RandomFaults {
+            random_faults: s.faults.as_ref().filter(|_| faults).map(|f| RandomFaults {
                 seed: axis_fault_seed(f.seed, a),
                 ..f.clone()
             }),
@@ -303,7 +305,7 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
         model,
         clock,
         triggers,
-    } = sim_parts(c, pattern).await?;
+    } = sim_parts(c, pattern, true).await?;
     Ok(Rig {
         describe: format!(
             "simulated: 2 x C-863.11 over {:?}, time scale {}{}, {}",
@@ -368,7 +370,7 @@ pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devic
     ));
     match h.kind {
         HardwareKind::Sim => {
-            let p = sim_parts(c, pattern).await?;
+            let p = sim_parts(c, pattern, false).await?;
             Ok(Devices {
                 x: Ok(p.x),
                 y: Ok(p.y),
