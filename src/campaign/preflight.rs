@@ -208,11 +208,11 @@ pub fn needed_span_um(c: &Campaign, a: AxisId) -> Option<(f64, f64)> {
 async fn check_axis(
     c: &Campaign,
     a: AxisId,
-    drv: &mut Result<C863, String>,
+    slot: &mut Result<C863, String>,
     report: &mut Report,
 ) -> Option<f64> {
     let names = ["controller", "axis", "limits", "referenced"].map(|n| format!("{a}: {n}"));
-    let drv = match drv {
+    let drv = match slot {
         Ok(d) => d,
         Err(e) => {
             report.push(&names[0], Class::Device, Err(e.clone()));
@@ -227,13 +227,47 @@ async fn check_axis(
         .await
         .map_err(axis_err)
         .and_then(|r| r.single().map(|l| l.trim().to_string()));
-    let at = describe_port(drv);
+    let at = describe_port(c, drv);
     match idn {
         Ok(l) => report.push(&names[0], Class::Device, Ok(format!("{l} ({at})"))),
         Err(e) => {
-            report.push(&names[0], Class::Device, Err(format!("{at}: {e}")));
-            for n in &names[1..] {
-                report.skip(n, Class::Device, format!("controller {a} did not answer"));
+            // The driver's resync probe names the configured axis, and a controller without
+            // that axis never answers it: ask as axis "1" (every C-863 has it) to tell a
+            // wrong axis from a silent controller.
+            let cfg = drv.config().clone();
+            let found = if cfg.axis != C863_AXIS {
+                // The port is free again only once this driver is gone.
+                *slot = Err(String::new());
+                axes_as_default(cfg.clone()).await
+            } else {
+                None
+            };
+            match found {
+                Some((idn, axes)) => {
+                    report.push(&names[0], Class::Device, Ok(format!("{idn} ({at})")));
+                    report.push(
+                        &names[1],
+                        Class::Config,
+                        Err(format!(
+                            "the controller has no axis {:?} (SAI? lists {axes:?}); fix \
+                             [hardware.controllers.{a}] axis",
+                            cfg.axis
+                        )),
+                    );
+                    for n in &names[2..] {
+                        report.skip(
+                            n,
+                            Class::Device,
+                            format!("no usable axis on controller {a}"),
+                        );
+                    }
+                }
+                None => {
+                    report.push(&names[0], Class::Device, Err(format!("{at}: {e}")));
+                    for n in &names[1..] {
+                        report.skip(n, Class::Device, format!("controller {a} did not answer"));
+                    }
+                }
             }
             return None;
         }
@@ -354,11 +388,39 @@ async fn axis_f64(drv: &mut C863, query: AxisQuery) -> Result<f64, String> {
         .and_then(|r| r.axis_f64(&axis))
 }
 
-fn describe_port(drv: &C863) -> String {
-    match &drv.config().transport {
-        csmetro_gcs::Transport::Tcp { address } => format!("tcp {address}"),
-        csmetro_gcs::Transport::Serial { port, .. } => format!("serial {port}"),
+/// Where the controller is, as the campaign file names it (a simulated campaign's pty is the
+/// simulator's business).
+fn describe_port(c: &Campaign, drv: &C863) -> String {
+    match (&drv.config().transport, c.spec.hardware.kind) {
+        (_, HardwareKind::Sim) => "simulated".into(),
+        (csmetro_gcs::Transport::Tcp { address }, _) => format!("tcp {address}"),
+        (csmetro_gcs::Transport::Serial { port, .. }, _) => format!("serial {port}"),
     }
+}
+
+/// The one axis of a C-863 (GCS axis identifier).
+const C863_AXIS: &str = "1";
+
+/// `*IDN?` and the axes (`SAI?`) of the controller `cfg` reaches, asked as axis
+/// [`C863_AXIS`]; None if it does not answer that way either.
+async fn axes_as_default(mut cfg: csmetro_gcs::C863Config) -> Option<(String, Vec<String>)> {
+    cfg.axis = C863_AXIS.into();
+    cfg.reconnect_attempts = cfg.reconnect_attempts.min(RECONNECT_ATTEMPTS);
+    cfg.retries = cfg.retries.min(RECONNECT_ATTEMPTS);
+    let mut d = C863::connect(cfg).await.ok()?;
+    let idn = d
+        .query(&Command::Idn)
+        .await
+        .ok()?
+        .single()
+        .ok()?
+        .trim()
+        .to_string();
+    let axes = d.query(&Command::Sai { all: false }).await.ok()?;
+    Some((
+        idn,
+        axes.lines.iter().map(|l| l.trim().to_string()).collect(),
+    ))
 }
 
 /// Whether the campaign's positions of axis `a` lie inside its soft limits and inside the

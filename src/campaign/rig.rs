@@ -360,7 +360,8 @@ impl Devices {
 }
 
 /// Opens the devices of a campaign without commanding anything. A real controller's port is
-/// tried at most `reconnect_attempts` + 1 times (a pre-flight reports a missing port quickly).
+/// opened, and each of its exchanges tried, at most `reconnect_attempts` + 1 times (a
+/// pre-flight reports a missing or silent controller quickly).
 pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devices, String> {
     let h = &c.spec.hardware;
     let pattern = Pattern::new(h.pattern.clone()).map_err(|e| e.to_string())?;
@@ -387,6 +388,7 @@ pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devic
                     .cloned()
                     .ok_or_else(|| format!("no [hardware.controllers.{a}]"))?;
                 cfg.reconnect_attempts = cfg.reconnect_attempts.min(reconnect_attempts);
+                cfg.retries = cfg.retries.min(reconnect_attempts);
                 C863::connect(cfg).await.map_err(|e| e.to_string())
             };
             Ok(Devices {
