@@ -343,3 +343,59 @@ fn each_rig_fault_fails_its_own_line_nothing_moves_nothing_is_recorded() {
 
 #[cfg(feature = "aravis")]
 use std::process::Command;
+
+#[test]
+fn run_and_the_service_refuse_a_campaign_whose_rig_fails_the_preflight() {
+    use csmetro::store::Store;
+
+    let dir = tempfile::tempdir().unwrap();
+    let closed = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().to_string()
+    };
+    let c = real_campaign(dir.path(), "refused", &closed, &closed, &GOOD);
+    // With the aravis feature the controllers fail (the rig's business, exit 1); without it the
+    // camera backend fails first in rank (the build's business, exit 2).
+    let want = if cfg!(feature = "aravis") { 1 } else { 2 };
+
+    let db = dir.path().join("run.db");
+    let o = bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(&db)
+        .arg(&c)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(want), "{err}");
+    let last = err.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("error: pre-flight check `") && last.contains("nothing was recorded"),
+        "{err}"
+    );
+    if want == 1 {
+        assert!(
+            last.contains("`x: controller` failed") && last.contains(&closed),
+            "{last}"
+        );
+    }
+    assert!(Store::open(&db).unwrap().campaigns().unwrap().is_empty());
+
+    // The service: refused before it is recorded, 503 (the rig) or 409 (the file or build).
+    let sdir = dir.path().join("svc");
+    std::fs::create_dir_all(&sdir).unwrap();
+    let server = common::Server::start(&sdir, None);
+    let text = std::fs::read_to_string(&c)
+        .unwrap()
+        .replace(&format!("dir = \"{}/", dir.path().display()), "dir = \"");
+    let (status, body) = server.post("/campaigns", Some(("application/toml", &text)));
+    assert_eq!(status, if want == 1 { 503 } else { 409 }, "{body}");
+    let msg = body["error"].as_str().unwrap();
+    assert!(msg.starts_with("pre-flight check `"), "{msg}");
+    assert!(
+        !msg.contains(&dir.path().display().to_string()),
+        "a server path: {msg}"
+    );
+    let (s, list) = server.get("/campaigns");
+    assert_eq!(s, 200);
+    assert_eq!(list.as_array().map(Vec::len), Some(0), "{list}");
+}
