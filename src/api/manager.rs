@@ -384,12 +384,17 @@ impl Manager {
         };
         // Called on a blocking thread of the service's runtime (routes::submit).
         let report = tokio::runtime::Handle::current().block_on(preflight_report(c));
-        if report.passed() {
+        if !report.blocks() {
+            for w in report.warnings() {
+                tracing::warn!(campaign = %c.spec.campaign.name, "{w}");
+            }
             return Ok(());
         }
         let status = match report.failure_class() {
             preflight::Class::Config => axum::http::StatusCode::CONFLICT,
-            preflight::Class::Device => axum::http::StatusCode::SERVICE_UNAVAILABLE,
+            preflight::Class::Device | preflight::Class::View => {
+                axum::http::StatusCode::SERVICE_UNAVAILABLE
+            }
         };
         Err(ApiError::new(
             status,
@@ -537,7 +542,7 @@ impl Manager {
             // Checked again on the stage it now holds, before it is recorded as started: the
             // rig may have changed since it was queued. A failure leaves it resumable.
             let report = preflight_report(&c).await;
-            if !report.passed() {
+            if report.blocks() {
                 let msg = format!("{}; not started", report.error_message());
                 me.interrupt(id, msg.clone());
                 me.finished(id, &stage, Ok(Err(msg)));

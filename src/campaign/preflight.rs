@@ -39,11 +39,15 @@ pub enum Status {
 }
 
 /// What a failure asks to fix: the campaign file (exit 2, HTTP 409) or the rig (exit 1, 503).
+/// `View`: the frame came but shows no pattern where the stage is parked now; `check` fails
+/// on it, while `run` and the service only warn, since the campaign moves the stage before its
+/// first frame and rejects frames point by point.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Class {
     Config,
     Device,
+    View,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -84,6 +88,20 @@ impl Report {
     /// Whether every check passed.
     pub fn passed(&self) -> bool {
         self.checks.iter().all(|c| c.status == Status::Ok)
+    }
+    /// Whether a failure keeps a campaign from being recorded or started (all but `View`).
+    pub fn blocks(&self) -> bool {
+        self.checks
+            .iter()
+            .any(|c| c.status != Status::Ok && c.class != Class::View)
+    }
+    /// The failures that do not block, as warnings (one line each).
+    pub fn warnings(&self) -> Vec<String> {
+        self.checks
+            .iter()
+            .filter(|c| c.status == Status::Fail && c.class == Class::View)
+            .map(|c| format!("pre-flight check `{}`: {}", c.name, c.detail))
+            .collect()
     }
     /// The first failed check.
     pub fn failure(&self) -> Option<&Check> {
@@ -499,36 +517,42 @@ async fn check_camera(
     .await
     .map_err(|e| format!("camera task: {e}"))
     .and_then(|r| r);
-    let verdict = match r {
-        Err(e) => Err(format!("no frame: {e}")),
-        Ok(d) if !d.ok => Err(format!(
-            "the frame does not show the campaign's pattern ({}); is the pattern in view and \
+    let (class, verdict) = match r {
+        Err(e) => (Class::Device, Err(format!("no frame: {e}"))),
+        Ok(d) if !d.ok => (
+            Class::View,
+            Err(format!(
+                "the frame does not show the campaign's pattern ({}); is the pattern in view and \
              [hardware.pattern] right?",
-            d.reason.unwrap_or_else(|| "not decoded".into())
-        )),
-        Ok(d) => match encoders {
-            [Some(ex), Some(ey)] => {
-                let off = ((d.x_um - ex).powi(2) + (d.y_um - ey).powi(2)).sqrt();
-                let text = format!(
+                d.reason.unwrap_or_else(|| "not decoded".into())
+            )),
+        ),
+        Ok(d) => (
+            Class::Config,
+            match encoders {
+                [Some(ex), Some(ey)] => {
+                    let off = ((d.x_um - ex).powi(2) + (d.y_um - ey).powi(2)).sqrt();
+                    let text = format!(
                     "decoded ({:.3}, {:.3}) µm, encoders ({ex:.3}, {ey:.3}) µm, {off:.1} µm apart",
                     d.x_um, d.y_um
                 );
-                if off <= PATTERN_TOLERANCE_UM {
-                    Ok(text)
-                } else {
-                    Err(format!(
+                    if off <= PATTERN_TOLERANCE_UM {
+                        Ok(text)
+                    } else {
+                        Err(format!(
                         "{text}: more than {PATTERN_TOLERANCE_UM} µm, not the campaign's pattern \
                          ([hardware.pattern] origin_um?)"
                     ))
+                    }
                 }
-            }
-            _ => Ok(format!(
-                "decoded ({:.3}, {:.3}) µm (no encoder to compare)",
-                d.x_um, d.y_um
-            )),
-        },
+                _ => Ok(format!(
+                    "decoded ({:.3}, {:.3}) µm (no encoder to compare)",
+                    d.x_um, d.y_um
+                )),
+            },
+        ),
     };
-    report.push("pattern", Class::Device, verdict);
+    report.push("pattern", class, verdict);
 }
 
 /// Whether the store at `db` can take writes, without writing to it: an existing database is

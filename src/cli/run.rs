@@ -123,7 +123,10 @@ fn preflight(c: &Campaign, db: &std::path::Path, not_done: &str) -> Result<(), C
         preflight::Options { store: Some(db) },
         &mut report,
     ));
-    if report.passed() {
+    if !report.blocks() {
+        for w in report.warnings() {
+            eprintln!("warning: {w}");
+        }
         return Ok(());
     }
     eprint!("{}", report.table());
