@@ -604,3 +604,86 @@ fn probe_dir(dir: &Path) -> Result<(), String> {
         )
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn campaign(approach_um: f64) -> Campaign {
+        let text = format!(
+            r#"[campaign]
+name = "pf"
+[hardware]
+kind = "sim"
+[axes.x]
+range_um = [1000.0, 2000.0]
+step_um = 10.0
+other_at_um = 3000.0
+m = 10
+[axes.y]
+range_um = [500.0, 900.0]
+step_um = 10.0
+other_at_um = 4000.0
+m = 10
+[acquisition]
+approach_um = {approach_um}
+"#
+        );
+        Campaign::parse(&text, "pf.toml", Path::new(".")).unwrap()
+    }
+
+    #[test]
+    fn the_span_an_axis_needs_is_its_range_with_approach_and_where_it_waits() {
+        let c = campaign(25.0);
+        // x: its grid ± 25 µm, and 4000 µm while y is characterized.
+        assert_eq!(needed_span_um(&c, AxisId::X), Some((975.0, 4000.0)));
+        assert_eq!(needed_span_um(&c, AxisId::Y), Some((475.0, 3000.0)));
+    }
+
+    #[test]
+    fn limits_fail_beyond_the_soft_limits_or_the_controller_travel() {
+        let c = campaign(25.0);
+        assert!(limits_verdict(&c, AxisId::X, (0.0, 5000.0), (-1000.0, 14_000.0)).is_ok());
+        // Soft limits cut the approach travel by 1 µm.
+        let e = limits_verdict(&c, AxisId::X, (976.0, 5000.0), (-1000.0, 14_000.0)).unwrap_err();
+        assert!(
+            e.contains("[975, 4000] µm") && e.contains("soft limits"),
+            "{e}"
+        );
+        // The controller accepts less than the soft limits allow.
+        let e = limits_verdict(&c, AxisId::X, (0.0, 5000.0), (0.0, 3999.0)).unwrap_err();
+        assert!(e.contains("controller travel [0, 3999] µm"), "{e}");
+    }
+
+    #[test]
+    fn a_store_not_there_yet_is_probed_without_being_created() {
+        let d = tempfile::tempdir().unwrap();
+        let db = d.path().join("a").join("b.db");
+        assert!(store_writable(&db).is_ok());
+        assert!(!d.path().join("a").exists());
+        let file = d.path().join("f");
+        std::fs::write(&file, "x").unwrap();
+        // A path below a regular file can never hold a store.
+        assert!(store_writable(&file.join("s.db")).is_err());
+    }
+
+    #[test]
+    fn the_exit_code_and_message_follow_the_failure_that_decides() {
+        let mut r = Report::default();
+        r.push("x: controller", Class::Device, Err("refused".into()));
+        r.push("camera", Class::Config, Err("built without aravis".into()));
+        assert_eq!(r.exit_code(), 2);
+        assert!(r.blocks());
+        let m = r.error_message();
+        assert!(
+            m.starts_with("pre-flight check `camera` failed") && m.contains("1 more"),
+            "{m}"
+        );
+        let mut v = Report::default();
+        v.push("pattern", Class::View, Err("no pattern".into()));
+        assert_eq!(
+            (v.exit_code(), v.blocks(), v.warnings().len()),
+            (1, false, 1)
+        );
+    }
+}
