@@ -31,6 +31,8 @@ enum Command {
     Sim(cli::sim::Args),
     /// Sim-to-real gap diagnosis: where measured data leave the stage model, and which effect explains it.
     Gap(cli::gap::Args),
+    /// Pre-flight of a campaign without motion: config, controllers, limits, camera, pattern, store.
+    Check(cli::check::Args),
     /// Run a campaign file in the foreground: acquisition, reconstruction, report.
     Run(cli::run::Args),
     /// Continue an interrupted campaign from its last stored sample.
@@ -65,6 +67,7 @@ fn main() -> ExitCode {
         Command::Ppp(a) => cli::ppp::run(a),
         Command::Sim(a) => cli::sim::run(a),
         Command::Gap(a) => cli::gap::run(a),
+        Command::Check(a) => cli::check::run(a),
         Command::Run(a) => cli::run::run(a),
         Command::Resume(a) => cli::run::resume(a),
         Command::Serve(a) => cli::serve::run(a),

@@ -26,6 +26,7 @@ use tokio::sync::{broadcast, watch};
 
 use super::ApiError;
 use crate::campaign::engine::Control;
+use crate::campaign::preflight;
 use crate::campaign::session::{self, Event, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock, StageLockError};
@@ -170,6 +171,14 @@ fn by_service(mut data: Value) -> Value {
         d.extend(o);
     }
     data
+}
+
+/// The device checks of the pre-flight (the service's own store is open, and a submitted
+/// file's output directory was probed when it was parsed).
+async fn preflight_report(c: &Campaign) -> preflight::Report {
+    let mut report = preflight::Report::default();
+    preflight::check_devices(c, preflight::Options::default(), &mut report).await;
+    report
 }
 
 fn store_err(e: StoreError) -> ApiError {
@@ -446,6 +455,7 @@ impl Manager {
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
         // load_stored resolves relative paths from the stored path's directory.
         c.origin = self.campaigns_dir.join(&file).display().to_string();
+        self.preflight_at_submit(&c)?;
         let id = session::create(&self.store, &c).map_err(ApiError::internal)?;
         let stage = c.spec.campaign.stage.clone();
         let position = {
@@ -463,6 +473,46 @@ impl Manager {
         );
         self.schedule(&stage);
         self.status(id)
+    }
+
+    /// The pre-flight of `csmetro check`, before the campaign is recorded, when its stage is
+    /// free now (held for the check). A campaign queued behind another, or whose stage another
+    /// process drives, is checked when it starts. 409 when the file must change, 503 when the
+    /// rig must; the message names the failed check.
+    fn preflight_at_submit(&self, c: &Campaign) -> Result<(), ApiError> {
+        let stage = &c.spec.campaign.stage;
+        {
+            let inner = self.inner();
+            if inner.running.contains_key(stage)
+                || inner.queues.get(stage).is_some_and(|q| !q.is_empty())
+            {
+                return Ok(());
+            }
+        }
+        let db_path = self.db().path().map(Path::to_path_buf);
+        let _lock = match db_path.as_deref().map(|p| stagelock::try_lock(p, stage)) {
+            Some(Err(_)) => return Ok(()),
+            Some(Ok(l)) => Some(l),
+            None => None,
+        };
+        // Called on a blocking thread of the service's runtime (routes::submit).
+        let report = tokio::runtime::Handle::current().block_on(preflight_report(c));
+        if !report.blocks() {
+            for w in report.warnings() {
+                tracing::warn!(campaign = %c.spec.campaign.name, "{w}");
+            }
+            return Ok(());
+        }
+        let status = match report.failure_class() {
+            preflight::Class::Config => axum::http::StatusCode::CONFLICT,
+            preflight::Class::Device | preflight::Class::View => {
+                axum::http::StatusCode::SERVICE_UNAVAILABLE
+            }
+        };
+        Err(ApiError::new(
+            status,
+            format!("{}; the campaign was not queued", report.error_message()),
+        ))
     }
 
     /// Starts the next queued campaign of `stage` unless one drives it already.
@@ -610,15 +660,18 @@ impl Manager {
         }
         self.active.send_modify(|n| *n += 1);
         let me = Arc::clone(self);
-        let run = session::execute(
-            self.store.clone(),
-            id,
-            c,
-            control,
-            self.events.clone(),
-            Box::new(|_| {}),
-        );
+        let (store, events) = (self.store.clone(), self.events.clone());
         tokio::spawn(async move {
+            // Checked again on the stage it now holds, before it is recorded as started: the
+            // rig may have changed since it was queued. A failure leaves it resumable.
+            let report = preflight_report(&c).await;
+            if report.blocks() {
+                let msg = format!("{}; not started", report.error_message());
+                me.interrupt(id, msg.clone());
+                me.finished(id, &stage, Ok(Err(msg)));
+                return;
+            }
+            let run = session::execute(store, id, c, control, events, Box::new(|_| {}));
             // A panic in the session must still free the stage and count down.
             let r = tokio::spawn(run).await;
             me.finished(id, &stage, r);

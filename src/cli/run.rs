@@ -9,6 +9,7 @@ use tokio::sync::{broadcast, watch};
 
 use super::{CliError, CliResult};
 use crate::campaign::engine::Control;
+use crate::campaign::preflight::{self, Report};
 use crate::campaign::session::{self, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock};
@@ -82,6 +83,7 @@ pub fn run(a: Args) -> CliResult {
     let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
     let _stage = take_stage(&a.db, &c.spec.campaign.stage)?;
+    preflight(&c, &a.db, "nothing was recorded or moved")?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
     // A resume is offered where it applies: at the end of a run that did not finish.
     eprintln!(
@@ -114,11 +116,44 @@ pub fn resume(a: ResumeArgs) -> CliResult {
     }
     let _stage = take_stage(&a.db, &row.stage)?;
     let c = session::load_stored(&store, a.id).map_err(CliError::failure)?;
+    preflight(
+        &c,
+        &a.db,
+        &format!("campaign {} not resumed; nothing moved", a.id),
+    )?;
     let opts = session::Options {
         truth_log: a.truth_log,
         origin: Some(origin),
     };
     foreground(store, a.id, c, a.json, a.quiet, opts)
+}
+
+/// The pre-flight of `csmetro check` (the stage already taken), before the campaign is
+/// recorded or started: the table on stderr, and an error naming the failed check (exit 2 when
+/// the campaign file must change, 1 when the rig must).
+fn preflight(c: &Campaign, db: &std::path::Path, not_done: &str) -> Result<(), CliError> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::failure(e.to_string()))?;
+    let mut report = Report::default();
+    rt.block_on(preflight::check_devices(
+        c,
+        preflight::Options { store: Some(db) },
+        &mut report,
+    ));
+    if !report.blocks() {
+        for w in report.warnings() {
+            eprintln!("warning: {w}");
+        }
+        return Ok(());
+    }
+    eprint!("{}", report.table());
+    Err(CliError {
+        code: report.exit_code(),
+        message: format!("{}; {not_done}", report.error_message()),
+    })
 }
 
 fn foreground(
