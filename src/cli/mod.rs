@@ -2,6 +2,7 @@
 use std::process::ExitCode;
 
 pub mod bench;
+pub mod camera;
 pub mod client;
 pub mod demo;
 pub mod gap;
