@@ -84,6 +84,16 @@ fn bad_ids_and_backends_this_build_lacks_exit_2_naming_the_feature() {
         let (out, err) = text(&o);
         assert_eq!(o.status.code(), Some(2), "{out}{err}");
         assert!(err.contains("--features aravis"), "{err}");
+        // The campaign's camera: refused by the campaign's validation, with file and line.
+        let lab = common::repo("config/campaigns/lab-xy-real.toml");
+        let o = run(&["camera", "snap", "--campaign", lab.to_str().unwrap()]);
+        let (out, err) = text(&o);
+        assert_eq!(o.status.code(), Some(2), "{out}{err}");
+        assert!(
+            err.contains("lab-xy-real.toml:")
+                && err.contains("hardware.camera.backend = \"aravis\" needs a csmetro built with --features aravis"),
+            "{err}"
+        );
     }
 }
 

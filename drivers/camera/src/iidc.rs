@@ -589,8 +589,9 @@ mod tests {
 
     #[test]
     fn each_frame_answers_its_own_trigger_even_after_a_timeout() {
-        // Trigger 1: 5 ms. Trigger 2: 150 ms, later than the 100 ms timeout. Trigger 3: 5 ms.
-        let mut dev = Scripted::new(&[Some(5_000), Some(150_000), Some(5_000)]);
+        // Trigger 1: 5 ms. Trigger 2: 103 ms, just after the 100 ms timeout, so it arrives
+        // after trigger 3 was sent and before trigger 3's own frame (5 ms).
+        let mut dev = Scripted::new(&[Some(5_000), Some(103_000), Some(5_000)]);
         let mut p = GrabPolicy::default();
         let t = Duration::from_millis(100);
         let grab = |dev: &mut Scripted, p: &mut GrabPolicy| {
