@@ -188,7 +188,8 @@ impl Format7Geometry {
 /// One frame as the device handed it over (bytes copied out of the DMA ring).
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct RawFrame {
-    /// Host time the frame was captured, µs since the Unix epoch (libdc1394's `timestamp`).
+    /// Host time the frame's transmission began, µs since the Unix epoch (libdc1394's
+    /// `timestamp`, from the bus cycle timer on the juju stack; 0 if it could not tell).
     pub(crate) timestamp_us: u64,
     pub(crate) width: u32,
     pub(crate) height: u32,
@@ -316,10 +317,15 @@ impl GrabPolicy {
         dev.trigger()?;
         loop {
             match dev.poll()? {
-                Some(raw) => {
-                    let stale = raw.timestamp_us < trigger_us
-                        || self.last_us.is_some_and(|l| raw.timestamp_us <= l);
-                    if stale {
+                Some(mut raw) => {
+                    // libdc1394 (juju) stamps a frame with the host time its transmission
+                    // began, or 0 when it cannot read the bus cycle timer: no time check then
+                    // (the drain above and the owed frames still apply), stamped on arrival.
+                    if raw.timestamp_us == 0 {
+                        raw.timestamp_us = dev.now_us().max(self.last_us.map_or(0, |l| l + 1));
+                    } else if raw.timestamp_us < trigger_us
+                        || self.last_us.is_some_and(|l| raw.timestamp_us <= l)
+                    {
                         continue;
                     }
                     let frame = convert_frame(&raw, roi, format);
@@ -645,6 +651,27 @@ mod tests {
             "{}",
             dev.now - before
         );
+    }
+
+    #[test]
+    fn unstamped_frames_are_taken_and_stamped_on_arrival() {
+        let mut dev = Scripted::new(&[]);
+        let t0 = dev.now;
+        // A frame with no stamp (libdc1394 could not read the cycle timer), 2 ms in.
+        dev.pending.push((t0 + 2_000, 0, 42));
+        let mut p = GrabPolicy::default();
+        let f = p
+            .grab(
+                &mut dev,
+                TriggerPlan::SoftwareSource,
+                ROI,
+                PixelFormat::Mono8,
+                Duration::from_millis(20),
+            )
+            .unwrap();
+        assert_eq!(trigger_of(&f), 42);
+        let ts = (f.timestamp_s * 1e6).round() as u64;
+        assert!((t0 + 2_000..=t0 + 3_000).contains(&ts), "{ts}");
     }
 
     #[test]
