@@ -55,6 +55,8 @@ enum Command {
     Report(cli::client::ReportArgs),
     /// Fault soak: simulated campaigns with random faults and kills, checked against the truth (JSON).
     Soak(cli::soak::Args),
+    /// Cameras: list those this build reaches, grab and decode one frame.
+    Camera(cli::camera::Args),
 }
 
 fn main() -> ExitCode {
@@ -79,6 +81,7 @@ fn main() -> ExitCode {
         Command::Abort(a) => cli::client::abort(a),
         Command::Report(a) => cli::client::report(a),
         Command::Soak(a) => cli::soak::run(a),
+        Command::Camera(a) => cli::camera::run(a),
     };
     cli::finish(result)
 }

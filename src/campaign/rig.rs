@@ -433,7 +433,6 @@ async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> 
     })
 }
 
-#[cfg(feature = "aravis")]
 fn real_camera(c: &Campaign) -> Result<Box<dyn Camera>, String> {
     let cfg = c
         .spec
@@ -441,12 +440,5 @@ fn real_camera(c: &Campaign) -> Result<Box<dyn Camera>, String> {
         .camera
         .clone()
         .ok_or("a real campaign needs [hardware.camera]")?;
-    csmetro_camera::AravisCamera::open(cfg)
-        .map(|cam| Box::new(cam) as Box<dyn Camera>)
-        .map_err(|e| format!("camera: {e}"))
-}
-
-#[cfg(not(feature = "aravis"))]
-fn real_camera(_: &Campaign) -> Result<Box<dyn Camera>, String> {
-    Err("this csmetro was built without the `aravis` feature: rebuild with `--features aravis` to use a real camera".into())
+    csmetro_camera::open_camera(cfg).map_err(|e| format!("camera: {e}"))
 }
