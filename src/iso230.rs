@@ -239,6 +239,75 @@ mod tests {
         assert_eq!(s.min_approaches, 2);
     }
 
+    /// A published worked example, computed by hand from the ISO 230-2:2014 definitions
+    /// (independently of this module), 3 targets × 3 approaches per direction, deviations in µm:
+    ///
+    /// | P_i / µm | x_ij↑ | x_ij↓ | x̄↑ | x̄↓ | s↑ | s↓ | B_i | x̄_i | R_i |
+    /// |---|---|---|---|---|---|---|---|---|---|
+    /// | 0   | 1, 2, 3 | -1, 0, -2 | 2 | -1 | 1  | 1 | 3 | 0.5  | max(2+2+3, 4, 4) = 7 |
+    /// | 100 | 4, 4, 7 | 2, 3, 4   | 5 | 3  | √3 | 1 | 2 | 4    | max(2√3+2+2, 4√3, 4) = 4+2√3 |
+    /// | 200 | 0, 2, 1 | -3, -1, -2 | 1 | -2 | 1 | 1 | 3 | -0.5 | 7 |
+    ///
+    /// B = max|B_i| = 3; B̄ = 8/3; M = 4 - (-0.5) = 4.5; E↑ = 5 - 1 = 4; E↓ = 3 - (-2) = 5;
+    /// E = 5 - (-2) = 7; R↑ = 4√3 = 6.9282; R↓ = 4; R = 4 + 2√3 = 7.4641;
+    /// A↑ = max(4, 5+2√3, 3) - min(0, 5-2√3, -1) = 6 + 2√3 = 9.4641;
+    /// A↓ = max(1, 5, 0) - min(-3, 1, -4) = 9; A = (5 + 2√3) - (-4) = 9 + 2√3 = 12.4641.
+    #[test]
+    fn figures_match_the_published_hand_computed_example() {
+        let up = [
+            (0.0, [1.0, 2.0, 3.0]),
+            (100.0, [4.0, 4.0, 7.0]),
+            (200.0, [0.0, 2.0, 1.0]),
+        ];
+        let down = [
+            (0.0, [-1.0, 0.0, -2.0]),
+            (100.0, [2.0, 3.0, 4.0]),
+            (200.0, [-3.0, -1.0, -2.0]),
+        ];
+        // Interleaved as a bidirectional test cycle runs: up the axis, then down, three times.
+        let mut data = Vec::new();
+        for j in 0..3 {
+            data.extend(up.iter().map(|(p, x)| ap(*p, true, x[j])));
+            data.extend(down.iter().rev().map(|(p, x)| ap(*p, false, x[j])));
+        }
+        let r = evaluate(&data, 1e-3).unwrap();
+        let s3 = 3f64.sqrt();
+        let close = |got: f64, want: f64, what: &str| {
+            assert!((got - want).abs() < 1e-9, "{what}: {got} vs {want}")
+        };
+        assert_eq!((r.targets, r.min_approaches), (3, 3));
+        let want_rows = [
+            (0.0, 2.0, -1.0, 1.0, 1.0, 3.0, 0.5, 7.0),
+            (100.0, 5.0, 3.0, s3, 1.0, 2.0, 4.0, 4.0 + 2.0 * s3),
+            (200.0, 1.0, -2.0, 1.0, 1.0, 3.0, -0.5, 7.0),
+        ];
+        for (row, w) in r.rows.iter().zip(want_rows) {
+            close(row.target_um, w.0, "P_i");
+            close(row.mean_up_um, w.1, "x̄↑");
+            close(row.mean_down_um, w.2, "x̄↓");
+            close(row.s_up_um, w.3, "s↑");
+            close(row.s_down_um, w.4, "s↓");
+            close(row.reversal_um, w.5, "B_i");
+            close(row.mean_bidir_um, w.6, "x̄_i");
+            close(row.r_bidir_um, w.7, "R_i");
+        }
+        close(r.b_um.unwrap(), 3.0, "B");
+        close(r.b_mean_um.unwrap(), 8.0 / 3.0, "B̄");
+        close(r.m_um.unwrap(), 4.5, "M");
+        close(r.e_up_um.unwrap(), 4.0, "E↑");
+        close(r.e_down_um.unwrap(), 5.0, "E↓");
+        close(r.e_um, 7.0, "E");
+        close(r.r_up_um.unwrap(), 4.0 * s3, "R↑");
+        close(r.r_down_um.unwrap(), 4.0, "R↓");
+        close(r.r_um.unwrap(), 4.0 + 2.0 * s3, "R");
+        close(r.a_up_um.unwrap(), 6.0 + 2.0 * s3, "A↑");
+        close(r.a_down_um.unwrap(), 9.0, "A↓");
+        close(r.a_um, 9.0 + 2.0 * s3, "A");
+        // The published decimals, as a reader checks them.
+        assert_eq!(format!("{:.4}", r.r_um.unwrap()), "7.4641");
+        assert_eq!(format!("{:.4}", r.a_um), "12.4641");
+    }
+
     #[test]
     fn one_direction_only_leaves_bidirectional_figures_empty() {
         let r = evaluate(&[ap(0.0, true, 1.0), ap(5.0, true, 2.0)], 1e-6).unwrap();

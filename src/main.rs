@@ -31,6 +31,8 @@ enum Command {
     Sim(cli::sim::Args),
     /// Sim-to-real gap diagnosis: where measured data leave the stage model, and which effect explains it.
     Gap(cli::gap::Args),
+    /// Pre-flight of a campaign without motion: config, controllers, limits, camera, pattern, store.
+    Check(cli::check::Args),
     /// Run a campaign file in the foreground: acquisition, reconstruction, report.
     Run(cli::run::Args),
     /// Continue an interrupted campaign from its last stored sample.
@@ -57,6 +59,8 @@ enum Command {
     Move(cli::move_cmd::Args),
     /// Verification run: measure a characterised stage again without and with its compensation.
     Verify(cli::verify::Args),
+    /// Cameras: list those this build reaches, grab and decode one frame.
+    Camera(cli::camera::Args),
 }
 
 fn main() -> ExitCode {
@@ -69,6 +73,7 @@ fn main() -> ExitCode {
         Command::Ppp(a) => cli::ppp::run(a),
         Command::Sim(a) => cli::sim::run(a),
         Command::Gap(a) => cli::gap::run(a),
+        Command::Check(a) => cli::check::run(a),
         Command::Run(a) => cli::run::run(a),
         Command::Resume(a) => cli::run::resume(a),
         Command::Serve(a) => cli::serve::run(a),
@@ -82,6 +87,7 @@ fn main() -> ExitCode {
         Command::Soak(a) => cli::soak::run(a),
         Command::Move(a) => cli::move_cmd::run(a),
         Command::Verify(a) => cli::verify::run(a),
+        Command::Camera(a) => cli::camera::run(a),
     };
     cli::finish(result)
 }

@@ -35,7 +35,7 @@ use serde::Serialize;
 use crate::types::{AxisId, CampaignState, Direction, Phase, RunKey, SampleRecord, Target};
 
 /// The schema this build writes. Bump it and append to [`MIGRATIONS`] to change the schema.
-pub const SCHEMA_VERSION: i32 = 1;
+pub const SCHEMA_VERSION: i32 = 2;
 
 /// `PRAGMA application_id` of a csmetro store ("CSMT"), so `file(1)`-like tools and
 /// [`Store::open`] can tell a csmetro database from another SQLite file.
@@ -111,6 +111,21 @@ CREATE TABLE results (
     updated_unix_s REAL    NOT NULL,
     PRIMARY KEY (campaign_id, name)
 );
+"#,
+    // 1 -> 2: the store's identity (results folders are marked with it, so a folder is never
+    // taken over by a campaign of another store with the same id), and a campaign's
+    // updated_unix_s moves with every committed sample.
+    r#"
+CREATE TABLE store_info (
+    key   TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
+INSERT INTO store_info (key, value) VALUES ('id', lower(hex(randomblob(8))));
+CREATE TRIGGER samples_touch_campaign AFTER INSERT ON samples BEGIN
+    UPDATE campaigns
+       SET updated_unix_s = max(updated_unix_s, (julianday('now') - 2440587.5) * 86400.0)
+     WHERE id = NEW.campaign_id;
+END;
 "#,
 ];
 
@@ -414,6 +429,16 @@ impl Store {
     /// The database file, None in memory.
     pub fn path(&self) -> Option<&Path> {
         self.path.as_deref()
+    }
+
+    /// The store's identity: 16 hex digits drawn when the store was created (or migrated to
+    /// schema 2), the same for every process that opens the file, different for another store.
+    pub fn store_id(&self) -> Result<String, StoreError> {
+        self.conn
+            .query_row("SELECT value FROM store_info WHERE key = 'id'", [], |r| {
+                r.get(0)
+            })
+            .map_err(|e| self.err("read store id", e))
     }
 
     fn init(conn: Connection, path: Option<PathBuf>) -> Result<Store, StoreError> {

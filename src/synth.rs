@@ -2,7 +2,7 @@
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
-use csmetro_sim::reference::{error_curve, paper_like_model, ReferenceCurveParams};
+use csmetro_sim::{error_curve, paper_like_model, ReferenceCurveParams};
 use csmetro_sim::{AxisId, StageModel};
 
 use crate::grid::Grid;

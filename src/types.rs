@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 pub use csmetro_hal::Direction;
-pub use csmetro_sim::model::AxisId;
+pub use csmetro_sim::AxisId;
 
 /// Which design a run belongs to: the compressive-sensing sample or the full reference scan.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -216,4 +216,81 @@ impl CampaignState {
             CampaignState::Aborted | CampaignState::Failed | CampaignState::Done
         )
     }
+}
+
+/// Who asked for a state change: the event log names it (`"origin"`, and `"by"` in words).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Origin {
+    /// `cli` (a foreground `csmetro run`/`resume`), `api` (an HTTP client), `service` (the
+    /// service on its own: start, shutdown, the orphan check).
+    pub via: String,
+    /// The HTTP client's address, `ip:port`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub client: Option<String>,
+    /// The operator's name, when given (`--operator`, the `X-Operator` header).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub operator: Option<String>,
+}
+
+/// Longest operator name kept, bytes.
+pub const MAX_OPERATOR_BYTES: usize = 64;
+
+impl Origin {
+    pub fn cli(operator: Option<String>) -> Self {
+        Self {
+            via: "cli".into(),
+            client: None,
+            operator,
+        }
+    }
+    pub fn api(client: Option<String>, operator: Option<String>) -> Self {
+        Self {
+            via: "api".into(),
+            client,
+            operator,
+        }
+    }
+    pub fn service() -> Self {
+        Self {
+            via: "service".into(),
+            client: None,
+            operator: None,
+        }
+    }
+    /// In words: `operator "ana" via the API from 127.0.0.1:50123`, `the service`.
+    pub fn describe(&self) -> String {
+        let who = match &self.operator {
+            Some(o) => format!("operator {o:?}"),
+            None if self.via == "service" => return "the service".into(),
+            None => "an operator".into(),
+        };
+        match (self.via.as_str(), &self.client) {
+            ("api", Some(c)) => format!("{who} via the API from {c}"),
+            ("api", None) => format!("{who} via the API"),
+            ("cli", _) => format!("{who} on the command line"),
+            (v, _) => format!("{who} via {v}"),
+        }
+    }
+    /// The audit fields of an event: `{"by": "...", "origin": {...}}`.
+    pub fn fields(&self) -> serde_json::Value {
+        serde_json::json!({"by": self.describe(), "origin": self})
+    }
+}
+
+/// An operator name as given by a user: trimmed, at most [`MAX_OPERATOR_BYTES`], no control
+/// characters. `Ok(None)` when empty.
+pub fn check_operator(name: &str) -> Result<Option<String>, String> {
+    let n = name.trim();
+    if n.is_empty() {
+        return Ok(None);
+    }
+    if n.len() > MAX_OPERATOR_BYTES {
+        return Err(format!(
+            "operator name longer than {MAX_OPERATOR_BYTES} bytes"
+        ));
+    }
+    if n.chars().any(char::is_control) {
+        return Err("operator name with control characters".into());
+    }
+    Ok(Some(n.to_string()))
 }

@@ -474,3 +474,153 @@ fn notifies_systemd_ready_watchdog_and_stopping() {
     assert_eq!(stopping.trim(), "STOPPING=1");
     assert!(child.wait().unwrap().success());
 }
+
+/// (status, content type, CSP header, body) of a GET without any token.
+fn get_plain(url: &str) -> (u16, String, String, String) {
+    let a: ureq::Agent = ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .build()
+        .into();
+    let mut r = a.get(url).call().unwrap();
+    let h = |n: &str| {
+        r.headers()
+            .get(n)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("")
+            .to_string()
+    };
+    let (ctype, csp) = (h("content-type"), h("content-security-policy"));
+    let status = r.status().as_u16();
+    let body = r.body_mut().read_to_string().unwrap_or_default();
+    (status, ctype, csp, body)
+}
+
+#[test]
+fn the_page_and_its_assets_load_without_a_token_and_nothing_else_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let srv = Server::start(dir.path(), Some("s3cret-token-0123456789"));
+    let (s, ctype, csp, body) = get_plain(&format!("{}/", srv.url));
+    assert_eq!(s, 200, "{body}");
+    assert!(ctype.starts_with("text/html"), "{ctype}");
+    assert!(body.contains("<title>csmetro</title>"), "{body}");
+    // Scripts from this origin only: the page works offline and runs no injected code.
+    assert!(csp.contains("script-src 'self'"), "{csp}");
+    for (path, want) in [
+        ("/ui/app.js", "text/javascript"),
+        ("/ui/style.css", "text/css"),
+    ] {
+        assert!(body.contains(path), "the page loads {path}");
+        let (s, ctype, _, text) = get_plain(&format!("{}{path}", srv.url));
+        assert_eq!(s, 200, "{path}");
+        assert!(ctype.starts_with(want), "{path}: {ctype}");
+        assert!(!text.is_empty());
+    }
+    // The data stay behind the token, as do unknown assets.
+    for path in ["/health", "/campaigns", "/ui/other.js", "/ui/"] {
+        assert_eq!(
+            get_plain(&format!("{}{path}", srv.url)).0,
+            401,
+            "{path} without a token"
+        );
+    }
+    let (s, b, _) = srv.request("POST", "/", None, Some(""));
+    assert_eq!(s, 401, "{}", String::from_utf8_lossy(&b));
+}
+
+#[test]
+fn status_has_elapsed_time_and_an_eta_that_matches_the_time_left() {
+    let dir = tempfile::tempdir().unwrap();
+    let srv = Server::start(dir.path(), None);
+    let id = srv.submit(&slow("eta", "s1"));
+    let st = srv.wait_for(id, 60.0, |s| {
+        state(s) == "running" && s["stored"].as_u64() >= Some(20) && s["eta_s"].is_f64()
+    });
+    let t1 = std::time::Instant::now();
+    let eta = st["eta_s"].as_f64().unwrap();
+    let elapsed = st["elapsed_s"].as_f64().unwrap();
+    assert!(eta > 0.0 && elapsed > 0.0, "{st}");
+    // The CLI shows it: `status ID` on its line, `status` in a column.
+    let cli = |args: &[&str]| {
+        let o = bin()
+            .args(args)
+            .env("CSMETRO_SERVER", &srv.url)
+            .env_remove("CSMETRO_TOKEN")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8(o.stdout).unwrap()
+    };
+    let line = cli(&["status", &id.to_string()]);
+    assert!(
+        line.contains(": running ") && line.contains(", ETA 0:"),
+        "{line}"
+    );
+    let table = cli(&["status"]);
+    assert!(table.lines().next().unwrap().contains("ETA"), "{table}");
+    assert!(
+        table
+            .lines()
+            .nth(1)
+            .is_some_and(|l| l.contains("running") && l.contains(" 0:0")),
+        "{table}"
+    );
+    // Paused: no ETA (the rate is unknown until it runs again); the elapsed time goes on.
+    let (s, v) = srv.post(&format!("/campaigns/{id}/pause"), None);
+    assert_eq!(s, 200, "{v}");
+    let p = srv.status(id);
+    assert!(p["eta_s"].is_null(), "{p}");
+    assert!(p["elapsed_s"].as_f64().unwrap() >= elapsed, "{p}");
+    std::thread::sleep(Duration::from_millis(1000));
+    let paused_s = t1.elapsed().as_secs_f64();
+    let (s, v) = srv.post(&format!("/campaigns/{id}/resume"), None);
+    assert_eq!(s, 200, "{v}");
+    srv.wait_for(id, 120.0, |s| s["stored"] == s["planned"]);
+    // The time it took to measure the rest, the pause left out.
+    let took = t1.elapsed().as_secs_f64() - paused_s;
+    assert!(
+        eta > took / 3.0 && eta < took * 3.0,
+        "ETA {eta:.1} s, the rest took {took:.1} s"
+    );
+    let done = srv.wait_for(id, 120.0, |s| state(s) == "done");
+    assert!(
+        done["eta_s"].is_null() && done["elapsed_s"].is_null(),
+        "{done}"
+    );
+}
+
+#[test]
+fn watch_without_samples_prints_progress_lines_with_an_eta() {
+    let dir = tempfile::tempdir().unwrap();
+    let srv = Server::start(dir.path(), None);
+    let id = srv.submit(&slow("watched", "s1"));
+    let out = bin()
+        .args(["watch", &id.to_string(), "--progress-s", "0.5"])
+        .env("CSMETRO_SERVER", &srv.url)
+        .env_remove("CSMETRO_TOKEN")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    let progress: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("progress "))
+        .collect();
+    assert!(progress.len() >= 2, "{text}");
+    assert!(
+        progress
+            .iter()
+            .any(|l| l.contains("/80 samples") && l.contains(", ETA 0:")),
+        "{text}"
+    );
+    assert!(!text.contains("sample seq"), "{text}");
+    assert!(
+        text.lines().last().unwrap().starts_with("finished "),
+        "{text}"
+    );
+    let bad = bin()
+        .args(["watch", &id.to_string(), "--progress-s", "0"])
+        .env("CSMETRO_SERVER", &srv.url)
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+}

@@ -492,7 +492,7 @@ fn a_panicking_frame_source_costs_a_frame_not_the_process() {
 /// through Aravis decodes to that position.
 #[test]
 fn a_ppp_frame_through_aravis_decodes_to_the_stage_position() {
-    use csmetro_ppp::render::render;
+    use csmetro_ppp::render;
     use csmetro_ppp::{Pose, PppConfig};
 
     let guard = fixture();

@@ -14,11 +14,11 @@ use common::{bin, json_of};
 use csmetro::store::Store;
 use csmetro_camera::{FakeGvCamera, FrameSource};
 use csmetro_hal::Pixels;
-use csmetro_ppp::render::render;
+use csmetro_ppp::render;
 use csmetro_ppp::{Optics, Pattern, PatternConfig, Pose};
-use csmetro_sim::controller::{ControllerConfig, Endpoint, SimController};
-use csmetro_sim::stage::SimStage;
+use csmetro_sim::SimStage;
 use csmetro_sim::{AxisId, StageModel};
+use csmetro_sim::{ControllerConfig, Endpoint, SimController};
 
 /// X carries a 1000 ppm scale error: the stage really stands 1 µm further per mm than commanded
 /// (and than its encoder says), so a sample can only show it if it came from the camera.

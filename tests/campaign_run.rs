@@ -574,3 +574,82 @@ fn the_summary_after_kill_9_sigterm_and_resume_equals_an_uninterrupted_runs() {
     assert!(row("full scan").contains(" 162 "), "{txt}");
     assert!(row("CS ").contains(" 40 "), "{txt}");
 }
+
+/// Two stores, one absolute `[outputs] dir` with `{id}`: both stores' campaign 1 would write
+/// `it-1`. The folder belongs to the first; the second's results go to a folder with its
+/// store's identity in the name. Each has its `report.html`, self-contained, with the ISO
+/// 230-2 figures from the measured full scan; a finished run offers no resume.
+#[test]
+fn results_are_never_overwritten_and_each_campaign_has_its_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = campaign(dir.path(), 100.0, 5);
+    let (db_a, db_b) = (dir.path().join("a.db"), dir.path().join("b.db"));
+    let oa = run(&c, &db_a);
+    let ja = json_of(&oa);
+    assert_eq!(ja["state"], "done");
+    let err = String::from_utf8_lossy(&oa.stderr);
+    let last = err.lines().last().unwrap_or("");
+    assert!(last.starts_with("results: "), "{err}");
+    assert!(
+        !err.contains("resume"),
+        "a finished run offers no resume: {err}"
+    );
+
+    let out = dir.path().join("it-1");
+    let marker = |d: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(d.join(".csmetro-results.json")).unwrap()).unwrap()
+    };
+    let id_a = store(&db_a).store_id().unwrap();
+    assert_eq!(marker(&out)["store_id"], id_a.as_str());
+    let summary_a = std::fs::read(out.join("summary.json")).unwrap();
+
+    let jb = json_of(&run(&c, &db_b));
+    assert_eq!(
+        (jb["id"].as_i64(), jb["state"].as_str()),
+        (Some(1), Some("done"))
+    );
+    let id_b = store(&db_b).store_id().unwrap();
+    assert_ne!(id_a, id_b);
+    assert_eq!(
+        std::fs::read(out.join("summary.json")).unwrap(),
+        summary_a,
+        "store b's campaign 1 wrote over store a's results"
+    );
+    assert_eq!(marker(&out)["store_id"], id_a.as_str());
+    let out_b = dir.path().join(format!("it-1.store-{id_b}-c1"));
+    assert_eq!(marker(&out_b)["store_id"], id_b.as_str());
+    assert!(out_b.join("summary.json").is_file());
+
+    // ISO 230-2 from the measured full scan, on the chart, in summary.txt and the run table.
+    let txt = std::fs::read_to_string(out.join("summary.txt")).unwrap();
+    assert!(
+        txt.contains("ISO 230-2 Y axis (measured full scan, 1 cycle, 21 targets): A "),
+        "{txt}"
+    );
+    assert_eq!(ja["iso230"]["y"]["source"], "full_scan", "{}", ja["iso230"]);
+    let b_full = ja["iso230"]["y"]["full_scan"]["b_um"].as_f64().unwrap();
+    assert!(txt.contains(&format!("B {b_full:.3} µm")), "{txt}");
+    let svg = std::fs::read_to_string(out.join("plots/iso230_y.svg")).unwrap();
+    assert!(
+        svg.contains("measured full scan, 1 cycle") && svg.contains(&format!("B {b_full:.3} µm"))
+    );
+    assert_eq!(
+        &std::fs::read(out.join("plots/iso230_y.png")).unwrap()[1..4],
+        b"PNG"
+    );
+
+    // report.html: one file, plots embedded, the campaign file, the rig's *IDN? replies.
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.starts_with("<!DOCTYPE html>"));
+    assert!(
+        html.contains("data:image/png;base64,iVBORw0KGgo"),
+        "PNG data URIs"
+    );
+    assert!(!html.contains("src=\"http") && !html.contains("src=\"plots/"));
+    assert!(html.contains("measured full scan, 1 cycle"));
+    assert!(html.contains("name = &quot;it&quot;"), "the campaign file");
+    assert!(html.contains("(*IDN?)"), "the rig's identification");
+    assert!(html.contains(&id_a), "the store");
+    let stored = store(&db_a).result(1, "report.html").unwrap().unwrap();
+    assert_eq!(stored.1, html.as_bytes());
+}

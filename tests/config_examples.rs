@@ -11,7 +11,17 @@ fn every_example_campaign_validates() {
     for e in std::fs::read_dir(&dir).unwrap() {
         let p = e.unwrap().path();
         if p.extension().is_some_and(|x| x == "toml") {
-            let c = Campaign::load(&p).unwrap_or_else(|e| panic!("{e}"));
+            let c = match Campaign::load(&p) {
+                Ok(c) => c,
+                // A real-rig template needs its camera backend compiled in (`--features aravis`):
+                // without it, that is the one complaint, and the file is otherwise valid.
+                Err(e) if e.message.contains("needs a csmetro built with --features") => {
+                    let text = std::fs::read_to_string(&p).unwrap();
+                    Campaign::parse_any_build(&text, &p.display().to_string(), &dir)
+                        .unwrap_or_else(|e| panic!("{e}"))
+                }
+                Err(e) => panic!("{e}"),
+            };
             seen.push((p.file_name().unwrap().to_string_lossy().to_string(), c));
         }
     }

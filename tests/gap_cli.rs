@@ -5,7 +5,7 @@ use std::process::{Command, Output};
 
 use csmetro::gap::data::{read_csv, simulate_campaign, write_csv, CampaignSpec};
 use csmetro::gap::residual_rms_um;
-use csmetro_sim::model::StageModel;
+use csmetro_sim::StageModel;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_csmetro"))

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use csmetro::gap::data::{parse_csv, simulate_campaign, to_csv_string, CampaignSpec};
-use csmetro_sim::model::StageModel;
+use csmetro_sim::StageModel;
 use proptest::prelude::*;
 
 /// Per-call budget: a debug build parses any of these in milliseconds.

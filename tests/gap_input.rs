@@ -6,7 +6,7 @@ use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use csmetro::gap::data::{simulate_campaign, to_csv_string, CampaignSpec};
-use csmetro_sim::model::StageModel;
+use csmetro_sim::StageModel;
 
 fn ideal() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim/ideal.toml")

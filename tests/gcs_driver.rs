@@ -4,9 +4,9 @@ use std::time::{Duration, Instant};
 
 use csmetro_gcs::{C863Config, RefMode, C863};
 use csmetro_hal::{Axis, AxisError};
-use csmetro_sim::controller::{ControllerConfig, Fault, SimController};
-use csmetro_sim::stage::SimStage;
+use csmetro_sim::SimStage;
 use csmetro_sim::{AxisId, Effect, EffectKind, StageModel};
+use csmetro_sim::{ControllerConfig, Fault, SimController};
 
 #[derive(Debug, Clone, Copy)]
 enum Link {

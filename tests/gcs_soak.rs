@@ -3,13 +3,13 @@
 //! for the request the driver sent last.
 use std::time::Duration;
 
-use csmetro_gcs::frame::{AxisQuery, Command, ControlByte};
+use csmetro_gcs::{AxisQuery, Command, ControlByte};
 use csmetro_gcs::{C863Config, C863};
 use csmetro_hal::Axis;
-use csmetro_sim::controller::soak::{soak_gcs, BindingCheck, SoakOptions};
-use csmetro_sim::controller::{ControllerConfig, Fault, FaultSpec, RandomFaults, SimController};
-use csmetro_sim::stage::SimStage;
+use csmetro_sim::SimStage;
+use csmetro_sim::{soak_gcs, BindingCheck, SoakOptions};
 use csmetro_sim::{AxisId, StageModel};
+use csmetro_sim::{ControllerConfig, Fault, FaultSpec, RandomFaults, SimController};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn soak_under_random_faults_accepts_no_stale_reply() {

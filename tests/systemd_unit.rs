@@ -1,5 +1,5 @@
 //! The shipped systemd unit: the directives the service relies on (notify + watchdog, restart,
-//! hardening, serial devices only) and that the configuration it names is a valid one.
+//! hardening, serial and camera devices only) and that the configuration it names is a valid one.
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -55,10 +55,17 @@ fn unit_has_notify_watchdog_restart_and_hardening() {
     assert_eq!(one(&u, "StateDirectory"), "csmetro");
     assert!(u["Service"].get("DynamicUser").is_none_or(|v| v == &["no"]));
     assert!(one(&u, "SupplementaryGroups").contains("dialout"));
-    // Devices: closed policy, and only serial lines (plus pseudo-terminals for the simulator).
+    // Devices: closed policy, and only serial lines (plus pseudo-terminals for the simulator)
+    // and the cameras' USB (USB3 Vision) and FireWire (IIDC) nodes.
     assert_eq!(one(&u, "DevicePolicy"), "closed");
     let allowed = &u["Service"]["DeviceAllow"];
-    for want in ["char-ttyS rw", "char-ttyUSB rw", "char-ttyACM rw"] {
+    for want in [
+        "char-ttyS rw",
+        "char-ttyUSB rw",
+        "char-ttyACM rw",
+        "char-usb_device rw",
+        "char-firewire rw",
+    ] {
         assert!(
             allowed.iter().any(|a| a == want),
             "DeviceAllow={want} missing: {allowed:?}"
@@ -72,7 +79,9 @@ fn unit_has_notify_watchdog_restart_and_hardening() {
                 "char-ttyUSB",
                 "char-ttyACM",
                 "char-pts",
-                "/dev/ptmx"
+                "/dev/ptmx",
+                "char-usb_device",
+                "char-firewire",
             ]
             .contains(&dev),
             "unexpected device access {a:?}"
@@ -150,6 +159,29 @@ fn systemd_analyze_knows_every_directive_when_available() {
         assert!(
             !l.contains("Unknown key") && !l.contains("Unknown section"),
             "systemd-analyze: {l}"
+        );
+    }
+}
+
+/// The unit documents the udev rules that give the service's group the camera nodes the
+/// DeviceAllow classes let through.
+#[test]
+fn camera_udev_rules_for_the_allowed_device_classes_are_documented() {
+    let text = std::fs::read_to_string(repo("systemd/csmetro.service")).unwrap();
+    // The rules a lab copies: group csmetro, mode 0660, one for USB, one for FireWire.
+    let rules: Vec<&str> = text
+        .lines()
+        .filter_map(|l| l.trim_start_matches('#').trim().split("   #").next())
+        .filter(|l| l.starts_with("SUBSYSTEM=="))
+        .collect();
+    for subsystem in ["usb", "firewire"] {
+        let r = rules
+            .iter()
+            .find(|r| r.starts_with(&format!("SUBSYSTEM==\"{subsystem}\"")))
+            .unwrap_or_else(|| panic!("no udev rule for {subsystem} in the unit: {rules:?}"));
+        assert!(
+            r.contains("GROUP=\"csmetro\"") && r.contains("MODE=\"0660\""),
+            "{r}"
         );
     }
 }

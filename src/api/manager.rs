@@ -26,11 +26,12 @@ use tokio::sync::{broadcast, watch};
 
 use super::ApiError;
 use crate::campaign::engine::Control;
+use crate::campaign::preflight;
 use crate::campaign::session::{self, Event, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock, StageLockError};
 use crate::store::{CampaignRow, EventRow, StoreError};
-use crate::types::CampaignState;
+use crate::types::{CampaignState, Origin};
 
 /// How often a campaign waiting for a stage held by another process tries again.
 const STAGE_RETRY: Duration = Duration::from_secs(2);
@@ -57,6 +58,14 @@ pub struct CampaignStatus {
     pub queue_position: Option<usize>,
     pub created_unix_s: f64,
     pub updated_unix_s: f64,
+    /// Wall time of the attempt the service is running now (pauses included), s; `None` when
+    /// the service is not running the campaign.
+    #[serde(default)]
+    pub elapsed_s: Option<f64>,
+    /// Wall time until the last planned sample at this attempt's rate (paused time left out),
+    /// s; `None` unless running with at least two samples taken in this attempt.
+    #[serde(default)]
+    pub eta_s: Option<f64>,
 }
 
 struct Active {
@@ -66,6 +75,62 @@ struct Active {
     operator_abort: bool,
     /// Keeps other processes off the stage while this campaign drives it.
     _stage_lock: Option<StageLock>,
+    /// Progress of this attempt, for elapsed time and ETA.
+    progress: Progress,
+}
+
+/// When an attempt started and how fast it measures: the ETA's inputs.
+#[derive(Debug, Clone, Copy, Default)]
+struct Progress {
+    /// Wall clock at launch, s since the epoch.
+    started_unix_s: f64,
+    /// Samples stored before this attempt.
+    stored_at_start: u64,
+    /// (wall clock, samples stored) at the attempt's first sample: the rate is measured from
+    /// there, so the rig's start-up (connection, homing) does not slow it.
+    first_sample: Option<(f64, u64)>,
+    /// Time spent paused since the first sample, s, and when the current pause began.
+    paused_s: f64,
+    paused_since: Option<f64>,
+}
+
+impl Progress {
+    fn new(stored_at_start: u64) -> Self {
+        Progress {
+            started_unix_s: crate::store::now_unix_s(),
+            stored_at_start,
+            ..Progress::default()
+        }
+    }
+
+    fn pause(&mut self, now: f64) {
+        self.paused_since.get_or_insert(now);
+    }
+
+    fn resume(&mut self, now: f64) {
+        if let Some(t) = self.paused_since.take() {
+            // Pauses before the first sample do not enter the rate.
+            if self.first_sample.is_some() {
+                self.paused_s += (now - t).max(0.0);
+            }
+        }
+    }
+
+    /// (elapsed_s, eta_s) at `now` with `stored` of `planned` samples committed.
+    fn estimate(&self, now: f64, stored: u64, planned: u64, running: bool) -> (f64, Option<f64>) {
+        let elapsed = (now - self.started_unix_s).max(0.0);
+        let eta = self.first_sample.and_then(|(t0, n0)| {
+            let paused = self.paused_s + self.paused_since.map_or(0.0, |p| (now - p).max(0.0));
+            let dt = now - t0 - paused;
+            let done = stored.saturating_sub(n0);
+            if !running || done == 0 || dt <= 0.0 {
+                return None;
+            }
+            let left = planned.saturating_sub(stored) as f64;
+            Some(left * dt / done as f64)
+        });
+        (elapsed, eta)
+    }
 }
 
 #[derive(Default)]
@@ -98,6 +163,22 @@ pub struct Manager {
     shutdown: watch::Sender<bool>,
     /// Number of campaign tasks not yet finished (shutdown waits for 0).
     active: watch::Sender<usize>,
+}
+
+/// `data` with the service named as the origin of the change (`by`, `origin`).
+fn by_service(mut data: Value) -> Value {
+    if let (Some(d), Value::Object(o)) = (data.as_object_mut(), Origin::service().fields()) {
+        d.extend(o);
+    }
+    data
+}
+
+/// The device checks of the pre-flight (the service's own store is open, and a submitted
+/// file's output directory was probed when it was parsed).
+async fn preflight_report(c: &Campaign) -> preflight::Report {
+    let mut report = preflight::Report::default();
+    preflight::check_devices(c, preflight::Options::default(), &mut report).await;
+    report
 }
 
 fn store_err(e: StoreError) -> ApiError {
@@ -199,7 +280,9 @@ impl Manager {
                 self.emit(
                     row.id,
                     "requeued",
-                    json!({"reason": "service start", "previous_state": row.state.as_str()}),
+                    by_service(
+                        json!({"reason": "service start", "previous_state": row.state.as_str()}),
+                    ),
                 );
             }
             tracing::info!(campaign = row.id, name = %row.name, stage = %row.stage, previous_state = row.state.as_str(), "queued again at start");
@@ -211,6 +294,7 @@ impl Manager {
             ids.push(row.id);
         }
         self.follow_pauses();
+        self.follow_progress();
         self.watch_orphans();
         let stages: Vec<String> = self.inner().queues.keys().cloned().collect();
         for s in stages {
@@ -288,8 +372,8 @@ impl Manager {
             self.emit(
                 row.id,
                 "interrupted",
-                json!({"reason": "its process exited without finishing",
-                       "previous_state": now.state.as_str(), "stored": stored, "resumable": true}),
+                by_service(json!({"reason": "its process exited without finishing",
+                       "previous_state": now.state.as_str(), "stored": stored, "resumable": true})),
             );
         }
     }
@@ -325,9 +409,46 @@ impl Manager {
         });
     }
 
+    /// Notes each running campaign's first sample of its attempt: where its ETA's rate starts.
+    fn follow_progress(self: &Arc<Self>) {
+        let mut rx = self.events.subscribe();
+        let me = Arc::downgrade(self);
+        tokio::spawn(async move {
+            loop {
+                let e = match rx.recv().await {
+                    Ok(e) => e,
+                    Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(broadcast::error::RecvError::Closed) => return,
+                };
+                if e.kind != "sample" {
+                    continue;
+                }
+                let Some(m) = me.upgrade() else { return };
+                let mut inner = m.inner();
+                if let Some(a) = inner.active(e.campaign) {
+                    if a.progress.first_sample.is_none() {
+                        // Counted from the start so a missed (lagged) first event costs nothing.
+                        let n = a.progress.stored_at_start + 1;
+                        a.progress.first_sample = Some((e.unix_s, n));
+                    }
+                }
+            }
+        });
+    }
+
     /// Validates and stores a campaign file sent by a client, and queues it. `name` is the
     /// file name the client gave (errors name it; relative paths resolve in `campaigns_dir`).
     pub fn submit(self: &Arc<Self>, text: &str, name: &str) -> Result<CampaignStatus, ApiError> {
+        self.submit_by(text, name, &Origin::api(None, None))
+    }
+
+    /// [`Manager::submit`], the `queued` event naming who submitted it.
+    pub fn submit_by(
+        self: &Arc<Self>,
+        text: &str,
+        name: &str,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         if self.shutting_down() {
             return Err(ApiError::conflict("the service is shutting down"));
         }
@@ -340,6 +461,7 @@ impl Manager {
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
         // load_stored resolves relative paths from the stored path's directory.
         c.origin = self.campaigns_dir.join(&file).display().to_string();
+        self.preflight_at_submit(&c)?;
         let id = session::create(&self.store, &c).map_err(ApiError::internal)?;
         let stage = c.spec.campaign.stage.clone();
         let position = {
@@ -352,10 +474,51 @@ impl Manager {
         self.emit(
             id,
             "queued",
-            json!({"stage": stage, "position": position, "name": c.spec.campaign.name}),
+            json!({"stage": stage, "position": position, "name": c.spec.campaign.name,
+                   "by": origin.describe(), "origin": origin}),
         );
         self.schedule(&stage);
         self.status(id)
+    }
+
+    /// The pre-flight of `csmetro check`, before the campaign is recorded, when its stage is
+    /// free now (held for the check). A campaign queued behind another, or whose stage another
+    /// process drives, is checked when it starts. 409 when the file must change, 503 when the
+    /// rig must; the message names the failed check.
+    fn preflight_at_submit(&self, c: &Campaign) -> Result<(), ApiError> {
+        let stage = &c.spec.campaign.stage;
+        {
+            let inner = self.inner();
+            if inner.running.contains_key(stage)
+                || inner.queues.get(stage).is_some_and(|q| !q.is_empty())
+            {
+                return Ok(());
+            }
+        }
+        let db_path = self.db().path().map(Path::to_path_buf);
+        let _lock = match db_path.as_deref().map(|p| stagelock::try_lock(p, stage)) {
+            Some(Err(_)) => return Ok(()),
+            Some(Ok(l)) => Some(l),
+            None => None,
+        };
+        // Called on a blocking thread of the service's runtime (routes::submit).
+        let report = tokio::runtime::Handle::current().block_on(preflight_report(c));
+        if !report.blocks() {
+            for w in report.warnings() {
+                tracing::warn!(campaign = %c.spec.campaign.name, "{w}");
+            }
+            return Ok(());
+        }
+        let status = match report.failure_class() {
+            preflight::Class::Config => axum::http::StatusCode::CONFLICT,
+            preflight::Class::Device | preflight::Class::View => {
+                axum::http::StatusCode::SERVICE_UNAVAILABLE
+            }
+        };
+        Err(ApiError::new(
+            status,
+            format!("{}; the campaign was not queued", report.error_message()),
+        ))
     }
 
     /// Starts the next queued campaign of `stage` unless one drives it already.
@@ -408,6 +571,7 @@ impl Manager {
                         control: tx,
                         operator_abort: false,
                         _stage_lock: lock,
+                        progress: Progress::default(),
                     },
                 );
                 (id, rx)
@@ -454,7 +618,7 @@ impl Manager {
             self.emit(
                 id,
                 "waiting_for_stage",
-                json!({"stage": stage, "reason": msg}),
+                by_service(json!({"stage": stage, "reason": msg})),
             );
         }
         let (me, stage) = (Arc::clone(self), stage.to_string());
@@ -474,6 +638,11 @@ impl Manager {
             .set_state(id, CampaignState::Interrupted, Some(&msg));
         self.emit(
             id,
+            "error",
+            by_service(json!({"cause": "service", "error": msg, "resumable": true})),
+        );
+        self.emit(
+            id,
             "finished",
             json!({"state": "interrupted", "error": msg}),
         );
@@ -486,22 +655,29 @@ impl Manager {
         mut c: Campaign,
         control: watch::Receiver<Control>,
     ) {
-        let dir = Path::new(&c.spec.outputs.dir);
-        if dir.is_relative() {
-            c.spec.outputs.dir = self.results_dir.join(dir).display().to_string();
-        }
+        // Below the service's results_dir whatever the template (absolute ones included).
+        c.spec.outputs.dir =
+            crate::campaign::results::service_outputs(&self.results_dir, &c.spec.outputs.dir);
         tracing::info!(campaign = id, name = %c.spec.campaign.name, stage = %stage, "starting");
+        // Nothing is measured before `execute` runs: this is what earlier attempts stored.
+        let stored = self.db().sample_count(id).unwrap_or(0);
+        if let Some(a) = self.inner().active(id) {
+            a.progress = Progress::new(stored);
+        }
         self.active.send_modify(|n| *n += 1);
         let me = Arc::clone(self);
-        let run = session::execute(
-            self.store.clone(),
-            id,
-            c,
-            control,
-            self.events.clone(),
-            Box::new(|_| {}),
-        );
+        let (store, events) = (self.store.clone(), self.events.clone());
         tokio::spawn(async move {
+            // Checked again on the stage it now holds, before it is recorded as started: the
+            // rig may have changed since it was queued. A failure leaves it resumable.
+            let report = preflight_report(&c).await;
+            if report.blocks() {
+                let msg = format!("{}; not started", report.error_message());
+                me.interrupt(id, msg.clone());
+                me.finished(id, &stage, Ok(Err(msg)));
+                return;
+            }
+            let run = session::execute(store, id, c, control, events, Box::new(|_| {}));
             // A panic in the session must still free the stage and count down.
             let r = tokio::spawn(run).await;
             me.finished(id, &stage, r);
@@ -532,7 +708,7 @@ impl Manager {
                     self.emit(
                         id,
                         "interrupted",
-                        json!({"reason": "service shutdown", "resumable": true}),
+                        by_service(json!({"reason": "service shutdown", "resumable": true})),
                     );
                 }
             }
@@ -565,6 +741,15 @@ impl Manager {
         } else {
             (100.0 * stored as f64 / row.planned as f64).min(100.0)
         };
+        let progress = self.inner().active(row.id).map(|a| a.progress);
+        let (elapsed_s, eta_s) = match progress {
+            Some(p) => {
+                let running = row.state == CampaignState::Running;
+                let (e, eta) = p.estimate(crate::store::now_unix_s(), stored, row.planned, running);
+                (Some(e), eta)
+            }
+            None => (None, None),
+        };
         Ok(CampaignStatus {
             id: row.id,
             name: row.name,
@@ -577,6 +762,8 @@ impl Manager {
             queue_position: queue,
             created_unix_s: row.created_unix_s,
             updated_unix_s: row.updated_unix_s,
+            elapsed_s,
+            eta_s,
         })
     }
 
@@ -619,6 +806,12 @@ impl Manager {
 
     /// Holds a running campaign between two points (motion ends on target, nothing is lost).
     pub fn pause(&self, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.pause_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::pause`]; the `paused` event and the status message say who paused it.
+    pub fn pause_by(&self, id: i64, origin: &Origin) -> Result<CampaignStatus, ApiError> {
+        let msg = format!("paused by {}", origin.describe());
         {
             let mut inner = self.inner();
             let Some(a) = inner.active(id) else {
@@ -630,17 +823,30 @@ impl Manager {
                 return Err(self.refuse(id, "pause"));
             }
             a.control.send_replace(Control::Pause);
+            a.progress.pause(crate::store::now_unix_s());
             self.db()
-                .set_state(id, CampaignState::Paused, Some("paused by the operator"))
+                .set_state(id, CampaignState::Paused, Some(&msg))
                 .map_err(store_err)?;
         }
-        tracing::info!(campaign = id, "paused");
+        let mut data = origin.fields();
+        data["cause"] = json!("operator");
+        self.emit(id, "paused", data);
+        tracing::info!(campaign = id, by = %origin.describe(), "paused");
         self.status(id)
     }
 
     /// Continues a paused campaign, or queues an interrupted one again (it resumes from its
     /// last stored sample).
     pub fn resume(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.resume_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::resume`]; the `resumed` (running again) or `requeued` event says who.
+    pub fn resume_by(
+        self: &Arc<Self>,
+        id: i64,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         if self.shutting_down() {
             return Err(ApiError::conflict("the service is shutting down"));
         }
@@ -652,10 +858,16 @@ impl Manager {
                     return Err(self.refuse(id, "resume"));
                 }
                 a.control.send_replace(Control::Run);
+                a.progress.resume(crate::store::now_unix_s());
                 self.db()
                     .set_state(id, CampaignState::Running, None)
                     .map_err(store_err)?;
-                None
+                drop(inner);
+                let mut data = origin.fields();
+                data["cause"] = json!("operator");
+                self.emit(id, "resumed", data);
+                tracing::info!(campaign = id, by = %origin.describe(), "resumed");
+                return self.status(id);
             } else if inner.queue_position(id).is_some() {
                 drop(inner);
                 return Err(self.refuse(id, "resume"));
@@ -670,7 +882,11 @@ impl Manager {
                     return Err(self.refuse(id, "resume"));
                 }
                 self.db()
-                    .set_state(id, CampaignState::Queued, Some("resumed by the operator"))
+                    .set_state(
+                        id,
+                        CampaignState::Queued,
+                        Some(&format!("resumed by {}", origin.describe())),
+                    )
                     .map_err(store_err)?;
                 inner
                     .queues
@@ -680,9 +896,11 @@ impl Manager {
                 Some(row.stage)
             }
         };
-        tracing::info!(campaign = id, "resumed");
+        tracing::info!(campaign = id, by = %origin.describe(), "resumed");
         if let Some(stage) = requeue_stage {
-            self.emit(id, "requeued", json!({"reason": "operator"}));
+            let mut data = origin.fields();
+            data["reason"] = json!("operator");
+            self.emit(id, "requeued", data);
             self.schedule(&stage);
         }
         self.status(id)
@@ -691,12 +909,22 @@ impl Manager {
     /// Aborts a campaign: a running one stops motion and ends `aborted`; a queued or
     /// interrupted one is marked aborted at once.
     pub fn abort(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+        self.abort_by(id, &Origin::api(None, None))
+    }
+
+    /// [`Manager::abort`]; the `abort_requested` (running) or `finished` event says who.
+    pub fn abort_by(
+        self: &Arc<Self>,
+        id: i64,
+        origin: &Origin,
+    ) -> Result<CampaignStatus, ApiError> {
         let mut inner = self.inner();
         if let Some(a) = inner.active(id) {
             a.operator_abort = true;
             a.control.send_replace(Control::Abort);
             drop(inner);
-            tracing::info!(campaign = id, "abort requested");
+            self.emit(id, "abort_requested", origin.fields());
+            tracing::info!(campaign = id, by = %origin.describe(), "abort requested");
             return self.status(id);
         }
         let queued = inner.queue_position(id);
@@ -718,10 +946,15 @@ impl Manager {
             .set_state(
                 id,
                 CampaignState::Aborted,
-                Some("aborted by the operator before it ran again"),
+                Some(&format!(
+                    "aborted by {} before it ran again",
+                    origin.describe()
+                )),
             )
             .map_err(store_err)?;
-        self.emit(id, "finished", json!({"state": "aborted"}));
+        let mut data = origin.fields();
+        data["state"] = json!("aborted");
+        self.emit(id, "finished", data);
         tracing::info!(campaign = id, "aborted while not running");
         self.status(id)
     }
@@ -771,5 +1004,49 @@ impl Manager {
         let _ = tokio::time::timeout(grace, rx.wait_for(|n| *n == 0)).await;
         let left = *rx.borrow();
         left
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Progress;
+
+    fn at(started: f64, stored_at_start: u64) -> Progress {
+        Progress {
+            started_unix_s: started,
+            stored_at_start,
+            ..Progress::default()
+        }
+    }
+
+    #[test]
+    fn eta_is_the_rate_since_the_first_sample_times_what_is_left() {
+        // 10 s of start-up, then 2 samples/s after 100 resumed ones: 10 s in, 20 more stored.
+        let mut p = at(1000.0, 100);
+        assert_eq!(p.estimate(1005.0, 100, 200, true), (5.0, None));
+        p.first_sample = Some((1010.0, 101));
+        let (el, eta) = p.estimate(1020.0, 121, 200, true);
+        assert_eq!(el, 20.0);
+        // 20 samples in 10 s, 79 left: 39.5 s.
+        assert!((eta.unwrap() - 39.5).abs() < 1e-9, "{eta:?}");
+        // Not running (paused, reconstructing): no ETA; nothing left: 0.
+        assert_eq!(p.estimate(1020.0, 121, 200, false).1, None);
+        assert_eq!(p.estimate(1020.0, 200, 200, true).1, Some(0.0));
+    }
+
+    #[test]
+    fn paused_time_does_not_slow_the_rate() {
+        let mut p = at(0.0, 0);
+        p.first_sample = Some((0.0, 1));
+        p.pause(10.0);
+        // While paused: the 50 s of pause so far are left out.
+        let (_, eta) = p.estimate(60.0, 11, 21, true);
+        assert!((eta.unwrap() - 10.0).abs() < 1e-9, "{eta:?}");
+        p.resume(100.0);
+        // 90 s paused; 20 s measuring (0-10 s, 100-110 s) for 40 samples: 2 samples/s,
+        // 10 left: 5 s.
+        let (el, eta) = p.estimate(110.0, 41, 51, true);
+        assert_eq!(el, 110.0);
+        assert!((eta.unwrap() - 5.0).abs() < 1e-9, "{eta:?}");
     }
 }

@@ -9,6 +9,7 @@ use axum::http::StatusCode;
 
 pub mod config;
 pub mod manager;
+pub mod page;
 pub mod routes;
 
 pub use config::{ConfigError, ServiceConfig};
@@ -132,6 +133,8 @@ pub async fn run(cfg: ServiceConfig) -> Result<(), String> {
 
     let app = routes::router(manager.clone(), cfg.token.clone(), cfg.submit_policy());
     let mut down = manager.shutdown_signal();
+    // Connect info: the event log names the client address of every control action.
+    let app = app.into_make_service_with_connect_info::<std::net::SocketAddr>();
     let server = axum::serve(listener, app).with_graceful_shutdown(async move {
         let _ = down.wait_for(|d| *d).await;
     });

@@ -3,6 +3,7 @@
 //!
 //! | route | |
 //! |---|---|
+//! | `GET /` | the operator's web page ([`super::page`]; its assets under `/ui/`) |
 //! | `GET /health` | service up; running and queued campaign ids |
 //! | `GET /campaigns` | every campaign with its state and progress, newest first |
 //! | `POST /campaigns` | body: campaign TOML (`text/plain`, `application/toml`) or JSON `{"toml": "...", "name": "file.toml"}`; 201 with its status |
@@ -14,7 +15,12 @@
 //! | `GET /campaigns/{id}/results/{*name}` | the bytes, with their stored content type |
 //! | `POST /stages/{name}/move` | body `{"x_um", "y_um"?, "direction"?, "approach_um"?, "compensation_from"?, "hardware_from"?, "measure"?}`: a (compensated) move; 409 while a campaign runs or waits on that stage |
 //!
-//! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`.
+//! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`;
+//! only the page and its assets (the same for everyone, no data) load without it.
+//!
+//! Submit, pause, resume and abort are logged with their origin: the client's address and,
+//! when the request carries an `X-Operator: NAME` header (UTF-8, at most 64 bytes, no control
+//! characters, else 400), the operator's name (`"by"` and `"origin"` in the events).
 //!
 //! A submitted campaign is untrusted: its stage model is a relative `.toml` path inside
 //! `[campaigns] base_dir` or `models_dir`, its `[outputs] dir` a relative directory below
@@ -40,7 +46,35 @@ use tokio::sync::{broadcast, mpsc};
 use super::{ApiError, CampaignStatus, Manager};
 use crate::campaign::session::Event;
 use crate::campaign::spec::{Campaign, SubmitPolicy};
-use crate::types::CampaignState;
+use crate::types::{check_operator, CampaignState, Origin};
+
+/// Who sent a request, for the event log: the client's address (when the server knows it)
+/// and the operator's name from the `X-Operator` header (optional; UTF-8, at most 64 bytes,
+/// no control characters, else 400).
+struct ApiOrigin(Origin);
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for ApiOrigin {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        _: &S,
+    ) -> Result<Self, ApiError> {
+        let client = parts
+            .extensions
+            .get::<axum::extract::ConnectInfo<std::net::SocketAddr>>()
+            .map(|c| c.0.to_string());
+        let operator = match parts.headers.get("x-operator") {
+            None => None,
+            Some(v) => {
+                let s = std::str::from_utf8(v.as_bytes())
+                    .map_err(|_| ApiError::bad_request("X-Operator: not UTF-8"))?;
+                check_operator(s).map_err(|e| ApiError::bad_request(format!("X-Operator: {e}")))?
+            }
+        };
+        Ok(ApiOrigin(Origin::api(client, operator)))
+    }
+}
 
 #[derive(Clone)]
 struct App {
@@ -67,6 +101,8 @@ pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy
         policy: Arc::new(policy),
     };
     Router::new()
+        .route("/", get(super::page::index))
+        .route("/ui/{file}", get(super::page::asset))
         .route("/health", get(health))
         .route("/campaigns", get(list).post(submit))
         .route("/campaigns/{id}", get(status))
@@ -84,7 +120,11 @@ pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy
 }
 
 async fn auth(State(app): State<App>, req: Request, next: Next) -> Response {
-    if let Some(token) = &app.token {
+    if let Some(token) = app
+        .token
+        .as_ref()
+        .filter(|_| !super::page::is_public(req.method(), req.uri().path()))
+    {
         let given = req
             .headers()
             .get(header::AUTHORIZATION)
@@ -139,6 +179,7 @@ struct SubmitJson {
 
 async fn submit(
     State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
     headers: HeaderMap,
     body: Bytes,
 ) -> ApiResult<(StatusCode, Json<CampaignStatus>)> {
@@ -175,7 +216,7 @@ async fn submit(
         Campaign::parse_submitted(&text, &origin, &policy)
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
         let _g = rt.enter();
-        m.submit(&text, &name)
+        m.submit_by(&text, &name, &who)
     })
     .await?;
     Ok((StatusCode::CREATED, Json(st)))
@@ -198,28 +239,40 @@ async fn status(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<C
     blocking(move || m.status(id)).await.map(Json)
 }
 
-async fn pause(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+async fn pause(
+    State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
+    Path(id): Path<i64>,
+) -> ApiResult<Json<CampaignStatus>> {
     let m = app.manager.clone();
-    blocking(move || m.pause(id)).await.map(Json)
+    blocking(move || m.pause_by(id, &who)).await.map(Json)
 }
 
-async fn resume(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+async fn resume(
+    State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
+    Path(id): Path<i64>,
+) -> ApiResult<Json<CampaignStatus>> {
     let m = app.manager.clone();
     let rt = tokio::runtime::Handle::current();
     blocking(move || {
         let _g = rt.enter();
-        m.resume(id)
+        m.resume_by(id, &who)
     })
     .await
     .map(Json)
 }
 
-async fn abort(State(app): State<App>, Path(id): Path<i64>) -> ApiResult<Json<CampaignStatus>> {
+async fn abort(
+    State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
+    Path(id): Path<i64>,
+) -> ApiResult<Json<CampaignStatus>> {
     let m = app.manager.clone();
     let rt = tokio::runtime::Handle::current();
     blocking(move || {
         let _g = rt.enter();
-        m.abort(id)
+        m.abort_by(id, &who)
     })
     .await
     .map(Json)

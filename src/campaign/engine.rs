@@ -357,13 +357,15 @@ impl<'a> Engine<'a> {
             match c {
                 Control::Run | Control::Abort | Control::Stop => return c,
                 Control::Pause => {
-                    self.recorder.event("paused", json!({}));
+                    // The pause itself (who, when) is the manager's `paused` event; this one
+                    // says motion is held, between two points.
+                    self.recorder.event("held", json!({"reason": "paused"}));
                     if self.control.changed().await.is_err() {
                         // Nobody left to resume us: end resumable, not aborted.
                         return Control::Stop;
                     }
                     if *self.control.borrow() == Control::Run {
-                        self.recorder.event("resumed", json!({}));
+                        self.recorder.event("released", json!({}));
                     }
                 }
             }

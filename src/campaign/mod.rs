@@ -2,6 +2,7 @@
 //! hardware behind the `csmetro-hal` traits, and the reconstruction worker.
 pub mod engine;
 pub mod plan;
+pub mod preflight;
 pub mod results;
 pub mod rig;
 pub mod session;

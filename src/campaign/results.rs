@@ -2,7 +2,7 @@
 //! report: measurements, physical acquisition time, processing time, recovery error), the
 //! summary table `csmetro run` prints, and the files written to the output directory.
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use serde_json::{json, Value};
@@ -12,7 +12,7 @@ use super::plan::Plan;
 use super::rig::Rig;
 use super::spec::Campaign;
 use super::worker::Curve;
-use crate::report::{build_report, ComponentCurve, ReportOptions};
+use crate::report::{iso_chart_files, iso_text, report_files, ComponentCurve, ReportOptions};
 use crate::store::EventRow;
 use crate::types::{AxisId, Component, Phase, RunKey, SampleRecord};
 
@@ -149,8 +149,108 @@ pub fn tally(plan: &Plan, samples: &[SampleRecord], events: &[EventRow]) -> Tall
 pub struct Report {
     pub summary: Value,
     pub table: String,
+    /// ISO 230-2 figures per moving axis (also in `iso230.json`).
+    pub iso: Vec<crate::report::AxisIso230>,
     /// (file name, content type, bytes)
     pub files: Vec<(String, String, Vec<u8>)>,
+}
+
+/// The file that says whose results a results folder holds: the store's identity and the
+/// campaign's id. A folder marked by another campaign is never written into.
+pub const MARKER: &str = ".csmetro-results.json";
+
+/// Where campaign `id` of store `store_id` writes its results, and marks the folder as its
+/// own: `dir` itself when it is new, holds no results, or is already this campaign's; else,
+/// when `dir` holds another campaign's results (marked by another store with the same `{id}`,
+/// by this store under a template without `{id}`, or unmarked, from an older csmetro), `dir`
+/// with the store's identity and the campaign id in its name (`it-1.store-<id>-c1`). Refused
+/// (the results stay in the store) when that folder is taken too or cannot be marked.
+pub fn claim_out_dir(dir: &Path, store_id: &str, id: i64, name: &str) -> Result<PathBuf, String> {
+    let mine = json!({"store_id": store_id, "campaign": id});
+    let refused = |why: &str| {
+        format!("results not written to the output directory ({why}); they are in the store")
+    };
+    let fallback = {
+        let base = dir.file_name().map_or_else(
+            || "results".to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        dir.with_file_name(format!("{base}.store-{store_id}-c{id}"))
+    };
+    for d in [dir, fallback.as_path()] {
+        match owner(d) {
+            Owner::Free => {
+                std::fs::create_dir_all(d)
+                    .map_err(|e| refused(&format!("cannot create it: {}", e.kind())))?;
+                let marker = json!({"store_id": store_id, "campaign": id, "name": name});
+                // create_new: two processes claiming one folder at once, one wins.
+                let created = std::fs::OpenOptions::new()
+                    .write(true)
+                    .create_new(true)
+                    .open(d.join(MARKER))
+                    .and_then(|mut f| {
+                        std::io::Write::write_all(&mut f, marker.to_string().as_bytes())
+                    });
+                match created {
+                    Ok(()) => return Ok(d.to_path_buf()),
+                    Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                        if owner(d) == Owner::Marked(mine.clone()) {
+                            return Ok(d.to_path_buf());
+                        }
+                    }
+                    Err(e) => return Err(refused(&format!("cannot mark it: {}", e.kind()))),
+                }
+            }
+            Owner::Marked(m) if m == mine => return Ok(d.to_path_buf()),
+            Owner::Marked(_) | Owner::Unmarked => {}
+        }
+    }
+    Err(refused("it and its fallback hold other campaigns' results"))
+}
+
+#[derive(Debug, PartialEq)]
+enum Owner {
+    /// Missing, or holds no results and no marker.
+    Free,
+    /// The marker's `store_id` and `campaign`.
+    Marked(Value),
+    /// Results (a `summary.json` file) without a marker.
+    Unmarked,
+}
+
+fn owner(d: &Path) -> Owner {
+    match std::fs::read(d.join(MARKER)) {
+        Ok(b) => {
+            let v: Value = serde_json::from_slice(&b).unwrap_or(Value::Null);
+            Owner::Marked(json!({"store_id": v["store_id"], "campaign": v["campaign"]}))
+        }
+        Err(_) if d.join("summary.json").is_file() => Owner::Unmarked,
+        Err(_) => Owner::Free,
+    }
+}
+
+/// The output template of a campaign the service runs: always below the service's
+/// `results_dir`. A relative template is joined to it; an absolute one (a foreground campaign
+/// the service took over) keeps its part from the first `{id}`/`{name}` on, or its last
+/// component, below `results_dir`.
+pub fn service_outputs(results_dir: &Path, template: &str) -> String {
+    let t = Path::new(template);
+    if t.is_relative() {
+        return results_dir.join(t).display().to_string();
+    }
+    let parts: Vec<_> = t
+        .components()
+        .filter(|c| matches!(c, std::path::Component::Normal(_)))
+        .collect();
+    let first = parts
+        .iter()
+        .position(|c| c.as_os_str().to_string_lossy().contains('{'))
+        .unwrap_or(parts.len().saturating_sub(1));
+    let mut out = results_dir.to_path_buf();
+    for c in &parts[first..] {
+        out.push(c.as_os_str());
+    }
+    out.display().to_string()
 }
 
 pub fn out_dir(c: &Campaign, id: i64) -> PathBuf {
@@ -277,6 +377,12 @@ pub fn build(
                     .flat_map(|k| k.samples.iter().copied())
                     .collect(),
                 full_scan_um: reference,
+                // ISO 230-2 figures come from these measurements when there are any.
+                full_scan_samples: curves
+                    .iter()
+                    .filter(|k| k.run.phase == Phase::Full && k.component == comp)
+                    .flat_map(|k| k.samples.iter().copied())
+                    .collect(),
                 truth_um: t.clone(),
             });
             // Curve file with every available column.
@@ -404,17 +510,29 @@ pub fn build(
     // Plots, compensation tables and ISO 230-2 figures; a report failure leaves the rest intact.
     let mut iso = Value::Null;
     let mut report_error = None;
-    match build_report(&report_curves, &ReportOptions::default()) {
-        Ok(rf) => {
+    let opts = ReportOptions::default();
+    let mut iso_figures = Vec::new();
+    match report_files(&report_curves, &opts) {
+        Ok((rf, figures)) => {
             for f in rf {
                 if f.name == "iso230.json" {
                     iso = serde_json::from_slice(&f.bytes).unwrap_or(Value::Null);
                 }
                 files.push((f.name, f.content_type.to_string(), f.bytes));
             }
+            iso_figures = figures;
         }
         Err(e) => report_error = Some(e.to_string()),
     }
+    match iso_chart_files(&iso_figures, &opts.plot) {
+        Ok(charts) => files.extend(
+            charts
+                .into_iter()
+                .map(|f| (f.name, f.content_type.to_string(), f.bytes)),
+        ),
+        Err(e) => report_error = Some(e.to_string()),
+    }
+    table.push_str(&iso_text(&iso_figures));
     for p in problems {
         table.push_str(&format!("error: {p}\n"));
     }
@@ -477,6 +595,7 @@ pub fn build(
     Report {
         summary,
         table,
+        iso: iso_figures,
         files,
     }
 }
@@ -506,7 +625,7 @@ fn drive_truth_full(comps: &[Value], a: AxisId) -> String {
 
 /// Ground truth of a simulated campaign, detached from the rig.
 pub struct TruthSource {
-    model: Option<Arc<csmetro_sim::model::StageModel>>,
+    model: Option<Arc<csmetro_sim::StageModel>>,
 }
 
 impl TruthSource {
@@ -529,7 +648,7 @@ impl TruthSource {
                         AxisId::X => (p, other_at_um),
                         AxisId::Y => (other_at_um, p),
                     };
-                    let d = m.deviation(&csmetro_sim::model::SampleContext {
+                    let d = m.deviation(&csmetro_sim::SampleContext {
                         moving: run.axis,
                         direction: run.direction.sign(),
                         target_x_um: tx,
@@ -543,5 +662,72 @@ impl TruthSource {
                 })
                 .collect(),
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn marker(d: &Path) -> Value {
+        serde_json::from_slice(&std::fs::read(d.join(MARKER)).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn a_results_folder_belongs_to_one_campaign_of_one_store() {
+        let tmp = tempfile::tempdir().unwrap();
+        let d = tmp.path().join("it-1");
+        // New: claimed and marked.
+        assert_eq!(claim_out_dir(&d, "aaaa", 1, "it").unwrap(), d);
+        assert_eq!(marker(&d)["store_id"], "aaaa");
+        assert_eq!(marker(&d)["campaign"], 1);
+        std::fs::write(d.join("summary.json"), "{}").unwrap();
+        // The same campaign again (a resume that finishes): its own folder.
+        assert_eq!(claim_out_dir(&d, "aaaa", 1, "it").unwrap(), d);
+        // Campaign 1 of another store: never this folder; the store is in the other's name.
+        let other = claim_out_dir(&d, "bbbb", 1, "it").unwrap();
+        assert_eq!(other, tmp.path().join("it-1.store-bbbb-c1"));
+        assert_eq!(marker(&other)["store_id"], "bbbb");
+        assert_eq!(marker(&d)["store_id"], "aaaa", "first owner's marker kept");
+        assert_eq!(claim_out_dir(&d, "bbbb", 1, "it").unwrap(), other);
+        // Another campaign of the same store (a template without {id}): its own fallback.
+        let c2 = claim_out_dir(&d, "aaaa", 2, "it").unwrap();
+        assert_eq!(c2, tmp.path().join("it-1.store-aaaa-c2"));
+        // Results nobody marked (an older csmetro's): kept, the new ones go beside them.
+        let old = tmp.path().join("old");
+        std::fs::create_dir_all(&old).unwrap();
+        std::fs::write(old.join("summary.json"), "{}").unwrap();
+        let beside = claim_out_dir(&old, "aaaa", 3, "it").unwrap();
+        assert_eq!(beside, tmp.path().join("old.store-aaaa-c3"));
+        assert!(!old.join(MARKER).exists());
+        // Both folders taken by others: refused, the results stay in the store.
+        std::fs::write(beside.join(MARKER), r#"{"store_id":"cccc","campaign":3}"#).unwrap();
+        let e = claim_out_dir(&old, "aaaa", 3, "it").unwrap_err();
+        assert!(e.contains("results not written"), "{e}");
+        // An empty existing folder is free.
+        let empty = tmp.path().join("empty");
+        std::fs::create_dir_all(&empty).unwrap();
+        assert_eq!(claim_out_dir(&empty, "aaaa", 4, "it").unwrap(), empty);
+    }
+
+    #[test]
+    fn the_service_writes_below_its_results_dir_whatever_the_template() {
+        let r = Path::new("/var/lib/csmetro/results");
+        assert_eq!(
+            service_outputs(r, "{name}-{id}"),
+            "/var/lib/csmetro/results/{name}-{id}"
+        );
+        assert_eq!(
+            service_outputs(r, "/home/op/out/{name}/{id}"),
+            "/var/lib/csmetro/results/{name}/{id}"
+        );
+        assert_eq!(
+            service_outputs(r, "/home/op/out/fixed"),
+            "/var/lib/csmetro/results/fixed"
+        );
+        assert_eq!(
+            service_outputs(r, "/home/op/{name}-{id}/../x"),
+            "/var/lib/csmetro/results/{name}-{id}/x"
+        );
     }
 }

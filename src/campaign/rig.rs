@@ -8,10 +8,10 @@ use std::time::{Duration, Instant};
 use csmetro_gcs::{C863Config, C863};
 use csmetro_hal::{Axis, AxisError, Camera};
 use csmetro_ppp::{DecodeConfig, Decoder, Pattern};
-use csmetro_sim::camera::SimCamera;
-use csmetro_sim::controller::{ControllerConfig, Endpoint, RandomFaults, SimController};
-use csmetro_sim::model::StageModel;
-use csmetro_sim::stage::SimStage;
+use csmetro_sim::SimCamera;
+use csmetro_sim::SimStage;
+use csmetro_sim::StageModel;
+use csmetro_sim::{ControllerConfig, Endpoint, RandomFaults, SimController};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -185,7 +185,20 @@ pub async fn build(c: &Campaign) -> Result<Rig, String> {
     }
 }
 
-async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Result<Rig, String> {
+/// The simulated devices of a `kind = "sim"` campaign, serving and connected, not yet boxed.
+struct SimParts {
+    x: C863,
+    y: C863,
+    camera: SimCamera,
+    sims: Vec<SimController>,
+    model: StageModel,
+    clock: PhysicalClock,
+    triggers: TriggerLog,
+}
+
+/// `faults`: whether the controllers strike `[hardware.sim.faults]` (a soak's random faults are
+/// the campaign's to meet, not the pre-flight's).
+async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimParts, String> {
     let s = &c.spec.hardware.sim;
     let model = match &s.model {
         Some(p) => {
@@ -206,7 +219,7 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
         s.acceleration_mm_s2,
     );
     let mut sims = Vec::new();
-    let mut axes: Vec<Box<dyn Axis>> = Vec::new();
+    let mut axes: Vec<C863> = Vec::new();
     for (a, limits) in [
         (AxisId::X, s.soft_limits_x_um),
         (AxisId::Y, s.soft_limits_y_um),
@@ -217,7 +230,7 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
             acceleration_mm_s2: s.acceleration_mm_s2,
             start_mm: start_mm[if a == AxisId::X { 0 } else { 1 }],
             reference_switch_mm: (s.travel_mm[0] + s.travel_mm[1]) / 2.0,
-            random_faults: s.faults.as_ref().map(|f| RandomFaults {
+            random_faults: s.faults.as_ref().filter(|_| faults).map(|f| RandomFaults {
                 seed: axis_fault_seed(f.seed, a),
                 ..f.clone()
             }),
@@ -241,7 +254,7 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
         let drv = C863::connect(dc)
             .await
             .map_err(|e| format!("cannot connect to the simulated C-863 of axis {a}: {e}"))?;
-        axes.push(Box::new(drv));
+        axes.push(drv);
         sims.push(sim);
     }
     let clock = PhysicalClock::default();
@@ -271,6 +284,28 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
         .with_seed(s.seed);
     let y = axes.pop().expect("two axes");
     let x = axes.pop().expect("two axes");
+    Ok(SimParts {
+        x,
+        y,
+        camera,
+        sims,
+        model,
+        clock,
+        triggers,
+    })
+}
+
+async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Result<Rig, String> {
+    let s = &c.spec.hardware.sim;
+    let SimParts {
+        x,
+        y,
+        camera,
+        sims,
+        model,
+        clock,
+        triggers,
+    } = sim_parts(c, pattern, true).await?;
     Ok(Rig {
         describe: format!(
             "simulated: 2 x C-863.11 over {:?}, time scale {}{}, {}",
@@ -282,8 +317,8 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
             )),
             camera.describe()
         ),
-        x,
-        y,
+        x: Box::new(x),
+        y: Box::new(y),
         camera: Some(Box::new(camera)),
         decoder,
         time: TimeBase::Sim {
@@ -300,6 +335,71 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
         triggers: Some(triggers),
         sims,
     })
+}
+
+/// A rig's devices opened one by one for the pre-flight check, each with its own outcome.
+/// Opening sends nothing to a controller; the simulators of a `kind = "sim"` campaign serve
+/// until [`Devices::close`].
+pub struct Devices {
+    pub x: Result<C863, String>,
+    pub y: Result<C863, String>,
+    pub camera: Result<Box<dyn Camera>, String>,
+    pub decoder: Arc<Decoder>,
+    sims: Vec<SimController>,
+}
+
+impl Devices {
+    /// Shuts the simulators down.
+    pub async fn close(self) {
+        let Devices { x, y, sims, .. } = self;
+        drop((x, y));
+        for s in sims {
+            s.shutdown().await;
+        }
+    }
+}
+
+/// Opens the devices of a campaign without commanding anything. A real controller's port is
+/// opened, and each of its exchanges tried, at most `reconnect_attempts` + 1 times (a
+/// pre-flight reports a missing or silent controller quickly).
+pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devices, String> {
+    let h = &c.spec.hardware;
+    let pattern = Pattern::new(h.pattern.clone()).map_err(|e| e.to_string())?;
+    let decoder = Arc::new(Decoder::new(
+        pattern.clone(),
+        DecodeConfig::for_optics(&pattern, &h.optics),
+    ));
+    match h.kind {
+        HardwareKind::Sim => {
+            let p = sim_parts(c, pattern, false).await?;
+            Ok(Devices {
+                x: Ok(p.x),
+                y: Ok(p.y),
+                camera: Ok(Box::new(p.camera)),
+                decoder,
+                sims: p.sims,
+            })
+        }
+        HardwareKind::Real => {
+            let connect = |a: AxisId| async move {
+                let mut cfg = h
+                    .controllers
+                    .get(a.as_str())
+                    .cloned()
+                    .ok_or_else(|| format!("no [hardware.controllers.{a}]"))?;
+                cfg.reconnect_attempts = cfg.reconnect_attempts.min(reconnect_attempts);
+                cfg.retries = cfg.retries.min(reconnect_attempts);
+                C863::connect(cfg).await.map_err(|e| e.to_string())
+            };
+            Ok(Devices {
+                x: connect(AxisId::X).await,
+                y: connect(AxisId::Y).await,
+                camera: real_camera(c),
+                decoder,
+                sims: Vec::new(),
+            })
+        }
+    }
 }
 
 async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> {
@@ -333,7 +433,6 @@ async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> 
     })
 }
 
-#[cfg(feature = "aravis")]
 fn real_camera(c: &Campaign) -> Result<Box<dyn Camera>, String> {
     let cfg = c
         .spec
@@ -341,12 +440,5 @@ fn real_camera(c: &Campaign) -> Result<Box<dyn Camera>, String> {
         .camera
         .clone()
         .ok_or("a real campaign needs [hardware.camera]")?;
-    csmetro_camera::AravisCamera::open(cfg)
-        .map(|cam| Box::new(cam) as Box<dyn Camera>)
-        .map_err(|e| format!("camera: {e}"))
-}
-
-#[cfg(not(feature = "aravis"))]
-fn real_camera(_: &Campaign) -> Result<Box<dyn Camera>, String> {
-    Err("this csmetro was built without the `aravis` feature: rebuild with `--features aravis` to use a real camera".into())
+    csmetro_camera::open_camera(cfg).map_err(|e| format!("camera: {e}"))
 }

@@ -8,7 +8,7 @@ use serde::Serialize;
 use serde_json::{json, Value};
 use tokio::sync::{broadcast, watch};
 
-use super::engine::{Control, EndState, Engine, Outcome, Recorder};
+use super::engine::{Control, EndState, Engine, EngineError, Outcome, Recorder};
 use super::plan::{plan, Plan};
 /// Where it lived before: results no longer imports session.
 pub use super::results::TruthSource;
@@ -17,7 +17,7 @@ use super::rig::{self, Rig};
 use super::spec::Campaign;
 use super::worker::{reconstruct_run, settings, Worker};
 use crate::store::Store;
-use crate::types::{CampaignState, RunKey, SampleRecord};
+use crate::types::{CampaignState, Origin, RunKey, SampleRecord};
 
 /// A campaign event as stored and streamed (server-sent events, `csmetro watch`).
 #[derive(Debug, Clone, Serialize, serde::Deserialize)]
@@ -162,6 +162,8 @@ pub struct Options {
     /// Simulation: append `seq,true_x_um,true_y_um` of each sample to this file (before the
     /// sample is committed), so a soak can check every stored position against the truth.
     pub truth_log: Option<PathBuf>,
+    /// Who runs it (events name them); `None`: the service.
+    pub origin: Option<Origin>,
 }
 
 /// Runs (or resumes) stored campaign `id`: skips targets already stored, stops motion on
@@ -205,6 +207,7 @@ pub async fn execute_with(
         .map(|s| (s.target.seq, s))
         .collect();
     let resumed = !done.is_empty();
+    let origin = opts.origin.clone().unwrap_or_else(Origin::service);
     {
         let s = lock(&store);
         s.set_planned(id, p.total() as u64)
@@ -221,11 +224,29 @@ pub async fn execute_with(
         } else {
             "started"
         },
-        json!({"planned": p.total(), "stored": done.len(), "name": c.spec.campaign.name}),
+        json!({"planned": p.total(), "stored": done.len(), "name": c.spec.campaign.name,
+               "by": origin.describe(), "origin": origin}),
     );
-    let fail = |msg: String| {
-        let s = lock(&store);
-        let _ = s.set_state(id, CampaignState::Interrupted, Some(&msg));
+    // An attempt that cannot go on: the error, then the state change, both in the log.
+    let fail = |cause: &str, msg: String| {
+        {
+            let s = lock(&store);
+            let _ = s.set_state(id, CampaignState::Interrupted, Some(&msg));
+        }
+        emit(
+            &store,
+            &events,
+            id,
+            "error",
+            json!({"cause": cause, "error": msg, "resumable": true}),
+        );
+        emit(
+            &store,
+            &events,
+            id,
+            "finished",
+            json!({"state": "interrupted", "error": msg}),
+        );
         msg
     };
     // `[compensation]`: resolved (and a bad table refused) before the hardware is touched.
@@ -233,10 +254,11 @@ pub async fn execute_with(
         let s = lock(&store);
         crate::compensation::for_campaign(&c, &s)
     };
-    let compensation = compensation.map_err(|e| fail(format!("stopped: {e}")))?;
-    let mut rig: Rig = rig::build(&c)
-        .await
-        .map_err(|e| fail(format!("hardware: {e}")))?;
+    let compensation = compensation.map_err(|e| fail("compensation", format!("stopped: {e}")))?;
+    let mut rig: Rig = rig::build(&c).await.map_err(|e| {
+        let msg = fail("hardware", format!("hardware: {e}"));
+        format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
+    })?;
     emit(
         &store,
         &events,
@@ -308,14 +330,13 @@ pub async fn execute_with(
             rig.stop_all().await;
             rig.close().await;
             drop(worker.finish());
-            let msg = fail(format!("stopped: {e}"));
-            emit(
-                &store,
-                &events,
-                id,
-                "finished",
-                json!({"state": "interrupted", "error": msg}),
-            );
+            let cause = match &e {
+                EngineError::Axis { .. } => "axis",
+                EngineError::Camera(_) => "camera",
+                EngineError::Store(_) => "storage",
+                EngineError::Other(_) => "acquisition",
+            };
+            let msg = fail(cause, format!("stopped: {e}"));
             return Err(format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` continues from the last stored sample"));
         }
     };
@@ -335,7 +356,7 @@ pub async fn execute_with(
         EndState::Aborted => Some((
             CampaignState::Aborted,
             "aborted by the operator",
-            json!({"state": "aborted"}),
+            json!({"state": "aborted", "cause": "operator"}),
         )),
     };
     if let Some((mut state, mut msg, mut data)) = halted {
@@ -375,7 +396,7 @@ pub async fn execute_with(
         .unwrap_or_else(|e| e.into_inner())
         .clone();
     let mut errors = problems(&t, &failures);
-    let rep = super::results::build(
+    let mut rep = super::results::build(
         &c,
         id,
         &t,
@@ -385,7 +406,30 @@ pub async fn execute_with(
         &samples,
         &truth,
     );
-    let out_dir = super::results::out_dir(&c, id);
+    let (store_id, created) = {
+        let s = lock(&store);
+        let sid = s.store_id().unwrap_or_else(|e| {
+            tracing::warn!(error = %e, "store id not read");
+            "unknown".into()
+        });
+        let created = s.campaign(id).ok().flatten().map(|r| r.created_unix_s);
+        (sid, created)
+    };
+    let html = report_html(
+        &c,
+        id,
+        &store_id,
+        created,
+        &errors,
+        &rep,
+        &log,
+        outcome.wall_s,
+    );
+    rep.files.push((
+        "report.html".into(),
+        "text/html; charset=utf-8".into(),
+        html.into_bytes(),
+    ));
     let mut store_err = None;
     {
         let s = lock(&store);
@@ -398,9 +442,19 @@ pub async fn execute_with(
     if let Some(e) = store_err {
         errors.push(format!("results not stored: {e}"));
     }
-    let written = write_files(&out_dir, &rep.files);
+    // A results folder belongs to one campaign of one store: never written over.
+    let wanted = super::results::out_dir(&c, id);
+    let written = super::results::claim_out_dir(&wanted, &store_id, id, &c.spec.campaign.name)
+        .and_then(|d| write_files(&d, &rep.files).map(|()| d));
     if let Err(e) = &written {
-        tracing::warn!(error = %e, dir = %out_dir.display(), "result files not written");
+        tracing::warn!(error = %e, dir = %wanted.display(), "result files not written");
+        emit(
+            &store,
+            &events,
+            id,
+            "error",
+            json!({"cause": "results", "error": e, "resumable": false}),
+        );
         errors.push(e.clone());
     }
     let (state, message) = if errors.is_empty() {
@@ -427,7 +481,7 @@ pub async fn execute_with(
         outcome,
         summary: Some(summary),
         table: Some(rep.table),
-        out_dir: written.is_ok().then_some(out_dir),
+        out_dir: written.ok(),
     })
 }
 
@@ -450,4 +504,127 @@ fn write_files(dir: &std::path::Path, files: &[(String, String, Vec<u8>)]) -> Re
         }
     }
     first.map_or(Ok(()), Err)
+}
+
+/// Formats a Unix time as UTC, `2026-11-27 09:50:00 UTC` (civil date from days since the epoch,
+/// H. Hinnant's algorithm).
+fn utc(unix_s: f64) -> String {
+    let t = unix_s.max(0.0) as i64;
+    let (days, secs) = (t.div_euclid(86_400), t.rem_euclid(86_400));
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02} UTC",
+        secs / 3600,
+        (secs / 60) % 60,
+        secs % 60
+    )
+}
+
+/// `report.html` of a campaign that measured to its end, from its results and its log.
+#[allow(clippy::too_many_arguments)]
+fn report_html(
+    c: &Campaign,
+    id: i64,
+    store_id: &str,
+    created_unix_s: Option<f64>,
+    errors: &[String],
+    rep: &super::results::Report,
+    log: &[crate::store::EventRow],
+    wall_s: f64,
+) -> String {
+    use crate::report::{format_hms, html};
+    let mut timings = Vec::new();
+    if let Some(t) = created_unix_s {
+        timings.push(("submitted".to_string(), utc(t)));
+    }
+    let starts: Vec<&crate::store::EventRow> = log
+        .iter()
+        .filter(|e| e.kind == "started" || e.kind == "resumed_from_store")
+        .collect();
+    if let Some(e) = starts.first() {
+        timings.push(("started".into(), utc(e.unix_s)));
+    }
+    timings.push(("finished".into(), utc(crate::store::now_unix_s())));
+    timings.push(("attempts".into(), starts.len().max(1).to_string()));
+    timings.push(("wall time of the last attempt".into(), format_hms(wall_s)));
+    for ax in rep.summary["axes"].as_array().into_iter().flatten() {
+        let a = ax["axis"].as_str().unwrap_or("?").to_uppercase();
+        for phase in ["cs", "full"] {
+            let p = &ax["phases"][phase];
+            if p.is_null() {
+                continue;
+            }
+            let f = |k: &str| p[k].as_f64().unwrap_or(0.0);
+            timings.push((
+                format!("{a} {phase}: acquisition / positioning / processing"),
+                format!(
+                    "{} / {} / {:.2} s ({} measurements)",
+                    format_hms(f("acquisition_s")),
+                    format_hms(f("positioning_s")),
+                    f("processing_s"),
+                    p["measurements"]
+                ),
+            ));
+        }
+    }
+    // The rig as it identified itself (the last attempt's replies).
+    let mut rig = Vec::new();
+    if let Some(e) = log.iter().rev().find(|e| e.kind == "rig") {
+        rig.push((
+            "rig".to_string(),
+            e.data["describe"].as_str().unwrap_or("").to_string(),
+        ));
+    }
+    for axis in ["x", "y"] {
+        if let Some(e) = log
+            .iter()
+            .rev()
+            .find(|e| e.kind == "axis" && e.data["axis"] == axis)
+        {
+            rig.push((
+                format!("axis {axis} (*IDN?)"),
+                format!(
+                    "{} — stage {}, travel {} µm",
+                    e.data["idn"].as_str().unwrap_or("?"),
+                    e.data["stage"].as_str().unwrap_or("?"),
+                    e.data["travel_um"]
+                ),
+            ));
+        }
+    }
+    rig.push(("stage name".into(), c.spec.campaign.stage.clone()));
+    let state = if errors.is_empty() { "done" } else { "failed" };
+    html::report_html(&html::HtmlReport {
+        id,
+        name: &c.spec.campaign.name,
+        state,
+        errors,
+        store_id,
+        timings,
+        table: &rep.table,
+        iso: &rep.iso,
+        files: &rep.files,
+        rig,
+        campaign_text: &c.text,
+        campaign_origin: &c.origin,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn utc_dates_are_civil_dates() {
+        assert_eq!(super::utc(0.0), "1970-01-01 00:00:00 UTC");
+        // 2024-02-29 12:34:56 UTC (a leap day).
+        assert_eq!(super::utc(1_709_210_096.0), "2024-02-29 12:34:56 UTC");
+        assert_eq!(super::utc(1_798_761_599.0), "2026-12-31 23:59:59 UTC");
+    }
 }

@@ -57,7 +57,8 @@ fn default_stage() -> String {
 pub enum HardwareKind {
     /// Simulated C-863s (over a pty or TCP) and a simulated camera: no hardware needed.
     Sim,
-    /// PI C-863 controllers on serial ports (or terminal servers) and an Aravis camera.
+    /// PI C-863 controllers on serial ports (or terminal servers) and a camera through Aravis
+    /// (GigE / USB3 Vision) or libdc1394 (FireWire IIDC), `[hardware.camera] backend`.
     Real,
 }
 
@@ -77,7 +78,7 @@ pub struct Hardware {
     /// Controllers of the real axes (`kind = "real"`), `[hardware.controllers.x]`.
     #[serde(default)]
     pub controllers: BTreeMap<String, C863Config>,
-    /// The real camera (`kind = "real"`, needs the `aravis` build feature).
+    /// The real camera (`kind = "real"`; its `backend`'s cargo feature must be built in).
     #[serde(default)]
     pub camera: Option<CameraConfig>,
     /// Longest reference move, s.
@@ -135,7 +136,7 @@ pub struct SimHardware {
     pub acceleration_mm_s2: f64,
     /// `[hardware.sim.faults]`: random faults of both simulated controllers (soaks); each axis
     /// draws from its own seed, derived from `seed` here.
-    pub faults: Option<csmetro_sim::controller::RandomFaults>,
+    pub faults: Option<csmetro_sim::RandomFaults>,
 }
 
 impl Default for SimHardware {
@@ -401,6 +402,54 @@ impl Campaign {
 
     /// Parses and validates campaign text in a trust context.
     pub fn parse_with(text: &str, origin: &str, trust: &Trust) -> Result<Campaign, SpecError> {
+        let c = Campaign::parse_inner(text, origin, trust)?;
+        c.check_camera_backend_compiled()?;
+        Ok(c)
+    }
+
+    /// Validates a local campaign file as a build with every camera backend would: to check a
+    /// lab's file on a machine without the camera libraries. The run paths (`load`, `parse`,
+    /// `parse_submitted`) also refuse a camera backend this build lacks.
+    pub fn parse_any_build(
+        text: &str,
+        origin: &str,
+        base_dir: &Path,
+    ) -> Result<Campaign, SpecError> {
+        Campaign::parse_inner(
+            text,
+            origin,
+            &Trust::Local {
+                base_dir: base_dir.to_path_buf(),
+            },
+        )
+    }
+
+    /// A `kind = "real"` campaign whose camera backend is not compiled in is refused here,
+    /// before anything opens or is stored, naming the cargo feature that builds it.
+    fn check_camera_backend_compiled(&self) -> Result<(), SpecError> {
+        let h = &self.spec.hardware;
+        let (HardwareKind::Real, Some(cam)) = (h.kind, &h.camera) else {
+            return Ok(());
+        };
+        if cam.backend.compiled() {
+            return Ok(());
+        }
+        // Point at the backend key, or at the camera table when the default applies.
+        let key = if span_of(&self.text, "hardware.camera.backend").is_some() {
+            "hardware.camera.backend"
+        } else {
+            "hardware.camera"
+        };
+        Err(self.error_at(
+            key,
+            format!(
+                "hardware.camera.backend = \"{b}\" needs a csmetro built with --features {b}",
+                b = cam.backend.name()
+            ),
+        ))
+    }
+
+    fn parse_inner(text: &str, origin: &str, trust: &Trust) -> Result<Campaign, SpecError> {
         if text.len() as u64 > MAX_TOML_BYTES {
             return Err(SpecError {
                 origin: origin.into(),
@@ -483,7 +532,7 @@ fn check_name(v: &str) -> Result<(), String> {
 /// Resolves the stage model a campaign names and reads it (at most 1 MiB, a regular file).
 /// Submitted campaigns: the path resolves from the policy's base directory and must stay inside
 /// one of its read roots, symlinks followed; errors never show a server path or the file.
-fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::model::StageModel, String> {
+fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::StageModel, String> {
     if m.is_empty() || m.len() > MAX_PATH_LEN || m.contains('\0') {
         return Err(format!("must be a file name of 1..={MAX_PATH_LEN} bytes"));
     }
@@ -496,7 +545,7 @@ fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::model::StageModel, 
             };
             let text =
                 read_bounded(&p, MAX_TOML_BYTES).map_err(|e| format!("{}: {e}", p.display()))?;
-            return csmetro_sim::model::StageModel::from_toml_str(&text)
+            return csmetro_sim::StageModel::from_toml_str(&text)
                 .map_err(|e| format!("{}: {e}", p.display()));
         }
         Trust::Submitted(p) => p,
@@ -543,7 +592,7 @@ fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::model::StageModel, 
             "{shown}: not a stage model (TOML error at line {line})"
         ));
     }
-    csmetro_sim::model::StageModel::from_toml_str(&text).map_err(|e| format!("{shown}: {e}"))
+    csmetro_sim::StageModel::from_toml_str(&text).map_err(|e| format!("{shown}: {e}"))
 }
 
 /// `a/./b/../c` → `a/c`, without touching the file system.

@@ -32,6 +32,10 @@ pub struct Conn {
     /// Print JSON (one object, or one event per line for `watch`).
     #[arg(long, global = true)]
     json: bool,
+    /// Your name, sent as `X-Operator`: the campaign's event log says who submitted, paused,
+    /// resumed or aborted it (ASCII, at most 64 bytes).
+    #[arg(long, env = "CSMETRO_OPERATOR", global = true)]
+    operator: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -60,8 +64,19 @@ pub struct WatchArgs {
     /// Also print every sample (many lines).
     #[arg(long)]
     samples: bool,
+    /// Without `--samples`: seconds between progress lines (stored/planned, elapsed, ETA)
+    /// while samples arrive.
+    #[arg(long, default_value_t = 5.0, value_parser = progress_interval)]
+    progress_s: f64,
     #[command(flatten)]
     conn: Conn,
+}
+
+fn progress_interval(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && (0.1..=86_400.0).contains(&v) => Ok(v),
+        _ => Err("expected seconds between 0.1 and 86400".into()),
+    }
 }
 
 #[derive(clap::Args)]
@@ -94,6 +109,7 @@ pub struct ReportArgs {
 struct Client {
     base: String,
     token: Option<String>,
+    operator: Option<String>,
     agent: ureq::Agent,
 }
 
@@ -113,6 +129,7 @@ impl Client {
         Self {
             base: c.server.trim_end_matches('/').to_string(),
             token: c.token.clone().filter(|t| !t.is_empty()),
+            operator: c.operator.clone().filter(|o| !o.trim().is_empty()),
             agent,
         }
     }
@@ -126,6 +143,10 @@ impl Client {
     }
 
     fn auth<B>(&self, r: ureq::RequestBuilder<B>) -> ureq::RequestBuilder<B> {
+        let r = match &self.operator {
+            Some(o) => r.header("X-Operator", o),
+            None => r,
+        };
         match &self.token {
             Some(t) => r.header("Authorization", &format!("Bearer {t}")),
             None => r,
@@ -215,6 +236,9 @@ fn line(s: &CampaignStatus) -> String {
     if let Some(p) = s.queue_position {
         l.push_str(&format!(", queue position {p}"));
     }
+    if let Some(e) = s.eta_s {
+        l.push_str(&format!(", ETA {}", crate::report::format_hms(e)));
+    }
     if let Some(m) = &s.message {
         l.push_str(&format!(" — {m}"));
     }
@@ -238,7 +262,7 @@ pub fn submit(a: SubmitArgs) -> CliResult {
         eprintln!("{}", line(&st));
     }
     if a.watch {
-        return follow(&c, st.id, false, a.conn.json);
+        return follow(&c, st.id, false, a.conn.json, DEFAULT_PROGRESS_S);
     }
     if !a.conn.json {
         println!("{}", st.id);
@@ -263,17 +287,18 @@ pub fn status(a: StatusArgs) -> CliResult {
                 print_json(&all);
             } else {
                 println!(
-                    "{:>5}  {:<11}  {:>15}  {:>6}  {:<12}  name",
-                    "id", "state", "stored/planned", "%", "stage"
+                    "{:>5}  {:<11}  {:>15}  {:>6}  {:<12}  {:>8}  name",
+                    "id", "state", "stored/planned", "%", "stage", "ETA"
                 );
                 for s in &all {
                     println!(
-                        "{:>5}  {:<11}  {:>15}  {:>6.1}  {:<12}  {}",
+                        "{:>5}  {:<11}  {:>15}  {:>6.1}  {:<12}  {:>8}  {}",
                         s.id,
                         s.state.as_str(),
                         format!("{}/{}", s.stored, s.planned),
                         s.percent,
                         s.stage,
+                        s.eta_s.map_or("-".into(), crate::report::format_hms),
                         s.name
                     );
                 }
@@ -285,7 +310,23 @@ pub fn status(a: StatusArgs) -> CliResult {
 
 pub fn watch(a: WatchArgs) -> CliResult {
     let c = Client::new(&a.conn);
-    follow(&c, a.id, a.samples, a.conn.json)
+    follow(&c, a.id, a.samples, a.conn.json, a.progress_s)
+}
+
+/// Seconds between `watch`'s progress lines unless `--progress-s` says otherwise.
+const DEFAULT_PROGRESS_S: f64 = 5.0;
+
+/// `progress 12/80 samples (15.0 %), elapsed 0:00:03, ETA 0:00:17`.
+fn progress_line(s: &CampaignStatus) -> String {
+    let hms = |v: Option<f64>| v.map_or("-".to_string(), crate::report::format_hms);
+    format!(
+        "progress {}/{} samples ({:.1} %), elapsed {}, ETA {}",
+        s.stored,
+        s.planned,
+        s.percent,
+        hms(s.elapsed_s),
+        hms(s.eta_s)
+    )
 }
 
 /// One server-sent event as received.
@@ -374,8 +415,11 @@ fn describe(e: &Value) -> String {
 /// Follows a campaign's events until the service ends the stream, reconnecting (from the last
 /// event id) while the campaign is still live, e.g. across a service restart. The exit code
 /// comes from the final state: done 0, aborted 130, anything else 1.
-fn follow(c: &Client, id: i64, samples: bool, json: bool) -> CliResult {
+fn follow(c: &Client, id: i64, samples: bool, json: bool, progress_s: f64) -> CliResult {
     let mut after: i64 = 0;
+    // Samples not printed one by one are summed up in a progress line now and then.
+    let progress = !samples && !json;
+    let mut last_progress = Instant::now();
     let mut down_since: Option<Instant> = None;
     let out = std::io::stdout();
     loop {
@@ -388,7 +432,16 @@ fn follow(c: &Client, id: i64, samples: bool, json: bool) -> CliResult {
             Ok(resp) if resp.status().is_success() => {
                 down_since = None;
                 let (last, _) = read_sse(resp.into_body().into_reader(), |e| {
-                    if e.kind == "sample" && !samples && !json {
+                    if e.kind == "sample" && progress {
+                        if last_progress.elapsed().as_secs_f64() >= progress_s {
+                            last_progress = Instant::now();
+                            // A missed line is no reason to stop following.
+                            if let Ok(st) = c.status(id) {
+                                let mut o = out.lock();
+                                let _ = writeln!(o, "{}", progress_line(&st));
+                                let _ = o.flush();
+                            }
+                        }
                         return;
                     }
                     let mut o = out.lock();
@@ -541,6 +594,9 @@ pub fn report(a: ReportArgs) -> CliResult {
             st.state.as_str(),
             dir.display()
         );
+        if names.iter().any(|n| n == "report.html") {
+            eprintln!("report: {}", dir.join("report.html").display());
+        }
     }
     if names.is_empty() && st.state != CampaignState::Done {
         return Err(CliError::failure(format!(

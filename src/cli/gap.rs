@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use csmetro_sim::model::StageModel;
+use csmetro_sim::StageModel;
 use serde_json::json;
 
 use super::{CliError, CliResult};

@@ -2,7 +2,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use csmetro_sim::reference::ReferenceCurveParams;
+use csmetro_sim::ReferenceCurveParams;
 
 use super::{CliError, CliResult};
 use crate::grid::Grid;

@@ -2,6 +2,8 @@
 use std::process::ExitCode;
 
 pub mod bench;
+pub mod camera;
+pub mod check;
 pub mod client;
 pub mod demo;
 pub mod gap;

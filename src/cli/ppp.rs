@@ -7,8 +7,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Subcommand;
-use csmetro_ppp::render::render;
-use csmetro_ppp::{io, selftest, DecodeResult, Pose, PppConfig};
+use csmetro_ppp::render;
+use csmetro_ppp::{read_png, selftest, write_png, DecodeResult, Pose, PppConfig};
 use serde_json::json;
 
 use super::{CliError, CliResult};
@@ -171,14 +171,14 @@ fn run_render(a: RenderArgs) -> CliResult {
         finite("theta-mrad", a.theta_mrad)?,
     );
     let frame = render(&pattern, &cfg.optics, pose, a.seed);
-    io::write_png(&a.out, &frame).map_err(|e| CliError::input(e.to_string()))?;
+    write_png(&a.out, &frame).map_err(|e| CliError::input(e.to_string()))?;
     Ok(ExitCode::SUCCESS)
 }
 
 fn run_decode(a: DecodeArgs) -> CliResult {
     let cfg = a.config.load()?;
     let decoder = cfg.decoder().map_err(|e| CliError::input(e.to_string()))?;
-    let frame = io::read_png(&a.frame).map_err(|e| CliError::input(e.to_string()))?;
+    let frame = read_png(&a.frame).map_err(|e| CliError::input(e.to_string()))?;
     let r: DecodeResult = decoder.decode(&frame);
     if a.json {
         let mut v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;

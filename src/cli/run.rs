@@ -9,11 +9,12 @@ use tokio::sync::{broadcast, watch};
 
 use super::{CliError, CliResult};
 use crate::campaign::engine::Control;
+use crate::campaign::preflight::{self, Report};
 use crate::campaign::session::{self, SharedStore};
 use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock};
 use crate::store::Store;
-use crate::types::CampaignState;
+use crate::types::{check_operator, CampaignState, Origin};
 
 /// Default store of foreground runs (the service's config names its own).
 pub const DEFAULT_DB: &str = "csmetro-data/csmetro.db";
@@ -34,6 +35,9 @@ pub struct Args {
     /// Simulation only (soaks): append each sample's true position to this file.
     #[arg(long, hide = true)]
     truth_log: Option<PathBuf>,
+    /// Your name, for the campaign's event log (who started it).
+    #[arg(long, env = "CSMETRO_OPERATOR")]
+    operator: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -48,6 +52,18 @@ pub struct ResumeArgs {
     quiet: bool,
     #[arg(long, hide = true)]
     truth_log: Option<PathBuf>,
+    /// Your name, for the campaign's event log (who resumed it).
+    #[arg(long, env = "CSMETRO_OPERATOR")]
+    operator: Option<String>,
+}
+
+/// The event log's origin of a foreground run; a bad name is bad input (exit 2).
+fn origin(operator: Option<&str>) -> Result<Origin, CliError> {
+    let op = match operator {
+        Some(o) => check_operator(o).map_err(|e| CliError::input(format!("--operator: {e}")))?,
+        None => None,
+    };
+    Ok(Origin::cli(op))
 }
 
 fn open(db: &std::path::Path) -> Result<SharedStore, CliError> {
@@ -63,22 +79,27 @@ fn take_stage(db: &std::path::Path, stage: &str) -> Result<StageLock, CliError> 
 }
 
 pub fn run(a: Args) -> CliResult {
+    let origin = origin(a.operator.as_deref())?;
     let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
     let _stage = take_stage(&a.db, &c.spec.campaign.stage)?;
+    preflight(&c, &a.db, "nothing was recorded or moved")?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
+    // A resume is offered where it applies: at the end of a run that did not finish.
     eprintln!(
-        "campaign {id} \"{}\" stored in {} (resume with `csmetro resume {id}`)",
+        "campaign {id} \"{}\" stored in {}",
         c.spec.campaign.name,
         a.db.display()
     );
     let opts = session::Options {
         truth_log: a.truth_log,
+        origin: Some(origin),
     };
     foreground(store, id, c, a.json, a.quiet, opts)
 }
 
 pub fn resume(a: ResumeArgs) -> CliResult {
+    let origin = origin(a.operator.as_deref())?;
     let store = open(&a.db)?;
     let row = store
         .lock()
@@ -95,10 +116,44 @@ pub fn resume(a: ResumeArgs) -> CliResult {
     }
     let _stage = take_stage(&a.db, &row.stage)?;
     let c = session::load_stored(&store, a.id).map_err(CliError::failure)?;
+    preflight(
+        &c,
+        &a.db,
+        &format!("campaign {} not resumed; nothing moved", a.id),
+    )?;
     let opts = session::Options {
         truth_log: a.truth_log,
+        origin: Some(origin),
     };
     foreground(store, a.id, c, a.json, a.quiet, opts)
+}
+
+/// The pre-flight of `csmetro check` (the stage already taken), before the campaign is
+/// recorded or started: the table on stderr, and an error naming the failed check (exit 2 when
+/// the campaign file must change, 1 when the rig must).
+fn preflight(c: &Campaign, db: &std::path::Path, not_done: &str) -> Result<(), CliError> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::failure(e.to_string()))?;
+    let mut report = Report::default();
+    rt.block_on(preflight::check_devices(
+        c,
+        preflight::Options { store: Some(db) },
+        &mut report,
+    ));
+    if !report.blocks() {
+        for w in report.warnings() {
+            eprintln!("warning: {w}");
+        }
+        return Ok(());
+    }
+    eprint!("{}", report.table());
+    Err(CliError {
+        code: report.exit_code(),
+        message: format!("{}; {not_done}", report.error_message()),
+    })
 }
 
 fn foreground(
@@ -182,7 +237,10 @@ fn foreground(
             println!("{t}");
         }
         if let Some(d) = &fin.out_dir {
-            eprintln!("results: {} (and in the store, campaign {id})", d.display());
+            eprintln!(
+                "results: {} (report.html and the files; also in the store, campaign {id})",
+                d.display()
+            );
         }
         Ok(match fin.state {
             CampaignState::Done => ExitCode::SUCCESS,

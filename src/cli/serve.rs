@@ -16,17 +16,27 @@ pub struct Args {
 
 /// Logs to stderr: the journal captures it under systemd, and stamps it itself.
 fn init_tracing(filter: &str) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(filter));
+    use tracing_subscriber::{layer::SubscriberExt, util::SubscriberInitExt, Layer};
+    // RUST_LOG wins over the config file when it parses; a bad config value was refused at load.
+    let targets = |s: &str| crate::api::config::parse_log_filter(s).ok();
+    let filter = std::env::var("RUST_LOG")
+        .ok()
+        .and_then(|s| targets(&s))
+        .or_else(|| targets(filter))
+        .unwrap_or_else(|| {
+            tracing_subscriber::filter::Targets::new().with_default(tracing::Level::INFO)
+        });
     let journal = std::env::var_os("JOURNAL_STREAM").is_some();
-    let b = tracing_subscriber::fmt()
-        .with_env_filter(filter)
+    let fmt = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_ansi(!journal && std::io::stderr().is_terminal());
+    let registry = tracing_subscriber::registry();
     let r = if journal {
-        b.without_time().try_init()
+        registry
+            .with(fmt.without_time().with_filter(filter))
+            .try_init()
     } else {
-        b.try_init()
+        registry.with(fmt.with_filter(filter)).try_init()
     };
     if let Err(e) = r {
         eprintln!("warning: logging not set up: {e}");

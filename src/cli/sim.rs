@@ -5,22 +5,26 @@
 //! SIGTERM. `csmetro sim bench-gcs` times the GCS driver against it over a pty (JSON);
 //! `csmetro sim soak-gcs` runs the driver under random faults and checks that every answer it
 //! took was the controller's reply to the request it had just sent (JSON).
+//! `csmetro sim rig --config RIG.toml` serves a whole simulated rig (two controllers and, with
+//! the `aravis` feature, a GigE Vision camera) for `kind = "real"` campaigns.
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use clap::Subcommand;
-use csmetro_gcs::frame::{AxisQuery, Command};
+use csmetro_gcs::{AxisQuery, Command};
 use csmetro_gcs::{C863Config, RefMode, C863};
 use csmetro_hal::Axis;
-use csmetro_sim::controller::soak::{soak_gcs, BindingCheck, SoakOptions};
-use csmetro_sim::controller::{ControllerConfig, SimController};
-use csmetro_sim::stage::SimStage;
+use csmetro_sim::SimStage;
+use csmetro_sim::{soak_gcs, BindingCheck, SoakOptions};
 use csmetro_sim::{AxisId, StageModel};
+use csmetro_sim::{ControllerConfig, SimController};
 use serde_json::json;
 
 use super::{CliError, CliResult};
+
+mod rig;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -59,6 +63,10 @@ struct ControllerArgs {
 
 #[derive(Subcommand)]
 enum What {
+    /// Serve a whole simulated rig: two C-863s (TCP or pty) on one simulated XY stage and, with
+    /// the `aravis` feature, a GigE Vision camera on 127.0.0.1 drawing the pattern at the
+    /// stage's true position. Prints where each device is, then `ready`.
+    Rig(rig::RigArgs),
     /// Serve a simulated PI C-863 (GCS 2.0) over TCP or a pty.
     Controller(ControllerArgs),
     /// Time the GCS driver against the simulated C-863 over a pty: round trip (median, p99)
@@ -115,6 +123,7 @@ pub fn run(args: Args) -> CliResult {
         .map_err(|e| CliError::failure(format!("tokio runtime: {e}")))?;
     match args.what {
         What::Controller(a) => rt.block_on(controller(a)),
+        What::Rig(a) => rt.block_on(rig::rig(a)),
         What::BenchGcs {
             round_trips,
             moves,

@@ -22,7 +22,7 @@ mod report;
 mod search;
 pub mod selftest;
 
-use csmetro_sim::model::StageModel;
+use csmetro_sim::StageModel;
 
 pub use data::Sample;
 use design::Rows;
@@ -103,7 +103,7 @@ pub fn residual_rms_um(model: &StageModel, samples: &[Sample]) -> f64 {
 mod tests {
     use super::data::{simulate_campaign, CampaignSpec};
     use super::*;
-    use csmetro_sim::model::{AxisId, Component, Effect, EffectKind};
+    use csmetro_sim::{AxisId, Component, Effect, EffectKind};
 
     fn base() -> StageModel {
         StageModel::default()

@@ -2,7 +2,7 @@
 //! cross-validation, gated by position cross-validation and a paired t-test, with ties.
 use std::collections::HashMap;
 
-use csmetro_sim::model::{AxisId, Effect, StageModel};
+use csmetro_sim::{AxisId, Effect, StageModel};
 use nalgebra::{DMatrix, DVector};
 
 use super::candidates::{candidate_groups, generalises, merge_into, Group};
@@ -19,10 +19,10 @@ pub fn diagnose(
 ) -> Result<Diagnosis, GapError> {
     if let Some(ks) = &opts.kinds {
         for k in ks {
-            if k == "noise" || !csmetro_sim::model::LIBRARY_KINDS.contains(&k.as_str()) {
+            if k == "noise" || !csmetro_sim::LIBRARY_KINDS.contains(&k.as_str()) {
                 return Err(GapError(format!(
                     "unknown candidate kind `{k}` (library: {})",
-                    csmetro_sim::model::LIBRARY_KINDS
+                    csmetro_sim::LIBRARY_KINDS
                         .iter()
                         .filter(|k| **k != "noise")
                         .copied()

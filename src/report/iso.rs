@@ -1,18 +1,24 @@
 //! ISO 230-2 figures per moving axis, by [`crate::iso230::evaluate`].
 //!
-//! Two sources, reported separately:
+//! Up to three sources, reported separately; [`AxisIso230::source`] names the one the axis's
+//! figures are (charts, `summary.txt`, `report.html`), in this order of preference:
+//! - `full_scan`: the full scan's measurements, every grid point a target approached once per
+//!   direction and cycle (R and the ±2s bands only with two cycles or more).
 //! - `reconstructed`: the forward (`ef_xx`) and backward (`eb_xx`) reconstructions, every grid
 //!   point a target with one approach per direction. There is no repeatability information (s =
 //!   0), so R is not reported and A = E; B, B̄, E and M are those of the systematic curves at
 //!   grid resolution.
 //! - `measured`: the CS samples of those components, when repeated cycles exist — targets
 //!   measured at least twice in every direction present. Other targets are left out.
+//!
+//! Without a full scan or repeated cycles the figures are those of the reconstruction, labelled
+//! "estimated from the reconstruction".
 use std::collections::BTreeMap;
 
 use serde::Serialize;
 
 use super::{ComponentCurve, ReportError};
-use crate::iso230::{evaluate, Approach, Iso230Summary};
+use crate::iso230::{evaluate, Approach, Iso230Summary, TargetRow};
 use crate::types::{AxisId, Component, Direction};
 
 /// ISO 230-2 figures of one moving axis.
@@ -27,8 +33,69 @@ pub struct AxisIso230 {
     pub reconstructed: Iso230Summary,
     /// From the measured samples, when repeated cycles exist.
     pub measured: Option<Iso230Summary>,
+    /// From the full scan's measurements, when a full scan was made.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub full_scan: Option<Iso230Summary>,
+    /// Which of the above the axis's figures are.
+    pub source: IsoSource,
+    /// The source as a reader sees it, e.g. "measured full scan, 1 cycle".
+    pub source_label: String,
     /// What was left out and why, and departures from ISO 230-2's test conditions.
     pub notes: Vec<String>,
+    /// Per-target figures of `source` (the chart's points).
+    #[serde(skip)]
+    pub chart_rows: Vec<TargetRow>,
+}
+
+/// Where an axis's ISO 230-2 figures come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IsoSource {
+    FullScan,
+    Measured,
+    Reconstructed,
+}
+
+impl AxisIso230 {
+    /// The figures of [`AxisIso230::source`].
+    pub fn reported(&self) -> &Iso230Summary {
+        match self.source {
+            IsoSource::FullScan => self.full_scan.as_ref().unwrap_or(&self.reconstructed),
+            IsoSource::Measured => self.measured.as_ref().unwrap_or(&self.reconstructed),
+            IsoSource::Reconstructed => &self.reconstructed,
+        }
+    }
+}
+
+fn fig(v: Option<f64>) -> String {
+    match v {
+        Some(v) if v.is_finite() => format!("{v:.3} µm"),
+        _ => "n/a".into(),
+    }
+}
+
+/// The figures of each axis as `summary.txt` and `csmetro run` print them, one block per axis:
+/// the source, then A, B, E, M, R (n/a where the data cannot give them).
+pub fn iso_text(figures: &[AxisIso230]) -> String {
+    let mut t = String::new();
+    for f in figures {
+        let r = f.reported();
+        t.push_str(&format!(
+            "ISO 230-2 {} axis ({}, {} targets): A {}  B {}  E {}  M {}  R {}\n",
+            f.axis.to_uppercase(),
+            f.source_label,
+            r.targets,
+            fig(Some(r.a_um)),
+            fig(r.b_um),
+            fig(Some(r.e_um)),
+            fig(r.m_um),
+            fig(r.r_um),
+        ));
+        if r.r_um.is_none() {
+            t.push_str("  R n/a: one approach per target and direction (no repeated cycles)\n");
+        }
+    }
+    t
 }
 
 /// ISO 230-2 figures of moving axis `axis` from its driving-direction curves in `curves`
@@ -96,7 +163,7 @@ pub fn iso230_axis(
         });
     };
     let mut reconstructed = recon_iso;
-    reconstructed.rows.clear();
+    let recon_rows = std::mem::take(&mut reconstructed.rows);
     notes.push(
         "reconstructed: one approach per target and direction (s = 0): R not reported, A = E"
             .into(),
@@ -109,14 +176,78 @@ pub fn iso230_axis(
     }
 
     let measured = measured_figures(&used, tol_um, &mut notes);
+    let mut full_scan = full_scan_figures(&used, tol_um, &mut notes);
+    let (source, source_label, chart_rows) = if let Some(f) = &mut full_scan {
+        let cycles = f.min_approaches;
+        let label = format!(
+            "measured full scan, {cycles} cycle{}",
+            if cycles == 1 { "" } else { "s" }
+        );
+        (IsoSource::FullScan, label, std::mem::take(&mut f.rows))
+    } else if let Some(m) = &measured {
+        let label = format!(
+            "repeated cycles, at least {} approaches per target and direction",
+            m.min_approaches
+        );
+        (IsoSource::Measured, label, m.rows.clone())
+    } else {
+        (
+            IsoSource::Reconstructed,
+            "estimated from the reconstruction".to_string(),
+            recon_rows,
+        )
+    };
     Ok(Some(AxisIso230 {
         axis: axis.as_str().into(),
         forward_component: fwd.map(|c| c.component.clone()),
         backward_component: bwd.map(|c| c.component.clone()),
         reconstructed,
         measured,
+        full_scan,
+        source,
+        source_label,
         notes,
+        chart_rows,
     }))
+}
+
+/// Figures from the full scan's measurements of every direction present; `None` without a full
+/// scan of each direction used. Every target counts (a scan visits each once per cycle).
+fn full_scan_figures(
+    used: &[(&ComponentCurve, bool)],
+    tol_um: f64,
+    notes: &mut Vec<String>,
+) -> Option<Iso230Summary> {
+    if used.iter().any(|(c, _)| c.full_scan_samples.is_empty()) {
+        return None;
+    }
+    let all: Vec<Approach> = used
+        .iter()
+        .flat_map(|&(c, forward)| {
+            c.full_scan_samples
+                .iter()
+                .filter(|(p, e)| p.is_finite() && e.is_finite())
+                .map(move |&(p, e)| Approach {
+                    target_um: p,
+                    forward,
+                    deviation_um: e,
+                })
+        })
+        .collect();
+    let fig = evaluate(&all, tol_um)?;
+    if fig.min_approaches < 2 {
+        notes.push(
+            "full scan: one approach per target and direction (one cycle, s = 0): R not \
+             reported, A = E"
+                .into(),
+        );
+    } else if fig.min_approaches < 5 {
+        notes.push(format!(
+            "full scan: at least {} approaches per target and direction; ISO 230-2 asks for 5",
+            fig.min_approaches
+        ));
+    }
+    Some(fig)
 }
 
 /// Figures from the samples at targets approached at least twice in every direction present.
@@ -193,6 +324,7 @@ mod tests {
             cv_error_um: None,
             samples: Vec::new(),
             full_scan_um: None,
+            full_scan_samples: Vec::new(),
             truth_um: None,
         }
     }
@@ -267,6 +399,47 @@ mod tests {
         assert!((m.e_um - 2.0).abs() < 1e-12);
         assert!(r.notes.iter().any(|n| n.contains("1 of 7 sampled targets")));
         assert!(r.notes.iter().any(|n| n.contains("5 approaches")));
+    }
+
+    #[test]
+    fn the_measured_full_scan_is_the_source_when_there_is_one() {
+        // Reconstruction says reversal 2 µm; the full scan measured 3 µm (±1.5) at 4 targets.
+        let mut f = line_curve("ef_xx", |_| 1.0);
+        let mut b = line_curve("eb_xx", |_| -1.0);
+        for p in [0.0, 10.0, 20.0, 30.0] {
+            f.full_scan_samples.push((p, 1.5));
+            b.full_scan_samples.push((p, -1.5));
+        }
+        let r = iso230_axis(AxisId::X, &[f.clone(), b.clone()], 1e-3)
+            .unwrap()
+            .unwrap();
+        assert_eq!(r.source, IsoSource::FullScan);
+        assert_eq!(r.source_label, "measured full scan, 1 cycle");
+        assert!((r.reported().b_um.unwrap() - 3.0).abs() < 1e-12);
+        assert!((r.reconstructed.b_um.unwrap() - 2.0).abs() < 1e-12);
+        assert!(r.reported().r_um.is_none(), "one cycle: no repeatability");
+        assert_eq!(r.chart_rows.len(), 4);
+        let text = iso_text(std::slice::from_ref(&r));
+        assert!(text.contains("ISO 230-2 X axis (measured full scan, 1 cycle, 4 targets)"));
+        assert!(
+            text.contains("B 3.000 µm") && text.contains("R n/a"),
+            "{text}"
+        );
+        // A second cycle with 0.1 µm scatter: s = 0.0707 µm, R reported.
+        for p in [0.0, 10.0, 20.0, 30.0] {
+            f.full_scan_samples.push((p, 1.6));
+            b.full_scan_samples.push((p, -1.4));
+        }
+        let r = iso230_axis(AxisId::X, &[f, b], 1e-3).unwrap().unwrap();
+        assert_eq!(r.source_label, "measured full scan, 2 cycles");
+        let s = 0.1 / 2f64.sqrt();
+        assert!((r.reported().r_up_um.unwrap() - 4.0 * s).abs() < 1e-9);
+        // Without any measured figures the reconstruction's are labelled as estimates.
+        let r = iso230_axis(AxisId::X, &[line_curve("ef_xx", |_| 0.0)], 1e-3)
+            .unwrap()
+            .unwrap();
+        assert_eq!(r.source, IsoSource::Reconstructed);
+        assert!(iso_text(&[r]).contains("estimated from the reconstruction"));
     }
 
     #[test]

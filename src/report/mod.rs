@@ -10,11 +10,15 @@
 //! | `plots/<comp>.svg`, `plots/<comp>.png` | samples, reconstruction, full scan; residual panel |
 //! | `compensation_x.csv`, `compensation_y.csv` | lookup table at grid resolution, see [`compensation_csv`] |
 //! | `iso230.json` | [`AxisIso230`] per moving axis |
+//! | `plots/iso230_<axis>.svg`, `.png` | ISO 230-2 chart: x̄↑ x̄↓ per target, ±2s bands, A B E M R ([`iso_chart_files`]) |
 //!
 //! The summary table ([`SummaryTable`], [`render_table`]) needs the campaign's timings, so the
-//! engine renders it itself.
+//! engine renders it itself; so does `report.html` ([`html::report_html`]), which also needs
+//! the campaign's log (the rig's identification, the attempts).
 mod compensation;
+pub mod html;
 mod iso;
+mod isoplot;
 mod plot;
 mod table;
 
@@ -25,7 +29,8 @@ use serde::Serialize;
 use crate::types::{AxisId, Component};
 
 pub use compensation::{compensation_columns, compensation_csv};
-pub use iso::{iso230_axis, AxisIso230};
+pub use iso::{iso230_axis, iso_text, AxisIso230, IsoSource};
+pub use isoplot::{iso_chart_png, iso_chart_svg};
 pub use plot::{plot_png, plot_svg, register_fonts, PlotOptions, FONT_FAMILY};
 pub use table::{
     format_hms, recovery_error, render_table, time_saved_pct, ErrorStats, SummaryRow, SummaryTable,
@@ -49,6 +54,10 @@ pub struct ComponentCurve {
     pub samples: Vec<(f64, f64)>,
     /// Full scan on the same grid, when one was made.
     pub full_scan_um: Option<Vec<f64>>,
+    /// The full scan's measurements (position µm, error µm), every cycle: ISO 230-2's
+    /// measured figures come from these when they exist.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub full_scan_samples: Vec<(f64, f64)>,
     /// Simulator ground truth on the same grid, when known.
     pub truth_um: Option<Vec<f64>>,
 }
@@ -182,7 +191,16 @@ pub fn build_report(
     curves: &[ComponentCurve],
     opts: &ReportOptions,
 ) -> Result<Vec<ReportFile>, ReportError> {
+    report_files(curves, opts).map(|(files, _)| files)
+}
+
+/// [`build_report`] and the ISO 230-2 figures of each moving axis it wrote to `iso230.json`.
+pub fn report_files(
+    curves: &[ComponentCurve],
+    opts: &ReportOptions,
+) -> Result<(Vec<ReportFile>, Vec<AxisIso230>), ReportError> {
     let mut files = Vec::new();
+    let mut figures = Vec::new();
     for c in curves {
         c.validate()?;
         let stem = file_stem(&c.component);
@@ -207,7 +225,8 @@ pub fn build_report(
             });
         }
         if let Some(fig) = iso230_axis(axis, curves, opts.iso_tol_um)? {
-            iso.insert(axis.as_str().to_string(), serde_json::to_value(fig)?);
+            iso.insert(axis.as_str().to_string(), serde_json::to_value(&fig)?);
+            figures.push(fig);
         }
     }
     files.push(ReportFile {
@@ -215,6 +234,28 @@ pub fn build_report(
         content_type: "application/json",
         bytes: serde_json::to_vec_pretty(&iso)?,
     });
+    Ok((files, figures))
+}
+
+/// The ISO 230-2 chart of each axis in `figures`: `plots/iso230_<axis>.svg` and `.png`.
+pub fn iso_chart_files(
+    figures: &[AxisIso230],
+    opts: &PlotOptions,
+) -> Result<Vec<ReportFile>, ReportError> {
+    let mut files = Vec::new();
+    for f in figures {
+        let stem = format!("plots/iso230_{}", file_stem(&f.axis));
+        files.push(ReportFile {
+            name: format!("{stem}.svg"),
+            content_type: "image/svg+xml",
+            bytes: iso_chart_svg(f, opts)?.into_bytes(),
+        });
+        files.push(ReportFile {
+            name: format!("{stem}.png"),
+            content_type: "image/png",
+            bytes: iso_chart_png(f, opts)?,
+        });
+    }
     Ok(files)
 }
 
@@ -269,6 +310,7 @@ pub(crate) mod testdata {
             cv_error_um: Some(0.0123),
             samples,
             full_scan_um: Some(full),
+            full_scan_samples: Vec::new(),
             truth_um: Some(truth),
         }
     }

@@ -75,19 +75,21 @@ pub fn plot_png(curve: &ComponentCurve, opts: &PlotOptions) -> Result<Vec<u8>, R
         root.present()
             .map_err(|e| plot_error(curve, e.to_string()))?;
     }
+    encode_png(&rgb, opts.width, opts.height).map_err(|e| plot_error(curve, e))
+}
+
+/// An 8-bit RGB buffer as a PNG file.
+pub(super) fn encode_png(rgb: &[u8], width: u32, height: u32) -> Result<Vec<u8>, String> {
     let mut png_bytes = Vec::new();
     {
-        let mut enc = png::Encoder::new(&mut png_bytes, opts.width, opts.height);
+        let mut enc = png::Encoder::new(&mut png_bytes, width, height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         // Plots are mostly flat white: per-row adaptive filtering shrinks them about 4-fold.
         enc.set_compression(png::Compression::Default);
         enc.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
-        let mut w = enc
-            .write_header()
-            .map_err(|e| plot_error(curve, e.to_string()))?;
-        w.write_image_data(&rgb)
-            .map_err(|e| plot_error(curve, e.to_string()))?;
+        let mut w = enc.write_header().map_err(|e| e.to_string())?;
+        w.write_image_data(rgb).map_err(|e| e.to_string())?;
     }
     Ok(png_bytes)
 }
@@ -115,7 +117,7 @@ pub(crate) fn title(curve: &ComponentCurve) -> String {
 }
 
 /// (min, max) of the finite values, `None` without any.
-fn value_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+pub(super) fn value_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     let (lo, hi) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
@@ -125,7 +127,7 @@ fn value_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
 }
 
 /// (min, max) of the finite values, padded by 5 % (at least 1e-3); (-1, 1) without any.
-fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+pub(super) fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     match value_range(values) {
         Some((lo, hi)) => {
             let pad = (0.05 * (hi - lo)).max(1e-3);
@@ -136,7 +138,7 @@ fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
 }
 
 /// Tick label without float noise or trailing zeros: `200`, `0.02`, `-1.5`.
-fn tick(v: &f64) -> String {
+pub(super) fn tick(v: &f64) -> String {
     let s = format!("{v:.6}");
     let s = s.trim_end_matches('0').trim_end_matches('.');
     if s == "-0" {
@@ -146,7 +148,10 @@ fn tick(v: &f64) -> String {
     }
 }
 
-fn finite_points<'a>(xs: &'a [f64], ys: &'a [f64]) -> impl Iterator<Item = (f64, f64)> + 'a {
+pub(super) fn finite_points<'a>(
+    xs: &'a [f64],
+    ys: &'a [f64],
+) -> impl Iterator<Item = (f64, f64)> + 'a {
     xs.iter()
         .zip(ys)
         .map(|(&x, &y)| (x, y))

@@ -125,7 +125,7 @@ fn open_sets_pragmas_and_schema_version() {
             "SELECT group_concat(name, ',') FROM (SELECT name FROM sqlite_schema \
              WHERE type = 'table' AND name NOT LIKE 'sqlite_%' ORDER BY name)",
         );
-        assert_eq!(tables, "campaigns,events,results,samples");
+        assert_eq!(tables, "campaigns,events,results,samples,store_info");
     }
     assert!(Store::open_in_memory().unwrap().path().is_none());
 }
@@ -725,4 +725,60 @@ fn insert_rate() {
         dt / n as f64 * 1e6,
         dt_read * 1e3
     );
+}
+
+#[test]
+fn a_store_keeps_its_identity_and_another_store_has_another() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = dir.path().join("a.db");
+    let id = Store::open(&a).unwrap().store_id().unwrap();
+    assert_eq!(id.len(), 16, "{id}");
+    assert!(id.chars().all(|c| c.is_ascii_hexdigit()), "{id}");
+    assert_eq!(Store::open(&a).unwrap().store_id().unwrap(), id, "reopened");
+    let other = Store::open(&dir.path().join("b.db")).unwrap();
+    assert_ne!(other.store_id().unwrap(), id);
+}
+
+#[test]
+fn a_schema_1_store_is_migrated_and_gets_an_identity() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("v1.db");
+    {
+        let conn = Connection::open(&path).unwrap();
+        conn.execute_batch(MIGRATIONS[0]).unwrap();
+        conn.pragma_update(None, "application_id", APPLICATION_ID)
+            .unwrap();
+        conn.pragma_update(None, "user_version", 1).unwrap();
+        conn.execute(
+            "INSERT INTO campaigns (name, spec_toml, spec_path, stage, state, planned, \
+             created_unix_s, updated_unix_s) VALUES ('old', '', 'a.toml', 's', 'done', 0, 1.0, 1.0)",
+            [],
+        )
+        .unwrap();
+    }
+    let store = Store::open(&path).unwrap();
+    assert_eq!(store.store_id().unwrap().len(), 16);
+    assert_eq!(store.campaign(1).unwrap().unwrap().name, "old");
+}
+
+#[test]
+fn updated_unix_s_moves_with_every_committed_sample() {
+    let store = Store::open_in_memory().unwrap();
+    let id = new_campaign(&store, "s");
+    let mut last = store.campaign(id).unwrap().unwrap().updated_unix_s;
+    for seq in 0..3 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert!(store.insert_sample(id, &sample(seq)).unwrap());
+        let now = store.campaign(id).unwrap().unwrap().updated_unix_s;
+        assert!(
+            now > last,
+            "sample {seq}: updated_unix_s {now} did not move from {last}"
+        );
+        assert!((now - now_unix_s()).abs() < 5.0, "{now} is wall-clock time");
+        last = now;
+    }
+    // A duplicate is not a new sample: nothing moves.
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    assert!(!store.insert_sample(id, &sample(0)).unwrap());
+    assert_eq!(store.campaign(id).unwrap().unwrap().updated_unix_s, last);
 }

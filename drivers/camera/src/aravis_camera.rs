@@ -623,9 +623,62 @@ fn open_device(id: &CameraId) -> Result<aravis::Camera, CameraError> {
         CameraId::Ip(ip) => ip.to_string(),
         CameraId::DeviceId(d) => d.clone(),
         CameraId::Serial(s) => device_id_for_serial(s)?,
+        // Refused by validation; kept an error rather than a panic.
+        CameraId::Guid(_) => {
+            return Err(CameraError::Setting(format!(
+                "{id} names an IEEE 1394 camera, which Aravis cannot open"
+            )))
+        }
     };
     aravis::Camera::new(Some(&name))
         .map_err(|e| CameraError::Disconnected(format!("cannot open camera {id}: {}", msg(e))))
+}
+
+/// One camera Aravis discovered (GigE Vision on every interface, USB3 Vision).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AravisCameraInfo {
+    /// Aravis device id (`id = { device_id = "..." }`).
+    pub device_id: String,
+    /// Vendor name.
+    pub vendor: String,
+    /// Model name.
+    pub model: String,
+    /// Serial number (`id = { serial = "..." }`).
+    pub serial: String,
+    /// Transport address (IPv4 for GigE Vision).
+    pub address: String,
+    /// "GigEVision" or "USB3Vision".
+    pub protocol: String,
+}
+
+/// Discover every camera Aravis can reach (empty: none).
+pub fn list_aravis_cameras() -> Vec<AravisCameraInfo> {
+    let _guard = DEVICE_LIST.lock().unwrap_or_else(|e| e.into_inner());
+    let text = |p: *const std::ffi::c_char| {
+        if p.is_null() {
+            String::new()
+        } else {
+            // SAFETY: non-null strings from Aravis's device list, valid until the next update,
+            // which our lock excludes.
+            unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned()
+        }
+    };
+    let mut out = Vec::new();
+    // SAFETY: Aravis's global device list, accessed under DEVICE_LIST.
+    unsafe {
+        aravis_sys::arv_update_device_list();
+        for i in 0..aravis_sys::arv_get_n_devices() {
+            out.push(AravisCameraInfo {
+                device_id: text(aravis_sys::arv_get_device_id(i)),
+                vendor: text(aravis_sys::arv_get_device_vendor(i)),
+                model: text(aravis_sys::arv_get_device_model(i)),
+                serial: text(aravis_sys::arv_get_device_serial_nbr(i)),
+                address: text(aravis_sys::arv_get_device_address(i)),
+                protocol: text(aravis_sys::arv_get_device_protocol(i)),
+            });
+        }
+    }
+    out
 }
 
 /// Discover all cameras and return the device id of the one with this serial.

@@ -11,7 +11,9 @@ use csmetro_hal::CameraError;
 use serde::{Deserialize, Serialize};
 
 /// How to find the camera. In TOML: `id = { ip = "192.168.1.20" }`, `id = { serial = "40123456" }`
-/// or `id = { device_id = "Basler-40123456" }` (the id `arv-tool-0.8` prints).
+/// or `id = { device_id = "Basler-40123456" }` (the id `arv-tool-0.8` prints) for the Aravis
+/// backend; `id = { guid = "0x000a47010e0a1b2c" }` (the 64-bit IEEE 1394 GUID, hex, colons
+/// allowed) for the FireWire backend.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CameraId {
@@ -21,6 +23,76 @@ pub enum CameraId {
     Serial(String),
     /// Aravis device id, `<vendor>-<model>-<serial>` or `<vendor>-<serial>`.
     DeviceId(String),
+    /// IEEE 1394 GUID of an IIDC camera, hex (`0x000a47010e0a1b2c` or `00:0a:47:01:0e:0a:1b:2c`).
+    Guid(String),
+}
+
+/// Parses an IEEE 1394 GUID written in hex: 16 digits at most, optional `0x`, optional `:`/`-`
+/// separators (a GUID is 64 bits: TOML integers stop at 2^63 - 1, so it is written as a string).
+pub fn parse_guid(s: &str) -> Result<u64, ConfigError> {
+    let t = s.trim();
+    let t = t
+        .strip_prefix("0x")
+        .or_else(|| t.strip_prefix("0X"))
+        .unwrap_or(t);
+    let digits: String = t.chars().filter(|c| *c != ':' && *c != '-').collect();
+    if digits.is_empty() || digits.len() > 16 || !digits.chars().all(|c| c.is_ascii_hexdigit()) {
+        return Err(ConfigError(format!(
+            "camera guid {s:?} is not a 64-bit hex GUID (e.g. \"0x000a47010e0a1b2c\")"
+        )));
+    }
+    u64::from_str_radix(&digits, 16).map_err(|e| ConfigError(format!("camera guid {s:?}: {e}")))
+}
+
+/// Which library drives the camera: `aravis` (GigE Vision / USB3 Vision) or `firewire`
+/// (IEEE 1394 IIDC through libdc1394). Each needs the cargo feature of the same name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CameraBackend {
+    /// GigE Vision / USB3 Vision through libaravis (cargo feature `aravis`).
+    #[default]
+    Aravis,
+    /// IEEE 1394 IIDC through libdc1394 (cargo feature `firewire`).
+    Firewire,
+}
+
+impl CameraBackend {
+    /// Every backend, compiled in or not.
+    pub const ALL: [CameraBackend; 2] = [CameraBackend::Aravis, CameraBackend::Firewire];
+
+    /// Its name in configuration files, which is also the cargo feature that builds it.
+    pub fn name(self) -> &'static str {
+        match self {
+            CameraBackend::Aravis => "aravis",
+            CameraBackend::Firewire => "firewire",
+        }
+    }
+
+    /// Whether this build of the crate contains the backend.
+    pub fn compiled(self) -> bool {
+        match self {
+            CameraBackend::Aravis => cfg!(feature = "aravis"),
+            CameraBackend::Firewire => cfg!(feature = "firewire"),
+        }
+    }
+}
+
+impl fmt::Display for CameraBackend {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// What starts an exposure.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TriggerSource {
+    /// The driver triggers each exposure itself (one grab = one exposure).
+    #[default]
+    Software,
+    /// A hardware line (IIDC trigger source 0, rising edge) starts each exposure; a grab
+    /// returns the first frame exposed after it began. FireWire backend only.
+    External,
 }
 
 impl fmt::Display for CameraId {
@@ -29,6 +101,10 @@ impl fmt::Display for CameraId {
             CameraId::Ip(ip) => write!(f, "ip {ip}"),
             CameraId::Serial(s) => write!(f, "serial {s}"),
             CameraId::DeviceId(d) => write!(f, "device id {d}"),
+            CameraId::Guid(g) => match parse_guid(g) {
+                Ok(v) => write!(f, "guid 0x{v:016x}"),
+                Err(_) => write!(f, "guid {g}"),
+            },
         }
     }
 }
@@ -91,6 +167,9 @@ pub struct Roi {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraConfig {
+    /// The library that drives the camera (default `aravis`, which older files assume).
+    #[serde(default)]
+    pub backend: CameraBackend,
     /// How to find the camera.
     pub id: CameraId,
     /// Pixel format asked of the camera.
@@ -119,6 +198,12 @@ pub struct CameraConfig {
     /// caps it at `net.core.rmem_max`.
     #[serde(default)]
     pub socket_buffer_bytes: Option<u32>,
+    /// What starts an exposure (`software`, the default, or `external`: FireWire backend only).
+    #[serde(default)]
+    pub trigger: TriggerSource,
+    /// Gain, dB (absolute IIDC gain; FireWire backend only). `None`: left as the camera has it.
+    #[serde(default)]
+    pub gain_db: Option<f64>,
 }
 
 fn default_pixel_format() -> PixelFormat {
@@ -189,6 +274,7 @@ impl CameraConfig {
     /// A configuration with the defaults for everything but the id and exposure.
     pub fn new(id: CameraId, exposure_us: f64) -> Self {
         CameraConfig {
+            backend: CameraBackend::default(),
             id,
             pixel_format: default_pixel_format(),
             exposure_us,
@@ -198,6 +284,8 @@ impl CameraConfig {
             reconnect_backoff_ms: default_reconnect_backoff_ms(),
             packet_size: default_packet_size(),
             socket_buffer_bytes: None,
+            trigger: TriggerSource::default(),
+            gain_db: None,
         }
     }
 
@@ -213,6 +301,7 @@ impl CameraConfig {
 
     /// Checks that need no camera.
     pub fn validate(&self) -> Result<(), ConfigError> {
+        self.validate_backend()?;
         match &self.id {
             CameraId::Ip(ip) if ip.is_unspecified() || ip.is_broadcast() || ip.is_multicast() => {
                 return Err(ConfigError(format!(
@@ -270,6 +359,54 @@ impl CameraConfig {
                      at most {MAX_SOCKET_BUFFER_BYTES}",
                     self.packet_size
                 )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The settings each backend understands: an id it can open, a pixel format it delivers,
+    /// the trigger and gain controls it implements.
+    fn validate_backend(&self) -> Result<(), ConfigError> {
+        match self.backend {
+            CameraBackend::Aravis => {
+                if let CameraId::Guid(_) = self.id {
+                    return Err(ConfigError(
+                        "id = { guid = ... } names an IEEE 1394 camera: set backend = \"firewire\""
+                            .into(),
+                    ));
+                }
+                if self.trigger == TriggerSource::External {
+                    return Err(ConfigError(
+                        "trigger = \"external\" is implemented by the firewire backend only".into(),
+                    ));
+                }
+                if self.gain_db.is_some() {
+                    return Err(ConfigError(
+                        "gain_db is implemented by the firewire backend only".into(),
+                    ));
+                }
+            }
+            CameraBackend::Firewire => {
+                let CameraId::Guid(g) = &self.id else {
+                    return Err(ConfigError(format!(
+                        "the firewire backend opens cameras by GUID: id = {{ guid = \"0x...\" }} \
+                         (`csmetro camera list` prints them), not by {}",
+                        self.id
+                    )));
+                };
+                parse_guid(g)?;
+                if self.pixel_format == PixelFormat::Mono12 {
+                    return Err(ConfigError(
+                        "IIDC has no unpacked Mono12 coding: use pixel_format = \"mono16\"".into(),
+                    ));
+                }
+                if let Some(g) = self.gain_db {
+                    if !(g.is_finite() && (-60.0..=60.0).contains(&g)) {
+                        return Err(ConfigError(format!(
+                            "gain_db = {g} must be a number of dB in [-60, 60]"
+                        )));
+                    }
+                }
             }
         }
         Ok(())
@@ -505,6 +642,84 @@ mod tests {
         c.reconnect_backoff_ms = 100;
         let ms: Vec<u128> = (0..6).map(|a| c.reconnect_backoff(a).as_millis()).collect();
         assert_eq!(ms, vec![100, 200, 400, 800, 800, 800]);
+    }
+
+    #[test]
+    fn backend_defaults_to_aravis_and_firewire_needs_a_guid() {
+        // Files written before the backend key keep their meaning.
+        let c: CameraConfig =
+            toml::from_str("id = { ip = \"10.0.0.2\" }\nexposure_us = 100.0").unwrap();
+        assert_eq!(c.backend, CameraBackend::Aravis);
+        assert_eq!(c.trigger, TriggerSource::Software);
+        c.validate().unwrap();
+
+        let fw: CameraConfig = toml::from_str(
+            "backend = \"firewire\"\nid = { guid = \"00:0a:47:01:0e:0a:1b:2c\" }\n\
+             pixel_format = \"mono16\"\nexposure_us = 8000.0\ntrigger = \"external\"\ngain_db = 6.0",
+        )
+        .unwrap();
+        fw.validate().unwrap();
+        assert_eq!(fw.id.to_string(), "guid 0x000a47010e0a1b2c");
+        assert!(toml::from_str::<CameraConfig>(
+            "backend = \"usb2\"\nid = { ip = \"10.0.0.2\" }\nexposure_us = 1.0"
+        )
+        .is_err());
+
+        let mut c = fw.clone();
+        c.id = CameraId::Serial("50-0536876543".into());
+        assert!(c.validate().unwrap_err().0.contains("by GUID"));
+        c.id = CameraId::Guid("0xnothex".into());
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .0
+            .contains("not a 64-bit hex GUID"));
+        let mut c = fw.clone();
+        c.pixel_format = PixelFormat::Mono12;
+        assert!(c.validate().unwrap_err().0.contains("mono16"));
+        let mut c = fw.clone();
+        c.gain_db = Some(f64::INFINITY);
+        assert!(c.validate().unwrap_err().0.contains("gain_db"));
+
+        // The Aravis backend refuses what only the FireWire backend implements.
+        let mut c = fw.clone();
+        c.backend = CameraBackend::Aravis;
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .0
+            .contains("backend = \"firewire\""));
+        let mut c = cfg();
+        c.trigger = TriggerSource::External;
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .0
+            .contains("firewire backend only"));
+        let mut c = cfg();
+        c.gain_db = Some(3.0);
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .0
+            .contains("firewire backend only"));
+    }
+
+    #[test]
+    fn guids_parse_in_the_usual_spellings() {
+        let want = 0x000a_4701_0e0a_1b2c_u64;
+        for s in [
+            "0x000a47010e0a1b2c",
+            "000A47010E0A1B2C",
+            "00:0a:47:01:0e:0a:1b:2c",
+            " 0xa47010e0a1b2c ",
+        ] {
+            assert_eq!(parse_guid(s).unwrap(), want, "{s}");
+        }
+        assert_eq!(parse_guid("0xffffffffffffffff").unwrap(), u64::MAX);
+        for bad in ["", "0x", "0x1ffffffffffffffff", "guid", "12 34"] {
+            assert!(parse_guid(bad).is_err(), "{bad:?}");
+        }
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! Random and mutated input to the GCS parsers: no panic, no endless loop, bounded buffers,
 //! and the same frames whichever way the bytes are split across reads.
 use bytes::BytesMut;
-use csmetro_gcs::codec::{encode_reply, ReplyError, MAX_COMMAND_LEN, MAX_REPLY_LEN};
+use csmetro_gcs::{encode_reply, ReplyError, MAX_COMMAND_LEN, MAX_REPLY_LEN};
 use csmetro_gcs::{ClientCodec, Command, Reply, RequestBody, ServerCodec};
 use proptest::prelude::*;
 use tokio_util::codec::Decoder;

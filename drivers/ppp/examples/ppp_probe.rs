@@ -1,5 +1,5 @@
 //! Decode-time probe for profiling: decodes one nominal frame many times.
-use csmetro_ppp::{render::render, DecodeConfig, Decoder, Optics, Pattern, PatternConfig, Pose};
+use csmetro_ppp::{render, DecodeConfig, Decoder, Optics, Pattern, PatternConfig, Pose};
 fn main() {
     let pat = Pattern::new(PatternConfig::default()).unwrap();
     let optics = Optics::default();

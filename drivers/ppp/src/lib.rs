@@ -1,15 +1,18 @@
 #![doc = include_str!("../README.md")]
 // Lints: the workspace wall (Cargo.toml `[workspace.lints]`), plus docs on everything public.
 #![warn(missing_docs)]
-pub mod decode;
-pub mod io;
-pub mod pattern;
-pub mod render;
+// Modules are private; the curated list below is the crate's API. `selftest` stays a public
+// namespace of figures (`selftest::timing`, `selftest::precision`, ...).
+mod decode;
+mod io;
+mod pattern;
+mod render;
 pub mod selftest;
 
 pub use decode::{DecodeConfig, DecodeResult, Decoder, Quality};
-pub use pattern::{Pattern, PatternConfig};
-pub use render::{Optics, Pose};
+pub use io::{read_png, write_png, IoError, MAX_FRAME_PIXELS, MAX_FRAME_SIDE};
+pub use pattern::{m_sequence, Pattern, PatternConfig, PatternError};
+pub use render::{render, render_coverage, Optics, Pose};
 
 use serde::{Deserialize, Serialize};
 

@@ -1,9 +1,11 @@
 //! Render → decode behaviour the metrology depends on: sub-pixel linearity, repeatability,
 //! the whole stage range with rotation, and rejection (never a silently wrong position).
 use csmetro_hal::{Frame, Pixels};
-use csmetro_ppp::render::render;
+use csmetro_ppp::render;
 use csmetro_ppp::selftest::{self, RANGE_X_UM, RANGE_Y_UM};
-use csmetro_ppp::{io, DecodeConfig, Decoder, Optics, Pattern, PatternConfig, Pose};
+use csmetro_ppp::{
+    read_png, write_png, DecodeConfig, Decoder, Optics, Pattern, PatternConfig, Pose,
+};
 
 fn setup() -> (Decoder, Optics) {
     let pattern = Pattern::new(PatternConfig::default()).unwrap();
@@ -260,8 +262,8 @@ fn png_round_trip_8_and_12_bit_decodes_the_same() {
         optics.bit_depth = depth;
         let frame = render(dec.pattern(), &optics, Pose::new(777.7, 333.3, -4.0), 9);
         let path = dir.join(format!("f{depth}.png"));
-        io::write_png(&path, &frame).unwrap();
-        let back = io::read_png(&path).unwrap();
+        write_png(&path, &frame).unwrap();
+        let back = read_png(&path).unwrap();
         assert_eq!(back.bit_depth, depth);
         assert_eq!(back.pixels, frame.pixels);
         let (a, b) = (dec.decode(&frame), dec.decode(&back));

@@ -7,7 +7,7 @@
 use std::time::{Duration, Instant};
 
 use csmetro_hal::{Camera, CameraError, Frame, PendingFrame};
-use csmetro_ppp::render::render;
+use csmetro_ppp::render;
 use csmetro_ppp::{Optics, Pattern, Pose};
 
 /// The true stage position (µm) at the current instant.

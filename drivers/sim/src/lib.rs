@@ -1,10 +1,23 @@
 #![doc = include_str!("../README.md")]
 // Lints: the workspace wall (Cargo.toml `[workspace.lints]`), plus docs on everything public.
 #![warn(missing_docs)]
-pub mod camera;
-pub mod controller;
-pub mod model;
-pub mod reference;
-pub mod stage;
+// Modules are private; the curated list below is the crate's API.
+mod camera;
+mod controller;
+mod model;
+mod reference;
+mod stage;
 
-pub use model::{AxisId, Deviation, Effect, EffectKind, SampleContext, StageModel};
+pub use camera::{PositionSource, SimCamera};
+pub use controller::soak::{soak_gcs, BindingCheck, SoakOptions, SoakReport};
+pub use controller::{
+    remove_stale_links, Controller, ControllerConfig, Endpoint, Exchange, Fault, FaultCounts,
+    FaultSpec, Outcome, RandomFaults, SimController, AXIS, GARBAGE, MAX_RANDOM_FAULT_MS,
+};
+pub use model::{
+    legendre, map_to_unit, AxisId, Component, Deviation, Direction, Effect, EffectKind, ModelError,
+    SampleContext, StageModel, LIBRARY_KINDS, MAX_EFFECTS, MAX_TERMS, MAX_TRAVEL_UM,
+    SIM_ONLY_KINDS,
+};
+pub use reference::{error_curve, paper_like_model, ReferenceCurveParams};
+pub use stage::{AxisState, Motion, MotionKind, Profile, SimClock, SimStage};

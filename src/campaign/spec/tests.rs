@@ -261,8 +261,9 @@ fn a_submitted_real_campaign_opens_serial_devices_only() {
         let e = Campaign::parse_submitted(&t, "r.toml", &p).unwrap_err();
         assert_eq!(e.key, "hardware.controllers.x.transport", "{bad}: {e}");
         assert!(!e.to_string().contains("passwd"), "{e}");
-        // The local operator names their own ports.
-        Campaign::parse(&t, "r.toml", dir.path()).unwrap();
+        // The local operator names their own ports (a build without the file's camera backend
+        // refuses it for that reason alone: tested in `a_camera_backend_this_build_lacks_...`).
+        Campaign::parse_any_build(&t, "r.toml", dir.path()).unwrap();
     }
 }
 
@@ -289,4 +290,71 @@ fn outputs_must_be_writable_before_anything_runs() {
 fn syntax_errors_give_a_line() {
     let e = parse("[campaign\nname = 1").unwrap_err();
     assert_eq!(e.line, 1, "{e}");
+}
+
+/// The lab template with its camera section replaced by `camera` (a `[hardware.camera]` table).
+fn real_with_camera(camera: &str) -> String {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/campaigns/lab-xy-real.toml"
+    ))
+    .unwrap();
+    let start = text.find("[hardware.camera]").unwrap();
+    let end = start + text[start..].find("\n[axes.x]").unwrap();
+    format!("{}{camera}\n{}", &text[..start], &text[end..])
+}
+
+#[test]
+fn a_camera_backend_this_build_lacks_is_refused_at_validation_naming_the_feature() {
+    let dir = tempfile::tempdir().unwrap();
+    let fw = real_with_camera(
+        "[hardware.camera]\nbackend = \"firewire\"\nid = { guid = \"0x000a47010e0a1b2c\" }\n\
+         exposure_us = 8000.0\n",
+    );
+    let ar = real_with_camera(
+        "[hardware.camera]\nid = { serial = \"50-0536876543\" }\nexposure_us = 8000.0\n",
+    );
+    for (text, backend, compiled) in [
+        (&fw, "firewire", cfg!(feature = "firewire")),
+        (&ar, "aravis", cfg!(feature = "aravis")),
+    ] {
+        // Valid for a build that has the backend.
+        Campaign::parse_any_build(text, "r.toml", dir.path()).unwrap();
+        let got = Campaign::parse(text, "r.toml", dir.path());
+        if compiled {
+            got.unwrap();
+            continue;
+        }
+        let e = got.unwrap_err();
+        assert!(
+            e.message.contains(&format!(
+                "hardware.camera.backend = \"{backend}\" needs a csmetro built with --features {backend}"
+            )),
+            "{e}"
+        );
+        // Line of the backend key where written, else of the camera table.
+        let want = if backend == "firewire" {
+            ("hardware.camera.backend", line(text, "backend = "))
+        } else {
+            ("hardware.camera", line(text, "[hardware.camera]"))
+        };
+        assert_eq!((e.key.as_str(), e.line), want, "{e}");
+        // The service's path refuses it the same way.
+        let p = policy(dir.path());
+        let e = Campaign::parse_submitted(
+            &text
+                .replace(
+                    "/dev/serial/by-id/usb-PI_C-863_0115500001-if00-port0",
+                    "/dev/null",
+                )
+                .replace(
+                    "/dev/serial/by-id/usb-PI_C-863_0115500002-if00-port0",
+                    "/dev/null",
+                ),
+            "r.toml",
+            &p,
+        )
+        .unwrap_err();
+        assert!(e.message.contains("--features"), "{e}");
+    }
 }

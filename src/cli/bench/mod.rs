@@ -2,7 +2,7 @@
 use std::process::ExitCode;
 
 use clap::Subcommand;
-use csmetro_sim::reference::ReferenceCurveParams;
+use csmetro_sim::ReferenceCurveParams;
 use serde::Serialize;
 use serde_json::json;
 

@@ -1,5 +1,5 @@
 //! `bench speed`: solve times of the reconstruction methods, single-threaded.
-use csmetro_sim::reference::ReferenceCurveParams;
+use csmetro_sim::ReferenceCurveParams;
 use serde_json::json;
 
 use super::{median, percentile};

@@ -8,9 +8,9 @@ use std::collections::VecDeque;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use csmetro_gcs::codec::{encode_reply, Request, RequestBody};
 use csmetro_gcs::error::*;
-use csmetro_gcs::frame::{
+use csmetro_gcs::{encode_reply, Request, RequestBody};
+use csmetro_gcs::{
     Address, AxisQuery, AxisSetter, Command, ControlByte, RefMode, Reply, BUSY, READY,
 };
 use rand::{Rng, SeedableRng};
@@ -24,7 +24,7 @@ use crate::stage::{AxisState, MotionKind, SimStage};
 #[allow(unsafe_code)]
 mod pty;
 mod server;
-pub mod soak;
+pub(crate) mod soak;
 
 pub use server::{remove_stale_links, Endpoint, SimController};
 
@@ -869,7 +869,7 @@ fn set_param(c: &mut ControllerConfig, id: u32, v: &str) -> Result<(), i32> {
     if !PARAMS.iter().any(|p| p.0 == id) {
         return Err(E54_UNKNOWN_PARAM);
     }
-    let x = csmetro_gcs::frame::parse_float(v)?;
+    let x = csmetro_gcs::parse_float(v)?;
     let positive = |x: f64| {
         if x > 0.0 {
             Ok(x)

@@ -11,8 +11,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use bytes::BytesMut;
-use csmetro_gcs::codec::encode_reply;
-use csmetro_gcs::frame::{AxisQuery, Command, ControlByte};
+use csmetro_gcs::encode_reply;
+use csmetro_gcs::{AxisQuery, Command, ControlByte};
 use csmetro_gcs::{C863Config, LinkStats, RefMode, C863};
 use csmetro_hal::Axis;
 use rand::{Rng, SeedableRng};

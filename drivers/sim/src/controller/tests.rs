@@ -1,6 +1,6 @@
 //! State machine: the error codes and motion a client depends on.
 use super::*;
-use csmetro_gcs::codec::ServerCodec;
+use csmetro_gcs::ServerCodec;
 use tokio_util::codec::Decoder;
 
 /// Time scale 100: a 1 s physical move takes 10 ms.

@@ -1,0 +1,200 @@
+//! `csmetro sim rig` + `csmetro run` of a `kind = "real"` campaign: GCS over TCP to the rig's
+//! controllers, the camera through Aravis (GigE Vision discovery by serial number) from the
+//! rig's fake camera. The campaign completes and recovers the stage's error curve as well as
+//! the same campaign on `kind = "sim"` (within 10 %), both judged against the curve computed
+//! here from the model's formulas, not by csmetro.
+//!
+//! Needs the `aravis` feature: `cargo test --features aravis --test sim_rig`.
+#![cfg(feature = "aravis")]
+mod common;
+mod rig;
+
+use std::f64::consts::PI;
+use std::path::Path;
+
+use common::{bin, json_of};
+use csmetro::store::Store;
+
+/// Scale error of 120 ppm and a 1450 µm wave on x; no noise, no backlash.
+const MODEL: &str = r#"
+[stage]
+travel_x_um = [0.0, 9500.0]
+travel_y_um = [0.0, 4200.0]
+
+[[effect]]
+kind = "scale"
+axis = "x"
+ppm = 120.0
+ref_um = 1000.0
+
+[[effect]]
+kind = "harmonic"
+axis = "x"
+period_um = 1450.0
+cos_um = [0.6]
+sin_um = [-0.3]
+"#;
+
+/// The x error the model describes at x = `p` µm (its documented formulas).
+fn truth_um(p: f64) -> f64 {
+    let w = 2.0 * PI * p / 1450.0;
+    120e-6 * (p - 1000.0) + 0.6 * w.cos() - 0.3 * w.sin()
+}
+
+/// The part of a campaign both kinds share: x over [500, 2500] µm at 10 µm, 24 random targets
+/// each way, basis pursuit with denoising.
+const COMMON: &str = r#"
+[axes.x]
+range_um = [500.0, 2500.0]
+step_um = 10.0
+other_at_um = 2000.0
+m = 24
+
+[sampling]
+design = "random"
+seed = 11
+
+[acquisition]
+directions = ["forward", "backward"]
+settle_s = 0.0
+dwell_s = 0.0
+approach_um = 20.0
+
+[reconstruction]
+method = "bpdn"
+noise_um = 0.01
+"#;
+
+/// RMS of (reconstructed - truth) over every CS curve of the x component, µm, and how many
+/// curves there were.
+fn recovery_rms_um(db: &Path) -> (f64, usize) {
+    let s = Store::open(db).unwrap();
+    let (mut sum, mut n, mut curves) = (0.0, 0usize, 0usize);
+    for name in s.result_names(1).unwrap() {
+        // ef_xx / eb_xx: x moving forward / backward, x measured.
+        if !(name == "ef_xx.csv" || name == "eb_xx.csv") {
+            continue;
+        }
+        let (_, bytes) = s.result(1, &name).unwrap().unwrap();
+        let text = String::from_utf8(bytes).unwrap();
+        let mut lines = text.lines();
+        let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let Some(cs) = head.iter().position(|h| *h == "cs_um") else {
+            continue;
+        };
+        curves += 1;
+        for l in lines {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            sum += (v[cs] - truth_um(v[0])).powi(2);
+            n += 1;
+        }
+    }
+    assert!(n > 0, "no CS curve of x in the store");
+    ((sum / n as f64).sqrt(), curves)
+}
+
+#[test]
+fn a_real_campaign_on_the_simulated_rig_recovers_the_curve_as_the_sim_kind_does() {
+    let _turn = rig::camera_turn();
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model.toml");
+    std::fs::write(&model, MODEL).unwrap();
+    let exe = Path::new(env!("CARGO_BIN_EXE_csmetro"));
+    let r = rig::Rig::start(
+        exe,
+        &rig::rig_file(dir.path(), Some(&model), 1.0, 2.0, true),
+    );
+
+    let real = dir.path().join("real.toml");
+    std::fs::write(
+        &real,
+        format!(
+            r#"[campaign]
+name = "rig"
+stage = "sim-rig-test"
+
+[hardware]
+kind = "real"
+optics = {{ width = 640, height = 640 }}
+
+[hardware.controllers.x]
+transport = {{ kind = "tcp", address = "{x}" }}
+soft_limits_um = [0.0, 9000.0]
+poll_interval_ms = 2
+
+[hardware.controllers.y]
+transport = {{ kind = "tcp", address = "{y}" }}
+soft_limits_um = [0.0, 4000.0]
+poll_interval_ms = 2
+
+[hardware.camera]
+id = {{ serial = "CSMTEST01" }}
+exposure_us = 1000.0
+{COMMON}
+[outputs]
+dir = "{out}/{{name}}-{{id}}"
+"#,
+            x = r.x,
+            y = r.y,
+            out = dir.path().display(),
+        ),
+    )
+    .unwrap();
+    let db_real = dir.path().join("real.db");
+    let o = bin()
+        .args(["run", "--json", "--quiet", "--db"])
+        .arg(&db_real)
+        .arg(&real)
+        .output()
+        .unwrap();
+    let j = json_of(&o);
+    assert_eq!(j["state"], "done", "{j}");
+    let log = r.stop();
+    assert!(log.iter().any(|(a, c)| a == "x" && c.starts_with("MOV")));
+
+    let sim = dir.path().join("sim.toml");
+    std::fs::write(
+        &sim,
+        format!(
+            r#"[campaign]
+name = "sim"
+stage = "sim-rig-test-sim"
+
+[hardware]
+kind = "sim"
+optics = {{ width = 640, height = 640 }}
+
+[hardware.sim]
+model = "model.toml"
+time_scale = 1000
+transport = "tcp"
+seed = 5
+{COMMON}
+[outputs]
+dir = "{out}/{{name}}-{{id}}"
+"#,
+            out = dir.path().display(),
+        ),
+    )
+    .unwrap();
+    let db_sim = dir.path().join("sim.db");
+    let o = bin()
+        .args(["run", "--json", "--quiet", "--db"])
+        .arg(&db_sim)
+        .arg(&sim)
+        .output()
+        .unwrap();
+    assert_eq!(json_of(&o)["state"], "done");
+
+    let (e_real, n_real) = recovery_rms_um(&db_real);
+    let (e_sim, n_sim) = recovery_rms_um(&db_sim);
+    assert_eq!((n_real, n_sim), (2, 2), "forward and backward curves");
+    eprintln!("recovery error (RMS): real on the rig {e_real:.4} µm, sim {e_sim:.4} µm");
+    // The curve is recovered at all (its own amplitude is ~0.7 µm)...
+    assert!(e_sim < 0.3, "sim recovery error {e_sim} µm");
+    // ...and the real path through the rig does as well as the simulation.
+    assert!(
+        (e_real - e_sim).abs() <= 0.10 * e_sim,
+        "recovery error: real on the rig {e_real:.4} µm, sim {e_sim:.4} µm"
+    );
+}
