@@ -144,6 +144,13 @@ fn sweep(n: usize, seed: u64, iso: bool, verbose: bool) -> Tally {
         let peak = visible_peak(&shape, &lines, &camp);
         let e = shape.times(rng.range(0.2, 1.2) / peak);
         let (k, a) = label(&e);
+        // Amplitudes as the issue saw them: 0.3-0.7 µm peak once line offsets are removed.
+        let peak = visible_peak(&e, &lines, &camp);
+        let e = if (0.3..0.7).contains(&peak) {
+            e
+        } else {
+            e.times(0.5 / peak)
+        };
         truth.push(e);
         let d = diagnose(&model, &generate(&truth, &lines, &camp, rng.u64()), &opts).unwrap();
         let ok = names(&d, k, a);
@@ -221,13 +228,13 @@ fn sweep(n: usize, seed: u64, iso: bool, verbose: bool) -> Tally {
                 comp: axis,
                 amp_um: 1.0,
                 period_s: rng.range(500.0, 1500.0),
-                phase: rng.range(0.0, 6.28),
+                phase: rng.range(0.0, std::f64::consts::TAU),
             },
             _ => Eff::Periodic {
                 axis,
                 period_um: rng.range(600.0, 1100.0),
                 amp_um: 1.0,
-                phase: rng.range(0.0, 6.28),
+                phase: rng.range(0.0, std::f64::consts::TAU),
             },
         };
         let peak = visible_peak(&shape, &lines, &camp);
@@ -238,7 +245,7 @@ fn sweep(n: usize, seed: u64, iso: bool, verbose: bool) -> Tally {
         t.outside.0 += 1;
         t.outside.1 += usize::from(flagged && !mis);
         t.outside_mis += usize::from(mis);
-        if !(flagged && !mis) || verbose {
+        if !flagged || mis || verbose {
             t.log.push(format!(
                 "outside #{}: flagged {flagged} -> {}",
                 i % 3,
@@ -297,4 +304,68 @@ fn full_sweep() {
         }
         println!("{}", report(name, &t));
     }
+}
+
+/// The effects the issue saw rejected at 10-20 σ on the contract layout (4 runs, σ = 0.05 µm),
+/// one case each, and a null: named (or in a tie), nothing added without a gap.
+#[test]
+fn effects_rejected_before_are_named_on_the_contract_layout() {
+    let mut rng = Rng::new(35);
+    let lines = contract_layout(120, 80, &mut rng);
+    let camp = Campaign::default();
+    let cases: Vec<Eff> = vec![
+        // The issue's squareness: −164 µrad, 0.69 µm over the y stroke.
+        Eff::Squareness { urad: -164.0 },
+        Eff::Cyclic {
+            axis: AxisId::X,
+            period_um: 400.0 / 28.4,
+            cos_um: vec![0.3],
+            sin_um: vec![-0.2],
+        },
+        Eff::Hysteresis {
+            axis: AxisId::Y,
+            b0_um: 0.2,
+            b1_um: 0.5,
+        },
+        Eff::Yaw {
+            axis: AxisId::X,
+            urad: [40.0, -120.0],
+        },
+        Eff::Thermal {
+            comp: AxisId::X,
+            amp_um: 0.8,
+            tau_s: 1500.0,
+            rate_um_per_h: 0.1,
+        },
+    ];
+    for (i, e) in cases.into_iter().enumerate() {
+        let (model, mut truth) = base(i % 2);
+        let (k, a) = label(&e);
+        // Amplitudes as the issue saw them: 0.3-0.7 µm peak once line offsets are removed.
+        let peak = visible_peak(&e, &lines, &camp);
+        let e = if (0.3..0.7).contains(&peak) {
+            e
+        } else {
+            e.times(0.5 / peak)
+        };
+        truth.push(e);
+        let d = diagnose(
+            &model,
+            &generate(&truth, &lines, &camp, 100 + i as u64),
+            &Options::default(),
+        )
+        .unwrap();
+        assert!(names(&d, k, a), "{k} {a} not named: {}", d.summary());
+        assert_eq!(d.added.len(), 1, "{k} {a}: {}", d.summary());
+        let closed = d.added[0].gap_closed.unwrap_or(0.0);
+        assert!(closed > 0.8, "{k} {a}: gap closed {closed}");
+    }
+    let (model, truth) = base(1);
+    let d = diagnose(
+        &model,
+        &generate(&truth, &lines, &camp, 7),
+        &Options::default(),
+    )
+    .unwrap();
+    assert!(d.added.is_empty(), "null: {}", d.summary());
 }

@@ -341,7 +341,7 @@ pub(super) fn frequency_map(
             // Oversampled grid (a peak falls between independent frequencies); the false-alarm
             // probability counts the independent ones.
             let (f0, df, fmax) = (2.0 / span, 0.05 / span, (1.0 / 12.0f64).min(0.5 / spacing));
-            if pts.len() < 8 || !(fmax > f0) {
+            if pts.len() < 8 || fmax.partial_cmp(&f0) != Some(std::cmp::Ordering::Greater) {
                 notes.push(format!(
                     "{a} lines, {comp} component: targets {spacing:.0} µm apart over {span:.0} µm cannot resolve a periodic error (no period between {:.0} and {:.0} µm): cyclic error is not searched",
                     2.0 * spacing,
