@@ -164,8 +164,17 @@ pub fn run(args: Args) -> CliResult {
     j["model_out"] = json!(model_out.display().to_string());
     j["data_format"] = json!(match format {
         data::Format::Campaign => "campaign",
-        data::Format::Iso230 => "iso230",
+        data::Format::Iso230 { .. } => "iso230",
     });
+    if format == (data::Format::Iso230 { timed: false }) {
+        let note = "no `time_s` column: time is the row order, 1 s per row (drift rates are per 3600 rows)";
+        if let Some(n) = j["notes"].as_array_mut() {
+            n.push(json!(note));
+        }
+        if !args.json {
+            println!("note: {note}");
+        }
+    }
     j["iso230"] = json!(iso
         .iter()
         .map(|(a, st, f)| json!({"axis": a.as_str(), "static_um": st, "figures": f}))
@@ -176,7 +185,7 @@ pub fn run(args: Args) -> CliResult {
     if args.json {
         println!("{j}");
     } else {
-        if format == data::Format::Iso230 {
+        if matches!(format, data::Format::Iso230 { .. }) {
             for (a, st, f) in &iso {
                 println!("{}", gap::describe_iso230(*a, *st, f));
             }

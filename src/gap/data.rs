@@ -103,8 +103,8 @@ pub const ISO_OPTIONAL: [&str; 3] = ["axis", "static_um", "time_s"];
 pub enum Format {
     /// The line-campaign format ([`HEADER`]).
     Campaign,
-    /// The ISO 230-2 export ([`ISO_HEADER`]).
-    Iso230,
+    /// The ISO 230-2 export ([`ISO_HEADER`]); `timed`: it has a `time_s` column.
+    Iso230 { timed: bool },
 }
 
 fn header_names(header: &str) -> Vec<String> {
@@ -118,7 +118,8 @@ fn header_names(header: &str) -> Vec<String> {
 pub fn parse_any(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>, Format), String> {
     let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
     if header_names(first).iter().any(|n| n == "deviation_um") {
-        parse_iso_lines(origin, text).map(|(s, l)| (s, l, Format::Iso230))
+        let timed = header_names(first).iter().any(|n| n == "time_s");
+        parse_iso_lines(origin, text).map(|(s, l)| (s, l, Format::Iso230 { timed }))
     } else {
         parse_csv_lines(origin, text).map(|(s, l)| (s, l, Format::Campaign))
     }
@@ -427,7 +428,9 @@ pub fn read_any(path: &Path) -> Result<(Vec<Sample>, Vec<usize>, Format), String
             path.display()
         ));
     }
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    // Bounded like every samples file: a huge file is refused, not read into memory.
+    let text = crate::tomlpos::read_bounded(path, crate::samples::MAX_SAMPLES_BYTES)
+        .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
     parse_any(&path.display().to_string(), &text)
 }
 
