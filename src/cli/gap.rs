@@ -17,8 +17,10 @@ pub struct Args {
     /// The simulator's stage model (TOML with [[effect]] tables).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Measured data: a campaign CSV (run,axis,direction,target_x_um,target_y_um,time_s,meas_x_um,meas_y_um),
-    /// or the id of a campaign in the store (`--db`); its run = 2·cycle + 0 for CS, 1 for the full scan.
+    /// Measured data: a campaign CSV (run,axis,direction,target_x_um,target_y_um,time_s,meas_x_um,meas_y_um;
+    /// an unmeasured component left empty), an ISO 230-2 export (cycle,direction,target_um,deviation_um
+    /// [,axis,static_um,time_s]; told apart by its header), or the id of a campaign in the store
+    /// (`--db`); its run = 2·cycle + 0 for CS, 1 for the full scan.
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// Store that `--data ID` reads.
@@ -113,18 +115,18 @@ pub fn run(args: Args) -> CliResult {
         .to_str()
         .and_then(|t| t.parse::<i64>().ok())
         .filter(|_| !data_path.exists());
-    let samples = match stored_id {
+    let (samples, format) = match stored_id {
         Some(id) => {
             let s = stored_samples(&args.db, id)?;
             data::check_travel(&format!("campaign {id}"), &s, None, &model)
                 .map_err(CliError::input)?;
-            s
+            (s, data::Format::Campaign)
         }
         None => {
-            let (s, lines) = data::read_csv_lines(&data_path).map_err(CliError::input)?;
+            let (s, lines, format) = data::read_any(&data_path).map_err(CliError::input)?;
             data::check_travel(&data_path.display().to_string(), &s, Some(&lines), &model)
                 .map_err(CliError::input)?;
-            s
+            (s, format)
         }
     };
     let mut opts = gap::Options {
@@ -157,14 +159,37 @@ pub fn run(args: Args) -> CliResult {
     );
     std::fs::write(&model_out, header + &d.model.to_toml_string())
         .map_err(|e| CliError::failure(format!("{}: {e}", model_out.display())))?;
+    let iso = gap::iso230_figures(&samples);
     let mut j = d.to_json();
     j["model_out"] = json!(model_out.display().to_string());
+    j["data_format"] = json!(match format {
+        data::Format::Campaign => "campaign",
+        data::Format::Iso230 { .. } => "iso230",
+    });
+    if format == (data::Format::Iso230 { timed: false }) {
+        let note = "no `time_s` column: time is the row order, 1 s per row (drift rates are per 3600 rows)";
+        if let Some(n) = j["notes"].as_array_mut() {
+            n.push(json!(note));
+        }
+        if !args.json {
+            println!("note: {note}");
+        }
+    }
+    j["iso230"] = json!(iso
+        .iter()
+        .map(|(a, st, f)| json!({"axis": a.as_str(), "static_um": st, "figures": f}))
+        .collect::<Vec<_>>());
     let json_out = args.out.join("gap.json");
     std::fs::write(&json_out, format!("{j:#}\n"))
         .map_err(|e| CliError::failure(format!("{}: {e}", json_out.display())))?;
     if args.json {
         println!("{j}");
     } else {
+        if matches!(format, data::Format::Iso230 { .. }) {
+            for (a, st, f) in &iso {
+                println!("{}", gap::describe_iso230(*a, *st, f));
+            }
+        }
         print!("{}", d.summary());
         println!("updated model: {}", model_out.display());
     }

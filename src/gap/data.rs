@@ -34,6 +34,7 @@ pub struct Sample {
     pub target_y_um: f64,
     /// Seconds since the start of the data.
     pub time_s: f64,
+    /// Measured position, µm; NaN when that component was not measured (an empty CSV field).
     pub meas_x_um: f64,
     pub meas_y_um: f64,
 }
@@ -86,6 +87,161 @@ impl Sample {
             AxisId::Y => self.meas_y_um,
         }
     }
+}
+
+/// The ISO 230-2 export header: one row per (cycle, direction, target) with the deviation, as a
+/// laser interferometer or a one-axis sensor run gives it. Required columns (any order):
+/// `cycle` (the repeated cycle, >= 0; each cycle is one run and one line), `direction`
+/// (forward/backward, up/down or +1/-1), `target_um` and `deviation_um` (measured - target).
+/// Optional: `axis` (x or y, default x), `static_um` (position of the other axis, default 0) and
+/// `time_s` (default: the row order, 1 s apart).
+pub const ISO_HEADER: [&str; 4] = ["cycle", "direction", "target_um", "deviation_um"];
+pub const ISO_OPTIONAL: [&str; 3] = ["axis", "static_um", "time_s"];
+
+/// Which of the two accepted CSV formats a file is in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    /// The line-campaign format ([`HEADER`]).
+    Campaign,
+    /// The ISO 230-2 export ([`ISO_HEADER`]); `timed`: it has a `time_s` column.
+    Iso230 { timed: bool },
+}
+
+fn header_names(header: &str) -> Vec<String> {
+    header
+        .split(',')
+        .map(|s| s.trim().trim_start_matches('\u{feff}').to_ascii_lowercase())
+        .collect()
+}
+
+/// Parses either format, told apart by the header (`deviation_um` makes it an ISO 230-2 export).
+pub fn parse_any(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>, Format), String> {
+    let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
+    if header_names(first).iter().any(|n| n == "deviation_um") {
+        let timed = header_names(first).iter().any(|n| n == "time_s");
+        parse_iso_lines(origin, text).map(|(s, l)| (s, l, Format::Iso230 { timed }))
+    } else {
+        parse_csv_lines(origin, text).map(|(s, l)| (s, l, Format::Campaign))
+    }
+}
+
+fn parse_direction(origin: &str, ln: usize, v: &str) -> Result<f64, String> {
+    match v.to_ascii_lowercase().as_str() {
+        "forward" | "+1" | "1" | "up" => Ok(1.0),
+        "backward" | "-1" | "down" => Ok(-1.0),
+        s => Err(format!(
+            "{origin}:{ln}: `direction` = {s:?} must be forward or backward"
+        )),
+    }
+}
+
+/// Parses an ISO 230-2 export ([`ISO_HEADER`]): the moving axis' measured position is target +
+/// deviation, the other component is unmeasured.
+pub fn parse_iso_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>), String> {
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines
+        .next()
+        .ok_or_else(|| format!("{origin}: empty file"))?;
+    let names = header_names(header);
+    let col = |h: &str| names.iter().position(|n| n == h);
+    let missing: Vec<&str> = ISO_HEADER
+        .iter()
+        .filter(|h| col(h).is_none())
+        .copied()
+        .collect();
+    if !missing.is_empty() {
+        return Err(format!(
+            "{origin}:1: missing column(s) {} (an ISO 230-2 export needs {}; optional {})",
+            missing.join(", "),
+            ISO_HEADER.join(","),
+            ISO_OPTIONAL.join(",")
+        ));
+    }
+    let [c_cycle, c_dir, c_target, c_dev] = ISO_HEADER.map(|h| col(h).unwrap_or(0));
+    let (c_axis, c_static, c_time) = (col("axis"), col("static_um"), col("time_s"));
+    let mut out = Vec::new();
+    let mut at = Vec::new();
+    let mut seen: HashMap<(i64, AxisId, bool, [u64; 3]), usize> = HashMap::new();
+    for (k, (i, line)) in lines.enumerate() {
+        let ln = i + 1;
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if f.len() != names.len() {
+            return Err(format!(
+                "{origin}:{ln}: {} fields, header has {}",
+                f.len(),
+                names.len()
+            ));
+        }
+        let num = |c: usize, name: &str| -> Result<f64, String> {
+            let s = f[c];
+            let v: f64 = s
+                .parse()
+                .map_err(|_| format!("{origin}:{ln}: `{name}` = {s:?} is not a number"))?;
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(format!("{origin}:{ln}: `{name}` is {s} (must be finite)"))
+            }
+        };
+        let cycle: i64 = f[c_cycle].parse().map_err(|_| {
+            format!(
+                "{origin}:{ln}: `cycle` = {:?} is not an integer",
+                f[c_cycle]
+            )
+        })?;
+        if cycle < 0 {
+            return Err(format!("{origin}:{ln}: `cycle` = {cycle} is negative"));
+        }
+        let moving = match c_axis {
+            Some(c) => AxisId::parse(f[c])
+                .ok_or_else(|| format!("{origin}:{ln}: `axis` = {:?} must be x or y", f[c]))?,
+            None => AxisId::X,
+        };
+        let direction = parse_direction(origin, ln, f[c_dir])?;
+        let target = num(c_target, "target_um")?;
+        let dev = num(c_dev, "deviation_um")?;
+        let stat = match c_static {
+            Some(c) => num(c, "static_um")?,
+            None => 0.0,
+        };
+        let time_s = match c_time {
+            Some(c) => num(c, "time_s")?,
+            None => k as f64,
+        };
+        let (tx, ty) = match moving {
+            AxisId::X => (target, stat),
+            AxisId::Y => (stat, target),
+        };
+        let meas = target + dev;
+        let sample = Sample {
+            run: cycle,
+            moving,
+            direction,
+            target_x_um: tx,
+            target_y_um: ty,
+            time_s,
+            meas_x_um: if moving == AxisId::X { meas } else { f64::NAN },
+            meas_y_um: if moving == AxisId::Y { meas } else { f64::NAN },
+        };
+        let bits = |v: f64| (v + 0.0).to_bits();
+        // Without a time column one row per (cycle, axis, direction, target) is all there is.
+        let t_key = if c_time.is_some() { bits(time_s) } else { 0 };
+        let key = (cycle, moving, direction > 0.0, [bits(tx), bits(ty), t_key]);
+        if let Some(first) = seen.insert(key, ln) {
+            return Err(format!(
+                "{origin}:{ln}: duplicate row: same cycle, axis, direction and target as line {first}"
+            ));
+        }
+        out.push(sample);
+        at.push(ln);
+    }
+    if out.is_empty() {
+        return Err(format!("{origin}: no data rows"));
+    }
+    Ok((out, at))
 }
 
 /// Parses campaign CSV text; errors are one line and name `origin` and the line number.
@@ -157,6 +313,14 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
                 ))
             }
         };
+        // A component the sensor does not measure is left empty.
+        let meas = |k: usize| -> Result<f64, String> {
+            if f[idx[k]].is_empty() {
+                Ok(f64::NAN)
+            } else {
+                num(k)
+            }
+        };
         let run_s = f[idx[0]];
         let run: i64 = run_s
             .parse()
@@ -184,9 +348,14 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
             target_x_um: num(3)?,
             target_y_um: num(4)?,
             time_s: num(5)?,
-            meas_x_um: num(6)?,
-            meas_y_um: num(7)?,
+            meas_x_um: meas(6)?,
+            meas_y_um: meas(7)?,
         };
+        if sample.meas_x_um.is_nan() && sample.meas_y_um.is_nan() {
+            return Err(format!(
+                "{origin}:{ln}: `meas_x_um` and `meas_y_um` are both empty (a row needs at least one measured component)"
+            ));
+        }
         // `+ 0.0` makes -0 and 0 one key.
         let bits = |v: f64| (v + 0.0).to_bits();
         let key = (
@@ -248,23 +417,37 @@ pub fn read_csv(path: &Path) -> Result<Vec<Sample>, String> {
 
 /// Same as [`read_csv`], with the file line of every sample.
 pub fn read_csv_lines(path: &Path) -> Result<(Vec<Sample>, Vec<usize>), String> {
+    read_any(path).map(|(s, l, _)| (s, l))
+}
+
+/// Reads a data file in either format (auto-detected from the header).
+pub fn read_any(path: &Path) -> Result<(Vec<Sample>, Vec<usize>, Format), String> {
     if !path.is_file() {
         return Err(format!(
             "{}: not a file (only DATA.csv files are accepted for now: campaign storage does not exist yet, so campaign ids cannot be resolved)",
             path.display()
         ));
     }
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    parse_csv_lines(&path.display().to_string(), &text)
+    // Bounded like every samples file: a huge file is refused, not read into memory.
+    let text = crate::tomlpos::read_bounded(path, crate::samples::MAX_SAMPLES_BYTES)
+        .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    parse_any(&path.display().to_string(), &text)
 }
 
 pub fn to_csv_string(samples: &[Sample]) -> String {
     let mut s = HEADER.join(",");
     s.push('\n');
+    let m = |v: f64| {
+        if v.is_finite() {
+            format!("{v:.6}")
+        } else {
+            String::new()
+        }
+    };
     for x in samples {
         let _ = writeln!(
             s,
-            "{},{},{},{:.3},{:.3},{:.3},{:.6},{:.6}",
+            "{},{},{},{:.3},{:.3},{:.3},{},{}",
             x.run,
             x.moving,
             if x.direction > 0.0 {
@@ -275,8 +458,8 @@ pub fn to_csv_string(samples: &[Sample]) -> String {
             x.target_x_um,
             x.target_y_um,
             x.time_s,
-            x.meas_x_um,
-            x.meas_y_um
+            m(x.meas_x_um),
+            m(x.meas_y_um)
         );
     }
     s

@@ -9,7 +9,7 @@ use nalgebra::{DMatrix, DVector};
 use super::candidates::Group;
 use super::Sample;
 
-/// Row layout: two rows (x, y components) per sample.
+/// Row layout: one row per measured component (x, y) of each sample.
 pub(super) struct Rows {
     pub(super) n: usize,
     /// Line-demeaned baseline residual.
@@ -20,6 +20,8 @@ pub(super) struct Rows {
     /// (line, component) group for demeaning.
     pub(super) lc: Vec<usize>,
     pub(super) n_lc: usize,
+    /// (line, component) groups that hold rows: the offsets actually fitted.
+    pub(super) n_lc_used: usize,
     /// Cell: (moving axis, static position, component, direction, target), repeated over runs.
     pub(super) cell: Vec<usize>,
     pub(super) n_cells: usize,
@@ -33,6 +35,8 @@ pub(super) struct Rows {
     pub(super) n_lines: usize,
     /// Position block (quarter of the moving axis' travel) of each row, for the position CV.
     pub(super) block: Vec<usize>,
+    /// Mean baseline residual of each (line, component) group before demeaning: the line offsets.
+    pub(super) lc_mean: Vec<f64>,
 }
 
 /// Position blocks for the position cross-validation gate.
@@ -71,6 +75,7 @@ impl Rows {
             sample: Vec::new(),
             lc: Vec::new(),
             n_lc: 0,
+            n_lc_used: 0,
             cell: Vec::new(),
             n_cells: 0,
             cell_group: Vec::new(),
@@ -80,6 +85,7 @@ impl Rows {
             n_runs: 0,
             n_lines: 0,
             block: Vec::new(),
+            lc_mean: Vec::new(),
         };
         for (i, s) in samples.iter().enumerate() {
             let st = key_um(s.target(s.moving.other()));
@@ -95,6 +101,11 @@ impl Rows {
             let block =
                 (((u + 1.0) / 2.0 * BLOCKS as f64).floor().max(0.0) as usize).min(BLOCKS - 1);
             for comp in [AxisId::X, AxisId::Y] {
+                // An unmeasured component (a one-axis sensor) is no data: it enters no fit,
+                // no σ and no RMS.
+                if !s.meas(comp).is_finite() {
+                    continue;
+                }
                 r.block.push(block);
                 let pred = match comp {
                     AxisId::X => px,
@@ -129,6 +140,9 @@ impl Rows {
         r.n = r.y.len();
         r.n_lines = line_ids.len();
         r.n_lc = 2 * r.n_lines;
+        let mut used = vec![false; r.n_lc];
+        r.lc.iter().for_each(|&g| used[g] = true);
+        r.n_lc_used = used.iter().filter(|u| **u).count();
         r.n_cells = cell_ids.len();
         r.cell_group = cell_group;
         r.n_cell_groups = cg_ids.len();
@@ -136,7 +150,19 @@ impl Rows {
         r.line_run = line_run;
         r.n_runs = run_ids.len();
         let (lc, n_lc) = (r.lc.clone(), r.n_lc);
+        let raw = r.y.clone();
         demean(&mut r.y, &lc, n_lc);
+        let mut lc_mean = vec![0.0; n_lc];
+        let mut cnt = vec![0usize; n_lc];
+        for (i, &g) in lc.iter().enumerate() {
+            lc_mean[g] += raw[i];
+            cnt[g] += 1;
+        }
+        r.lc_mean = lc_mean
+            .iter()
+            .zip(&cnt)
+            .map(|(s, &n)| if n > 0 { s / n as f64 } else { f64::NAN })
+            .collect();
         r
     }
 }
@@ -166,6 +192,10 @@ pub(super) struct Design {
     /// Demeaned, scaled columns.
     pub(super) cols: Vec<Vec<f64>>,
     pub(super) dof: f64,
+    /// Lines on which each column varies (a column constant on a line is its offset there).
+    pub(super) col_lines: Vec<Vec<bool>>,
+    /// Rows per (line, position block) unit.
+    pub(super) unit_rows: Vec<usize>,
 }
 
 pub(super) fn add_to(a: &mut [f64], b: &[f64]) {
@@ -236,7 +266,21 @@ impl Design {
             add_to(&mut gt, &gr[r]);
             add_to(&mut bt, &br[r]);
         }
+        let mut col_lines = vec![vec![false; rows.n_lines]; p];
+        for (j, c) in cols.iter().enumerate() {
+            for (i, v) in c.iter().enumerate() {
+                if v.abs() > 1e-9 {
+                    col_lines[j][rows.line[i]] = true;
+                }
+            }
+        }
+        let mut unit_rows = vec![0usize; nu];
+        for i in 0..rows.n {
+            unit_rows[rows.line[i] * BLOCKS + rows.block[i]] += 1;
+        }
         Design {
+            unit_rows,
+            col_lines,
             p,
             gl,
             bl,
@@ -253,7 +297,7 @@ impl Design {
             bk,
             scale,
             cols,
-            dof: (rows.n - rows.n_lc) as f64,
+            dof: rows.n.saturating_sub(rows.n_lc_used) as f64,
         }
     }
 
@@ -295,6 +339,21 @@ impl Design {
             rms: (total.max(0.0) / self.dof.max(1.0)).sqrt(),
             sse,
         }
+    }
+
+    /// Lines on which any of `new` columns varies.
+    pub(super) fn line_mask(&self, new: &[usize]) -> Vec<bool> {
+        let n = self.col_lines.first().map_or(0, Vec::len);
+        (0..n)
+            .map(|l| new.iter().any(|&j| self.col_lines[j][l]))
+            .collect()
+    }
+
+    /// (line, block) units with rows on lines in `lines`.
+    pub(super) fn unit_mask(&self, lines: &[bool]) -> Vec<bool> {
+        (0..self.unit_rows.len())
+            .map(|u| self.unit_rows[u] > 0 && lines[u / BLOCKS])
+            .collect()
     }
 
     pub(super) fn sub(&self, g: &[f64], b: &[f64], s: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
@@ -373,7 +432,21 @@ pub(super) struct Cv {
 
 /// Paired t of (a - b) over held-out lines: > 0 when b is better.
 pub(super) fn paired_t(a: &Cv, b: &Cv) -> f64 {
-    let d: Vec<f64> = a.sse.iter().zip(&b.sse).map(|(x, y)| x - y).collect();
+    paired_t_on(a, b, None)
+}
+
+/// Paired t over the held-out units in `mask` only: the units a candidate cannot change (lines
+/// its columns are constant on) would only dilute the mean (an effect seen on the one y line of
+/// four lines per run could never reach t = 3 however strong).
+pub(super) fn paired_t_on(a: &Cv, b: &Cv, mask: Option<&[bool]>) -> f64 {
+    let d: Vec<f64> = a
+        .sse
+        .iter()
+        .zip(&b.sse)
+        .enumerate()
+        .filter(|(i, _)| mask.is_none_or(|m| m[*i]))
+        .map(|(_, (x, y))| x - y)
+        .collect();
     let n = d.len() as f64;
     if n < 2.0 {
         return 0.0;

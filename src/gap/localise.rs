@@ -277,16 +277,30 @@ pub(super) fn other_axis_map(
         .collect()
 }
 
+/// Median spacing of the distinct target positions, µm (the sampling the design has).
+pub(super) fn typical_spacing(mut pos: Vec<f64>) -> Option<f64> {
+    pos.sort_by(f64::total_cmp);
+    pos.dedup_by(|a, b| (*a - *b).abs() < 1e-3);
+    let mut gaps: Vec<f64> = pos.windows(2).map(|w| w[1] - w[0]).collect();
+    if gaps.is_empty() {
+        return None;
+    }
+    gaps.sort_by(f64::total_cmp);
+    Some(gaps[gaps.len() / 2])
+}
+
 /// Frequency map: Lomb–Scargle-style least-squares periodogram of the cell means (non-uniform
 /// targets) per moving axis and component, both directions together; peaks with a false-alarm
-/// probability under 1 %.
+/// probability under 1 %. Only periods the sampling resolves are searched: at least two periods
+/// over the measured span (a longer one is a trend, not a cycle) and more than twice the typical
+/// target spacing (a shorter one aliases); a near-singular sine/cosine pair is skipped. Returns
+/// the peaks and what could not be searched.
 pub(super) fn frequency_map(
     samples: &[Sample],
-    model: &StageModel,
     rows: &Rows,
     cs: &CellStats,
     sigma2: f64,
-) -> Vec<Peak> {
+) -> (Vec<Peak>, Vec<String>) {
     let mut cell_row = vec![usize::MAX; rows.n_cells];
     for i in 0..rows.n {
         if cell_row[rows.cell[i]] == usize::MAX {
@@ -294,10 +308,11 @@ pub(super) fn frequency_map(
         }
     }
     let mut out = Vec::new();
+    let mut notes = Vec::new();
     for a in [AxisId::X, AxisId::Y] {
         for comp in [AxisId::X, AxisId::Y] {
-            // (position, mean, n)
-            let pts: Vec<(f64, f64, f64)> = cell_row
+            // (position, mean, n, cell group)
+            let pts: Vec<(f64, f64, f64, usize)> = cell_row
                 .iter()
                 .enumerate()
                 .filter(|(_, &i)| i != usize::MAX)
@@ -307,22 +322,41 @@ pub(super) fn frequency_map(
                         samples[rows.sample[i]].target(a),
                         cs.mean[c],
                         cs.n[c] as f64,
+                        rows.cell_group[c],
                     )
                 })
                 .collect();
-            if pts.len() < 8 {
+            // A trend over the line is not a cycle: remove each line group's straight line
+            // first, so a scale or squareness does not show as a period as long as the travel.
+            let pts = detrend(pts);
+            if pts.is_empty() {
                 continue;
             }
-            let tr = model.travel(a);
-            let span = tr[1] - tr[0];
-            let (f0, df, fmax) = (1.0 / span, 0.5 / span, 1.0 / 12.0);
+            let Some(spacing) = typical_spacing(pts.iter().map(|p| p.0).collect()) else {
+                continue;
+            };
+            let lo = pts.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
+            let hi = pts.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
+            let span = hi - lo;
+            // Oversampled grid (a peak falls between independent frequencies); the false-alarm
+            // probability counts the independent ones.
+            let (f0, df, fmax) = (2.0 / span, 0.05 / span, (1.0 / 12.0f64).min(0.5 / spacing));
+            if pts.len() < 8 || fmax.partial_cmp(&f0) != Some(std::cmp::Ordering::Greater) {
+                notes.push(format!(
+                    "{a} lines, {comp} component: targets {spacing:.0} µm apart over {span:.0} µm cannot resolve a periodic error (no period between {:.0} and {:.0} µm): cyclic error is not searched",
+                    2.0 * spacing,
+                    span / 2.0
+                ));
+                continue;
+            }
             let m = ((fmax - f0) / df).floor() as usize;
+            let ymax = pts.iter().map(|p| p.1.abs()).fold(0.0f64, f64::max);
             let mut best = (0.0, 0.0, 0.0);
             for k in 0..=m {
                 let f = f0 + k as f64 * df;
                 let w = 2.0 * std::f64::consts::PI * f;
                 let (mut cc, mut ss, mut cs_, mut yc, mut ys) = (0.0, 0.0, 0.0, 0.0, 0.0);
-                for &(p, y, n) in &pts {
+                for &(p, y, n, _) in &pts {
                     let (sn, cn) = (w * p).sin_cos();
                     cc += n * cn * cn;
                     ss += n * sn * sn;
@@ -331,17 +365,23 @@ pub(super) fn frequency_map(
                     ys += n * y * sn;
                 }
                 let det = cc * ss - cs_ * cs_;
-                if det <= 1e-9 * cc * ss {
+                // Sine and cosine nearly parallel on these targets: the fit is singular.
+                if det <= 0.05 * cc * ss {
                     continue;
                 }
                 let ca = (ss * yc - cs_ * ys) / det;
                 let sa = (cc * ys - cs_ * yc) / det;
+                // An amplitude beyond the data's own is an ill-conditioned fit, not a cycle.
+                if ca.hypot(sa) > 2.0 * ymax {
+                    continue;
+                }
                 let red = (ca * yc + sa * ys) / sigma2;
                 if red > best.0 {
                     best = (red, 1.0 / f, ca.hypot(sa));
                 }
             }
-            let fap = ((m + 1) as f64 * (-best.0 / 2.0).exp()).min(1.0);
+            let independent = ((fmax - f0) * span).max(1.0);
+            let fap = (independent * (-best.0 / 2.0).exp()).min(1.0);
             if fap < 0.01 {
                 out.push(Peak {
                     axis: a,
@@ -353,5 +393,68 @@ pub(super) fn frequency_map(
             }
         }
     }
-    out
+    (out, notes)
+}
+
+/// Removes a weighted straight line per group from (position, value, weight, group) points.
+fn detrend(mut pts: Vec<(f64, f64, f64, usize)>) -> Vec<(f64, f64, f64, usize)> {
+    let ng = pts.iter().map(|p| p.3 + 1).max().unwrap_or(0);
+    // Σw, Σw·p, Σw·y, Σw·p², Σw·p·y
+    let mut acc = vec![[0.0f64; 5]; ng];
+    for &(p, y, w, g) in &pts {
+        let a = &mut acc[g];
+        a[0] += w;
+        a[1] += w * p;
+        a[2] += w * y;
+        a[3] += w * p * p;
+        a[4] += w * p * y;
+    }
+    for pt in pts.iter_mut() {
+        let a = acc[pt.3];
+        if a[0] <= 0.0 {
+            continue;
+        }
+        let (mp, my) = (a[1] / a[0], a[2] / a[0]);
+        let spp = a[3] - a[0] * mp * mp;
+        let spy = a[4] - a[0] * mp * my;
+        let slope = if spp > 1e-9 * a[3].max(1e-300) {
+            spy / spp
+        } else {
+            0.0
+        };
+        pt.1 -= my + slope * (pt.0 - mp);
+    }
+    pts
+}
+
+/// Within-run noise σ² from successive differences in time (von Neumann) of the pure-error
+/// residual within each line and component: a drift or any slow change in time cancels in the
+/// difference of neighbours seconds apart, so this is the noise even when repeats drift.
+/// `None` with fewer than 10 neighbour pairs.
+pub(super) fn within_run_sigma2(
+    samples: &[Sample],
+    rows: &Rows,
+    e: &[f64],
+    cs: &CellStats,
+) -> Option<f64> {
+    let mut idx: Vec<usize> = (0..rows.n).collect();
+    idx.sort_by(|&a, &b| {
+        rows.lc[a].cmp(&rows.lc[b]).then(
+            samples[rows.sample[a]]
+                .time_s
+                .total_cmp(&samples[rows.sample[b]].time_s),
+        )
+    });
+    let (mut ss, mut m) = (0.0, 0usize);
+    for w in idx.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        if rows.lc[a] != rows.lc[b] {
+            continue;
+        }
+        let ra = e[a] - cs.mean[rows.cell[a]];
+        let rb = e[b] - cs.mean[rows.cell[b]];
+        ss += (rb - ra).powi(2);
+        m += 1;
+    }
+    (m >= 10).then(|| ss / (2.0 * m as f64))
 }

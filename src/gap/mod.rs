@@ -11,18 +11,23 @@
 //! linear in their parameters once their structure is fixed (period, travel, offset, τ), so each
 //! group's columns are `effect_deviation` of unit-parameter effects. Groups are added greedily,
 //! scored by the held-out RMS of leave-one-run-out cross-validation (held-out line offsets refit
-//! on the held-out line), accepted only by a paired t-test over held-out lines. Repeatability
-//! (pure error over repeated runs) gives σ; lack of fit and time structure against σ say whether
-//! something remains unexplained and where.
+//! on the held-out line). A group is accepted when the nested model comparison (F test against
+//! the larger model's residual) is significant, the held-out runs improve, held-out parts of
+//! the travel improve too, and it explains a fair share of the structure left beyond the
+//! within-run noise (a partial fit of something outside the library does not). Repeatability
+//! (pure error over repeated runs, or what a drift in time leaves of it) gives σ; lack of fit and
+//! time structure against σ say whether something remains unexplained and where. A component
+//! left unmeasured (NaN) on a sample gives no row at all.
 mod candidates;
 pub mod data;
 mod design;
+pub mod drift;
 mod localise;
 mod report;
 mod search;
 pub mod selftest;
 
-use csmetro_sim::StageModel;
+use csmetro_sim::{AxisId, StageModel};
 
 pub use data::Sample;
 use design::Rows;
@@ -41,8 +46,14 @@ pub struct Options {
     pub leadscrew_harmonics: usize,
     /// τ grid for `thermal_drift`, s.
     pub tau_grid_s: Vec<f64>,
-    /// Paired t over held-out lines needed to accept a group.
+    /// Paired t over held-out lines needed to accept a group (no longer a gate: reported only).
     pub t_accept: f64,
+    /// z of the nested-model F test a group needs.
+    pub z_accept: f64,
+    /// Share of its held-out-run gain a group must keep on held-out parts of the travel.
+    pub block_share: f64,
+    /// Share of the remaining structure (in-sample, beyond repeatability) a group must explain.
+    pub min_share: f64,
     /// Paired t over (line, position block) units the position cross-validation must also show.
     pub t_block: f64,
     /// Paired t under which two candidates are a tie (not told apart by held-out data).
@@ -68,6 +79,9 @@ impl Default for Options {
             leadscrew_harmonics: 3,
             tau_grid_s: vec![300.0, 600.0, 1200.0, 2400.0, 4800.0, 9600.0],
             t_accept: 3.0,
+            z_accept: 5.0,
+            block_share: 0.5,
+            min_share: 0.5,
             t_block: 2.0,
             t_tie: 2.0,
             span_tie: 0.1,
@@ -96,7 +110,64 @@ impl std::fmt::Display for GapError {
 pub fn residual_rms_um(model: &StageModel, samples: &[Sample]) -> f64 {
     let rows = Rows::build(samples, model);
     let ss: f64 = rows.y.iter().map(|v| v * v).sum();
-    (ss / (rows.n - rows.n_lc).max(1) as f64).sqrt()
+    (ss / rows.n.saturating_sub(rows.n_lc_used).max(1) as f64).sqrt()
+}
+
+/// ISO 230-2 figures of every measured line group (moving axis, static position) from the
+/// deviations of the moving axis' component (measured - target), µm. Groups whose moving
+/// component is never measured are left out.
+pub fn iso230_figures(samples: &[Sample]) -> Vec<(AxisId, f64, crate::iso230::Iso230Summary)> {
+    use std::collections::BTreeMap;
+    let mut groups: BTreeMap<(AxisId, i64), (f64, Vec<crate::iso230::Approach>)> = BTreeMap::new();
+    for s in samples {
+        let a = s.moving;
+        let dev = s.meas(a) - s.target(a);
+        if !dev.is_finite() {
+            continue;
+        }
+        let st = s.target(a.other());
+        groups
+            .entry((a, design::key_um(st)))
+            .or_insert((st, Vec::new()))
+            .1
+            .push(crate::iso230::Approach {
+                target_um: s.target(a),
+                forward: s.direction > 0.0,
+                deviation_um: dev,
+            });
+    }
+    groups
+        .into_iter()
+        .filter_map(|((a, _), (st, ap))| {
+            crate::iso230::evaluate(&ap, 0.01).map(|mut f| {
+                f.rows.clear();
+                (a, st, f)
+            })
+        })
+        .collect()
+}
+
+/// One text line of ISO 230-2 figures, µm.
+pub fn describe_iso230(axis: AxisId, static_um: f64, f: &crate::iso230::Iso230Summary) -> String {
+    let o = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
+    format!(
+        "ISO 230-2, {axis} axis at {} = {static_um:.0} µm ({} targets, ≥ {} approaches): A {:.3} (↑ {}, ↓ {}), B {} (B̄ {}), E {:.3} (↑ {}, ↓ {}), M {}, R {} (↑ {}, ↓ {}) µm",
+        axis.other(),
+        f.targets,
+        f.min_approaches,
+        f.a_um,
+        o(f.a_up_um),
+        o(f.a_down_um),
+        o(f.b_um),
+        o(f.b_mean_um),
+        f.e_um,
+        o(f.e_up_um),
+        o(f.e_down_um),
+        o(f.m_um),
+        o(f.r_um),
+        o(f.r_up_um),
+        o(f.r_down_um),
+    )
 }
 
 #[cfg(test)]

@@ -137,6 +137,14 @@ pub struct Diagnosis {
     pub unexplained: Unexplained,
     pub model: StageModel,
     pub candidates: Vec<String>,
+    /// What the data cannot tell: too few runs, unresolvable periods, ties, unmeasured components.
+    pub notes: Vec<String>,
+    /// Drift in time against the noise left once it is removed.
+    pub drift: super::drift::Drift,
+}
+
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
 }
 
 pub(super) fn toml_to_json(v: &toml::Value) -> Json {
@@ -244,6 +252,21 @@ impl Diagnosis {
                 "frequency": self.unexplained.frequency.iter().map(Peak::to_json).collect::<Vec<_>>(),
             },
             "candidates": self.candidates,
+            "notes": self.notes,
+            "drift": {
+                "significant": self.drift.significant,
+                "z": self.drift.z,
+                "rate_um_per_h": {
+                    "x": finite(self.drift.rate_mid_um_per_h[0]),
+                    "y": finite(self.drift.rate_mid_um_per_h[1]),
+                },
+                "rate_at_travel_ends_um_per_h": {
+                    "x": self.drift.rate_ends_um_per_h[0].map(finite),
+                    "y": self.drift.rate_ends_um_per_h[1].map(finite),
+                },
+                "line_offset_rate_um_per_h": finite(self.drift.offset_rate_um_per_h),
+                "line_offset_z": finite(self.drift.offset_z),
+            },
         })
     }
 
@@ -319,6 +342,9 @@ impl Diagnosis {
                     .collect();
                 let _ = writeln!(s, "   tie, the data cannot tell apart: {}", t.join("; "));
             }
+        }
+        for n in &self.notes {
+            let _ = writeln!(s, "note: {n}");
         }
         if self.unexplained.significant {
             let _ = writeln!(

@@ -1,13 +1,17 @@
 //! The search: greedy forward selection of candidate groups scored by leave-one-run-out
-//! cross-validation, gated by position cross-validation and a paired t-test, with ties.
+//! cross-validation, accepted by a nested-model F test, held-out runs and held-out positions,
+//! with ties.
 use std::collections::HashMap;
 
 use csmetro_sim::{AxisId, Effect, StageModel};
 use nalgebra::{DMatrix, DVector};
 
 use super::candidates::{candidate_groups, generalises, merge_into, Group};
-use super::design::{build_columns, paired_t, solve, union, Cv, Design, Rows};
-use super::localise::{cell_stats, chi2_z, frequency_map, other_axis_map, where_maps};
+use super::design::{build_columns, paired_t, paired_t_on, solve, union, Cv, Design, Rows};
+use super::drift::drift_test;
+use super::localise::{
+    cell_stats, chi2_z, frequency_map, other_axis_map, where_maps, within_run_sigma2,
+};
 use super::report::{Added, Diagnosis, Tie, Unexplained};
 use super::{GapError, Options, Sample};
 
@@ -46,6 +50,34 @@ pub fn diagnose(
     have.sort();
     have.dedup();
     let mut groups = candidate_groups(model, &have, opts);
+    // A cyclic error of known period is identifiable from irregular targets even when they are
+    // far apart, but not from a handful: its 2h sine and cosine columns would then fit any
+    // smooth curve (an ISO 230-2 grid of 9 targets 5 mm apart). Needed: 4 distinct targets per
+    // coefficient, at least 12.
+    let mut cyclic_notes = Vec::new();
+    groups.retain(|g| {
+        let super::candidates::Spec::Cyclic { period_um, h, .. } = g.spec else {
+            return true;
+        };
+        let mut t: Vec<i64> = samples
+            .iter()
+            .filter(|s| s.moving == g.axis)
+            .map(|s| super::design::key_um(s.target(g.axis)))
+            .collect();
+        t.sort_unstable();
+        t.dedup();
+        let need = (4 * 2 * h).max(12);
+        if t.len() < need {
+            cyclic_notes.push(format!(
+                "{} {} (period {period_um:.2} µm) cannot be resolved: {} distinct targets on {} lines, {need} needed; not tried",
+                g.kind(),
+                g.axis,
+                t.len(),
+                g.axis
+            ));
+        }
+        t.len() >= need
+    });
     let (cols, scale) = build_columns(samples, model, &rows, &mut groups);
     groups.retain(|g| g.cols.iter().any(Option::is_some));
     let design = Design::new(&rows, cols, scale);
@@ -58,8 +90,25 @@ pub fn diagnose(
     let mut chosen: Vec<usize> = Vec::new();
     let mut steps: Vec<(f64, f64, Vec<Tie>)> = Vec::new();
     let mut used_families: Vec<String> = Vec::new();
+    let yy_total: f64 = design.yyl.iter().sum();
     for _ in 0..opts.max_steps {
         let cur_block = design.block_cv(&current);
+        let cur_ss = in_sample_ss(&design, yy_total, &current);
+        let e_cur = design.residual(&rows, &current, &design.fit(&current));
+        let pe = cell_stats(&rows, &e_cur, current.len());
+        // The noise part of the residual: from neighbours in time when there are enough (a
+        // drift in the repeats is structure to explain, not noise), else from the repeats.
+        let noise_s2 = within_run_sigma2(samples, &rows, &e_cur, &pe)
+            .or((pe.df_pe > 0.0).then(|| pe.ss_pe / pe.df_pe))
+            .unwrap_or(0.0);
+        let noise_ss = noise_s2 * (design.dof - current.len() as f64).max(0.0);
+        let cur = Current {
+            set: &current,
+            cv: &cur_cv,
+            block: &cur_block,
+            ss: cur_ss,
+            excess: cur_ss - noise_ss,
+        };
         let mut evals: Vec<(usize, Vec<usize>, Cv, f64)> = Vec::new();
         let mut gated: Vec<(usize, Cv, f64)> = Vec::new();
         for (gi, g) in groups.iter().enumerate() {
@@ -70,17 +119,17 @@ pub fn diagnose(
             if s.len() == current.len() {
                 continue;
             }
-            let cv = design.cv(&rows, &s);
-            let t = paired_t(&cur_cv, &cv);
-            // Gate: the group must also predict parts of the travel it was not fitted on.
-            if t > opts.t_accept && paired_t(&cur_block, &design.block_cv(&s)) <= opts.t_block {
-                gated.push((gi, cv, t));
+            let v = judge(&design, &rows, yy_total, &cur, &s, opts);
+            if !v.significant {
                 continue;
             }
-            evals.push((gi, s, cv, t));
+            if v.generalises {
+                evals.push((gi, s, v.cv, v.t));
+            } else {
+                gated.push((gi, v.cv, v.t));
+            }
         }
-        let sig: Vec<&(usize, Vec<usize>, Cv, f64)> =
-            evals.iter().filter(|e| e.3 > opts.t_accept).collect();
+        let sig: Vec<&(usize, Vec<usize>, Cv, f64)> = evals.iter().collect();
         let Some(best) = sig.iter().min_by(|a, b| a.2.rms.total_cmp(&b.2.rms)) else {
             // Two effects on the same lines can each fail the position gate alone (neither
             // extrapolates without the other): try pairs of the best gated candidates jointly.
@@ -96,13 +145,12 @@ pub fn diagnose(
                         &union(&current, &groups[*ga].col_set()),
                         &groups[*gb].col_set(),
                     );
-                    let cv = design.cv(&rows, &s2);
-                    let t = paired_t(&cur_cv, &cv);
-                    if t > opts.t_accept
-                        && paired_t(&cur_block, &design.block_cv(&s2)) > opts.t_block
-                        && best_pair.as_ref().is_none_or(|b| cv.rms < b.3.rms)
+                    let v = judge(&design, &rows, yy_total, &cur, &s2, opts);
+                    if v.significant
+                        && v.generalises
+                        && best_pair.as_ref().is_none_or(|b| v.cv.rms < b.3.rms)
                     {
-                        best_pair = Some((*ga, *gb, s2, cv, t));
+                        best_pair = Some((*ga, *gb, s2, v.cv, v.t));
                     }
                 }
             }
@@ -235,7 +283,11 @@ pub fn diagnose(
     let beta = design.fit(&current);
     let e = design.residual(&rows, &current, &beta);
     let cs = cell_stats(&rows, &e, current.len());
-    let (sigma2, from_repeats) = if cs.df_pe >= 5.0 && cs.ss_pe > 0.0 {
+    let drift = drift_test(samples, model, &rows, &e, &cs, opts.z_unexplained);
+    let (sigma2, from_repeats) = if drift.significant {
+        // Repeats that drift are not the noise: σ from what the drift leaves.
+        (drift.sigma2_rest, true)
+    } else if cs.df_pe >= 5.0 && cs.ss_pe > 0.0 {
         (cs.ss_pe / cs.df_pe, true)
     } else {
         (cur_cv.rms.powi(2).max(1e-18), false)
@@ -246,7 +298,8 @@ pub fn diagnose(
     let (where_before, _) = where_maps(samples, model, &rows, &rows.y, &cs0, sigma2, opts);
     let (where_after, time_z) = where_maps(samples, model, &rows, &e, &cs, sigma2, opts);
     let unexpl_rms = ((cs.ss_lof - cs.df_lof.max(0.0) * sigma2).max(0.0) / rows.n as f64).sqrt();
-    let significant = lof_z > opts.z_unexplained || time_z > opts.z_unexplained;
+    let significant =
+        lof_z > opts.z_unexplained || time_z > opts.z_unexplained || drift.significant;
 
     // Parameters: each column belongs to the first chosen group that has it.
     let mut owner: HashMap<usize, usize> = HashMap::new();
@@ -295,7 +348,62 @@ pub fn diagnose(
             ties,
         });
     }
+    let (freq_before, freq_notes) = frequency_map(samples, &rows, &cs0, sigma2);
+    let mut notes = Vec::new();
+    if rows.n_runs < 5 {
+        notes.push(format!(
+            "{} runs only: holding one run out leaves little to judge by; measure at least 5 cycles (runs)",
+            rows.n_runs
+        ));
+    }
+    for (a, label) in [(AxisId::X, "meas_x_um"), (AxisId::Y, "meas_y_um")] {
+        if !rows.comp.contains(&a) {
+            notes.push(format!(
+                "`{label}` is never measured: effects that show only in the {a} component cannot be diagnosed"
+            ));
+        }
+    }
+    notes.extend(cyclic_notes);
+    notes.extend(freq_notes);
+    if drift.significant {
+        let r = |c: usize| {
+            let [lo, hi] = drift.rate_ends_um_per_h[c];
+            format!(
+                "{:.3} µm/h at mid-travel ({lo:.3} .. {hi:.3} from start to end of travel)",
+                drift.rate_mid_um_per_h[c]
+            )
+        };
+        let parts: Vec<String> = [(0, "x"), (1, "y")]
+            .iter()
+            .filter(|(c, _)| drift.rate_mid_um_per_h[*c].is_finite())
+            .map(|(c, n)| format!("{n}: {}", r(*c)))
+            .collect();
+        notes.push(format!(
+            "drift in time between repeated visits of a target (z {:.1} against the noise left once it is removed): {}",
+            drift.z,
+            parts.join("; ")
+        ));
+    }
+    if drift.offset_z.abs() > opts.z_unexplained {
+        notes.push(format!(
+            "the line offsets drift steadily: {:.3} µm/h (z {:.1}); each line's own offset absorbs it",
+            drift.offset_rate_um_per_h, drift.offset_z
+        ));
+    }
+    for a in &added {
+        for t in &a.ties {
+            notes.push(format!(
+                "tie: {} {} cannot be told apart from {} by these data ({})",
+                a.kind,
+                a.axis,
+                t.label(),
+                t.reason
+            ));
+        }
+    }
     Ok(Diagnosis {
+        notes,
+        drift,
         n_samples: samples.len(),
         n_runs: rows.n_runs,
         n_lines: rows.n_lines,
@@ -306,7 +414,7 @@ pub fn diagnose(
         lack_of_fit_before_z: lof_before_z,
         added,
         where_: where_before,
-        frequency: frequency_map(samples, model, &rows, &cs0, sigma2),
+        frequency: freq_before,
         other_axis: other_axis_map(samples, &rows, &cs0, sigma2),
         unexplained: Unexplained {
             significant,
@@ -315,7 +423,7 @@ pub fn diagnose(
             time_z,
             where_: if significant { where_after } else { Vec::new() },
             frequency: if significant {
-                frequency_map(samples, model, &rows, &cs, sigma2)
+                frequency_map(samples, &rows, &cs, sigma2).0
             } else {
                 Vec::new()
             },
@@ -323,4 +431,90 @@ pub fn diagnose(
         model: updated,
         candidates: groups.iter().map(Group::label).collect::<Vec<_>>(),
     })
+}
+
+/// The model the search stands on at a step.
+struct Current<'a> {
+    set: &'a [usize],
+    cv: &'a Cv,
+    block: &'a Cv,
+    /// In-sample residual sum of squares.
+    ss: f64,
+    /// Its part beyond the repeatability: the structure still to explain.
+    excess: f64,
+}
+
+/// How a larger model `s` compares with the current one.
+struct Verdict {
+    cv: Cv,
+    /// Paired t over the held-out lines the new columns act on (reported).
+    t: f64,
+    /// Significant in the nested comparison and better on held-out runs.
+    significant: bool,
+    /// Also better on held-out parts of the travel, and explains a fair share of what remains.
+    generalises: bool,
+}
+
+fn in_sample_ss(design: &Design, yy_total: f64, s: &[usize]) -> f64 {
+    if s.is_empty() {
+        return yy_total;
+    }
+    let beta = design.fit(s);
+    let (_, v) = design.sub(&design.gt, &design.bt, s);
+    (yy_total - v.dot(&beta)).max(0.0)
+}
+
+/// Nested model comparison with two held-out checks. The F test says the new columns explain
+/// more than noise would; leave-one-run-out says the gain repeats on a run not fitted; the
+/// position hold-out (each quarter of the travel predicted from the other three) says it is a
+/// shape of the whole travel, not a local fit of something else. Sums over held-out units, not
+/// t over them: an effect seen on a few lines, or strongly on some lines only (a drift early in
+/// the campaign), is still a real gain.
+fn judge(
+    design: &Design,
+    rows: &Rows,
+    yy_total: f64,
+    cur: &Current<'_>,
+    s: &[usize],
+    opts: &Options,
+) -> Verdict {
+    let cv = design.cv(rows, s);
+    let new: Vec<usize> = s.iter().filter(|j| !cur.set.contains(j)).copied().collect();
+    let lines = design.line_mask(&new);
+    let t = paired_t_on(cur.cv, &cv, Some(&lines));
+    let k = new.len().max(1) as f64;
+    let ss = in_sample_ss(design, yy_total, s);
+    let df = (design.dof - s.len() as f64).max(1.0);
+    let f = ((cur.ss - ss).max(0.0) / k) / (ss / df).max(1e-300);
+    let z = chi2_z(f * k, k);
+    let total = |c: &Cv| c.sse.iter().sum::<f64>();
+    let d_loro = total(cur.cv) - total(&cv);
+    let significant = z > opts.z_accept && d_loro > 0.0;
+    if !significant {
+        // The position hold-out is the costly part; it only matters for a candidate that passes.
+        return Verdict {
+            cv,
+            t,
+            significant,
+            generalises: false,
+        };
+    }
+    let bcv = design.block_cv(s);
+    let d_block = total(cur.block) - total(&bcv);
+    let t_block = paired_t_on(cur.block, &bcv, Some(&design.unit_mask(&lines)));
+    // A library effect that is really there explains most of what remains; one that only
+    // correlates with something outside the library (a bump, another period, a drift of
+    // another shape) explains a little.
+    let share = if cur.excess > 0.0 {
+        (cur.ss - ss) / cur.excess
+    } else {
+        1.0
+    };
+    Verdict {
+        cv,
+        t,
+        significant,
+        generalises: (t_block > opts.t_block || d_block > opts.block_share * d_loro)
+            && share >= opts.min_share,
+    }
 }
