@@ -213,39 +213,30 @@ dir = "out-{{id}}"
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{err}");
     assert!(err.contains("camera"), "{err}");
-    assert!(
-        err.contains("csmetro resume 1"),
-        "an interrupted run offers a resume: {err}"
-    );
-    let ev = Store::open(&db).unwrap().events_after(1, 0).unwrap();
-    let k = kinds(&ev);
-    assert_eq!(&k[..3], ["started", "error", "finished"], "{k:?}");
-    assert_eq!(ev[0].data["origin"]["via"], "cli");
-    assert_eq!(ev[0].data["origin"]["operator"], "bo");
-    assert_eq!(ev[1].data["cause"], "hardware", "{}", ev[1].data);
-    assert!(
-        ev[1].data["error"].as_str().unwrap().contains("camera"),
-        "{}",
-        ev[1].data
-    );
-    assert_eq!(ev[2].data["state"], "interrupted");
-    assert_eq!(
-        Store::open(&db)
-            .unwrap()
-            .campaign(1)
-            .unwrap()
-            .unwrap()
-            .state,
-        CampaignState::Interrupted
-    );
+    // The pre-flight (or, in a build without the camera's backend, validation) refuses it before
+    // anything is recorded: no campaign, no events.
+    std::fs::create_dir_all(db.parent().unwrap()).unwrap();
+    let recorded = Store::open(&db).unwrap().campaigns().unwrap().len();
+    assert_eq!(recorded, 0, "nothing recorded: {err}");
+
+    // A campaign recorded before its camera went away (an earlier attempt left it interrupted).
+    let s = Store::open(&db).unwrap();
+    let toml = std::fs::read_to_string(&file).unwrap();
+    let id = s
+        .create_campaign("no-camera", &toml, &file.display().to_string(), "lab-xy", 0)
+        .unwrap();
+    assert_eq!(id, 1);
+    s.set_state(id, CampaignState::Interrupted, Some("earlier attempt"))
+        .unwrap();
+    drop(s);
 
     // The service takes the interrupted campaign up again at its start: requeued, then the
-    // same failure, again as an error event before the attempt ends.
+    // failure as an error event before the attempt ends.
     let srv = Server::start(dir.path(), None);
     let t0 = std::time::Instant::now();
     let ev = loop {
         let ev = Store::open(&db).unwrap().events_after(1, 0).unwrap();
-        if ev.iter().filter(|e| e.kind == "error").count() >= 2 {
+        if ev.iter().any(|e| e.kind == "error") {
             break ev;
         }
         assert!(
@@ -258,8 +249,6 @@ dir = "out-{{id}}"
     };
     let k = kinds(&ev);
     let requeued = k.iter().position(|x| *x == "requeued").expect("requeued");
-    let first_error = k.iter().position(|x| *x == "error").unwrap();
-    assert!(first_error < requeued, "{k:?}");
     assert!(k[requeued..].contains(&"error"), "{k:?}");
     assert_eq!(ev[requeued].data["previous_state"], "interrupted");
     assert_eq!(
