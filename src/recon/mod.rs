@@ -7,6 +7,7 @@
 pub mod bp;
 pub mod dct;
 pub mod interp;
+pub mod periods;
 pub mod physics;
 pub mod simplex;
 #[cfg(test)]
