@@ -162,7 +162,7 @@ pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
         // Single-frequency tail of the normalized power with m - 3 degrees of freedom.
         let fap = (m_eff * (1.0 - p).powf((m as f64 - 3.0) / 2.0)).min(1.0);
         // Below 1e-3 of the data's spread a "period" is rounding left by the previous fits.
-        if !(fap < FAP_MAX) || a.hypot(b) < 1e-3 * rms {
+        if fap.is_nan() || fap >= FAP_MAX || a.hypot(b) < 1e-3 * rms {
             break;
         }
         let period = tau / w;
@@ -171,6 +171,9 @@ pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
             .iter()
             .map(|&j| (j, (ws[j] / w).recip()))
             .find(|&(j, _)| harmonic_of(period, tau / ws[j]));
+        // Within 1.5 resolution cells of a removed frequency: a sideband of its envelope, which the
+        // model's envelope terms carry; removed, but not a new period.
+        let sideband = owner.is_none() && ws.iter().any(|&wj| (w - wj).abs() < 1.5 * tau / span);
         let is_harmonic = owner.is_some();
         let (j, k) = owner.map_or((ws.len(), 1.0), |(j, k)| (j, k.round()));
         ws.push(if is_harmonic { k * ws[j] } else { w });
@@ -182,7 +185,7 @@ pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
         for (f, &wj) in found.iter_mut().zip(&fund) {
             f.period_um = tau / ws[wj];
         }
-        if is_harmonic {
+        if is_harmonic || sideband {
             continue;
         }
         let period = tau / ws[ws.len() - 1];
@@ -214,7 +217,7 @@ fn joint_residual(x: &[f64], y: &[f64], ws: &[f64]) -> Option<(Vec<f64>, Vec<f64
         } else {
             let j = k - TREND_DEG - 1;
             let (s, c) = (ws[j / 2] * x[r]).sin_cos();
-            if j % 2 == 0 {
+            if j.is_multiple_of(2) {
                 c
             } else {
                 s
