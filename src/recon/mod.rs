@@ -8,6 +8,7 @@ pub mod bp;
 pub mod dct;
 pub mod interp;
 pub mod limits;
+pub mod periods;
 pub mod physics;
 pub mod simplex;
 #[cfg(test)]
@@ -93,8 +94,9 @@ pub struct ReconSettings {
     pub solver: Solver,
     /// Sensor noise σ, µm (BPDN radius σ·√m; nugget of the physics model).
     pub noise_um: f64,
-    /// Leadscrew thread pitch, µm (M-111.1DG: 400 µm).
-    pub pitch_um: f64,
+    /// Leadscrew thread pitch, µm, if known (M-111.1DG: 400 µm): a hint for the physics model,
+    /// which otherwise uses the periods found in the samples.
+    pub pitch_um: Option<f64>,
     /// Cross-validation folds and seed (fold assignment).
     pub folds: usize,
     pub cv_seed: u64,
@@ -107,7 +109,7 @@ impl Default for ReconSettings {
             method: Method::Auto,
             solver: Solver::Fast,
             noise_um: 0.01,
-            pitch_um: 400.0,
+            pitch_um: None,
             folds: 5,
             cv_seed: 0,
             fast: FastSettings::default(),
@@ -147,6 +149,8 @@ pub struct Reconstruction {
     pub cv_error_um: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub params: Option<PhysicsParams>,
+    /// Periods found in the samples (physics and auto only).
+    pub periods_um: Vec<periods::Period>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub candidates: Vec<CvScore>,
     #[serde(skip)]
@@ -184,61 +188,29 @@ pub fn reconstruct(
         status: None,
         cv_error_um: None,
         params: None,
+        periods_um: Vec::new(),
         candidates: Vec::new(),
         values: Vec::new(),
     };
     match s.method {
-        Method::Bp | Method::Bpdn => {
-            let problem = if s.method == Method::Bp {
-                Problem::BasisPursuit
-            } else {
-                Problem::Denoising {
-                    epsilon: s.noise_um * (m as f64).sqrt(),
-                }
-            };
-            // One transform plan serves the solve and the curve's synthesis (and later solves
-            // on this thread with the same n).
-            let (sol, g) = Dct::with_cached(n, |dct| {
-                let mut sol = match s.solver {
-                    Solver::Fast => {
-                        bp::solve_fast(dct, &samples.idx, &samples.values, problem, &s.fast)
-                    }
-                    Solver::Clarabel => {
-                        bp::solve_clarabel(dct, &samples.idx, &samples.values, problem)
-                    }
-                };
-                // The coefficients become the curve: `out` keeps the curve only (the exact
-                // finish has formed it already).
-                let g = sol.signal.take().unwrap_or_else(|| {
-                    let mut g = std::mem::take(&mut sol.theta);
-                    dct.inverse(&mut g);
-                    g
-                });
-                (sol, g)
-            });
-            out.solver = match s.solver {
-                Solver::Fast => "fast".into(),
-                Solver::Clarabel => "clarabel".into(),
-            };
-            out.iterations = sol.iterations;
-            out.objective = Some(sol.objective);
-            out.dual_objective = sol.dual_objective.is_finite().then_some(sol.dual_objective);
-            out.relative_gap = out
-                .dual_objective
-                .map(|d| ((sol.objective - d) / sol.objective.max(1e-300)).max(0.0));
-            out.status = Some(sol.status);
-            out.values = g;
-        }
+        Method::Bp | Method::Bpdn => solve_bp(s.method, samples, s, &mut out),
         Method::Linear | Method::Pchip => {
             out.values = interpolate(s.method, grid, &samples.idx, &samples.values);
         }
         Method::Physics | Method::Auto => {
+            let xs: Vec<f64> = samples.idx.iter().map(|&i| grid.position(i)).collect();
+            out.periods_um = periods::detect(&xs, &samples.values, 2.0 * grid.step_um);
             let cv = CrossValidation::new(grid, samples, s);
-            let (best_params, best_err, mut scores) = cv.search_physics();
+            let found: Vec<f64> = out.periods_um.iter().map(|p| p.period_um).collect();
+            let (best_params, best_err, mut scores) = cv.search_physics(&found);
             let mut chosen = (Method::Physics, best_err);
             if s.method == Method::Auto {
-                for base in [Method::Linear, Method::Pchip] {
-                    let e = cv.score_interp(base);
+                // bpdn is not a candidate yet: its solver takes ~0.5 s per solve at m = 100.
+                for base in [Method::Linear, Method::Pchip, Method::Bp] {
+                    let e = match base {
+                        Method::Bp | Method::Bpdn => cv.score_bp(base),
+                        _ => cv.score_interp(base),
+                    };
                     scores.push(CvScore {
                         method: base.as_str().into(),
                         cv_error_um: e,
@@ -252,23 +224,65 @@ pub fn reconstruct(
             out.method = chosen.0.as_str().into();
             out.cv_error_um = Some(chosen.1);
             out.candidates = scores;
-            if chosen.0 == Method::Physics {
-                out.params = Some(best_params);
-                let p = &best_params;
-                let (start, step) = (grid.start_um, grid.step_um);
-                let rows = physics::design(p, n, start, step, &samples.idx);
-                let all: Vec<usize> = (0..n).collect();
-                out.values =
-                    physics::fit(p, &rows, n, step, &samples.idx, &samples.values, s.noise_um)
-                        .ok_or("physics model fit failed (singular system)")?
-                        .predict(&physics::design(p, n, start, step, &all), &all);
-            } else {
-                out.values = interpolate(chosen.0, grid, &samples.idx, &samples.values);
+            match chosen.0 {
+                Method::Physics => {
+                    let p = &best_params;
+                    let (start, step) = (grid.start_um, grid.step_um);
+                    let rows = physics::design(p, n, start, step, &samples.idx);
+                    let all: Vec<usize> = (0..n).collect();
+                    out.values =
+                        physics::fit(p, &rows, n, step, &samples.idx, &samples.values, s.noise_um)
+                            .ok_or("physics model fit failed (singular system)")?
+                            .predict(&physics::design(p, n, start, step, &all), &all);
+                    out.params = Some(best_params);
+                }
+                Method::Bp | Method::Bpdn => solve_bp(chosen.0, samples, s, &mut out),
+                _ => out.values = interpolate(chosen.0, grid, &samples.idx, &samples.values),
             }
         }
     }
     out.solve_ms = t0.elapsed().as_secs_f64() * 1e3;
     Ok(out)
+}
+
+/// Runs bp or bpdn on all samples and stores the curve and solve figures in `out`.
+fn solve_bp(method: Method, samples: &GridSamples, s: &ReconSettings, out: &mut Reconstruction) {
+    let (n, m) = (out.n, samples.len());
+    let problem = if method == Method::Bp {
+        Problem::BasisPursuit
+    } else {
+        Problem::Denoising {
+            epsilon: s.noise_um * (m as f64).sqrt(),
+        }
+    };
+    // One transform plan serves the solve and the curve's synthesis (and later solves
+    // on this thread with the same n).
+    let (sol, g) = Dct::with_cached(n, |dct| {
+        let mut sol = match s.solver {
+            Solver::Fast => bp::solve_fast(dct, &samples.idx, &samples.values, problem, &s.fast),
+            Solver::Clarabel => bp::solve_clarabel(dct, &samples.idx, &samples.values, problem),
+        };
+        // The coefficients become the curve: `out` keeps the curve only (the exact
+        // finish has formed it already).
+        let g = sol.signal.take().unwrap_or_else(|| {
+            let mut g = std::mem::take(&mut sol.theta);
+            dct.inverse(&mut g);
+            g
+        });
+        (sol, g)
+    });
+    out.solver = match s.solver {
+        Solver::Fast => "fast".into(),
+        Solver::Clarabel => "clarabel".into(),
+    };
+    out.iterations = sol.iterations;
+    out.objective = Some(sol.objective);
+    out.dual_objective = sol.dual_objective.is_finite().then_some(sol.dual_objective);
+    out.relative_gap = out
+        .dual_objective
+        .map(|d| ((sol.objective - d) / sol.objective.max(1e-300)).max(0.0));
+    out.status = Some(sol.status);
+    out.values = g;
 }
 
 fn interpolate(method: Method, grid: &Grid, idx: &[usize], y: &[f64]) -> Vec<f64> {
@@ -379,16 +393,68 @@ impl<'a> CrossValidation<'a> {
         sum / cnt as f64
     }
 
-    /// Coordinate search over the physics model's structure and hyper-parameters.
-    fn search_physics(&self) -> (PhysicsParams, f64, Vec<CvScore>) {
-        let mut best = PhysicsParams::default_for(self.s.pitch_um);
-        let mut best_err = self.score_physics(&best);
-        let mut scores = vec![CvScore {
-            method: "physics".into(),
-            cv_error_um: best_err,
-            params: Some(best),
-        }];
+    /// Bp or bpdn scored on the folds (bpdn's radius from the training-set size).
+    fn score_bp(&self, method: Method) -> f64 {
+        let n = self.grid.n;
+        let (mut sum, mut cnt) = (0.0, 0usize);
+        for (train, test) in &self.folds {
+            let (ti, ty) = self.subset(train);
+            let problem = if method == Method::Bp {
+                Problem::BasisPursuit
+            } else {
+                Problem::Denoising {
+                    epsilon: self.s.noise_um * (ti.len() as f64).sqrt(),
+                }
+            };
+            let g = Dct::with_cached(n, |dct| {
+                let mut sol = bp::solve_fast(dct, &ti, &ty, problem, &self.s.fast);
+                sol.signal.take().unwrap_or_else(|| {
+                    let mut g = std::mem::take(&mut sol.theta);
+                    dct.inverse(&mut g);
+                    g
+                })
+            });
+            for &r in test {
+                sum += (g[self.samples.idx[r]] - self.samples.values[r]).abs();
+                cnt += 1;
+            }
+        }
+        sum / cnt as f64
+    }
+
+    /// Coordinate search over the physics model's structure and hyper-parameters, starting from
+    /// the best of the candidate period sets: the first k found periods (k = 0 included: no
+    /// periodic term), and with a configured pitch that pitch alone and with the found ones.
+    fn search_physics(&self, found: &[f64]) -> (PhysicsParams, f64, Vec<CvScore>) {
         let m = self.samples.len();
+        let mut sets: Vec<Vec<f64>> = (0..=found.len()).map(|k| found[..k].to_vec()).collect();
+        if let Some(h) = self.s.pitch_um {
+            let others = found
+                .iter()
+                .copied()
+                .filter(|&f| (f / h - 1.0).abs() > 0.02);
+            sets.push(vec![h]);
+            sets.push(std::iter::once(h).chain(others).collect());
+        }
+        let mut scores = Vec::new();
+        let mut best: Option<(PhysicsParams, f64)> = None;
+        for set in sets {
+            let cand = PhysicsParams::with_periods(set);
+            if cand.columns() + 2 > m && !cand.periods_um.is_empty() {
+                continue;
+            }
+            let e = self.score_physics(&cand);
+            scores.push(CvScore {
+                method: "physics".into(),
+                cv_error_um: e,
+                params: Some(cand.clone()),
+            });
+            if best.as_ref().is_none_or(|b| e < b.1) {
+                best = Some((cand, e));
+            }
+        }
+        let (mut best, mut best_err) =
+            best.unwrap_or_else(|| (PhysicsParams::with_periods(Vec::new()), f64::INFINITY));
         type Setter = fn(&mut PhysicsParams, f64);
         let axes: [(&[f64], Setter); 5] = [
             (&[0.0, 2.0, 4.0], |p, v| p.harmonics = v as usize),
@@ -399,7 +465,7 @@ impl<'a> CrossValidation<'a> {
         ];
         for (values, set) in axes {
             for &v in values {
-                let mut cand = best;
+                let mut cand = best.clone();
                 set(&mut cand, v);
                 if cand.columns() + 2 > m {
                     continue;
@@ -408,7 +474,7 @@ impl<'a> CrossValidation<'a> {
                 scores.push(CvScore {
                     method: "physics".into(),
                     cv_error_um: e,
-                    params: Some(cand),
+                    params: Some(cand.clone()),
                 });
                 if e < best_err {
                     best = cand;
