@@ -207,6 +207,10 @@ pub fn reconstruct(
             if s.method == Method::Auto {
                 // bpdn is not a candidate yet: its solver takes ~0.5 s per solve at m = 100.
                 for base in [Method::Linear, Method::Pchip, Method::Bp] {
+                    // Basis pursuit is bounded to smaller grids than the physics model.
+                    if base == Method::Bp && n > limits::MAX_BP_POINTS {
+                        continue;
+                    }
                     let e = match base {
                         Method::Bp | Method::Bpdn => cv.score_bp(base),
                         _ => cv.score_interp(base),
