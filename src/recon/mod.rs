@@ -393,13 +393,32 @@ impl<'a> CrossValidation<'a> {
             self.grid.step_um,
             &self.samples.idx,
         );
+        // Each fold's normal equations are the whole set's minus its held-out rows' (a fifth of
+        // the work of forming them from the training rows).
+        let yv = nalgebra::DVector::from_column_slice(&self.samples.values);
+        let (full_ata, full_aty) = (rows.transpose() * &rows, rows.transpose() * &yv);
         let (mut sum, mut cnt) = (0.0, 0usize);
         for (train, test) in &self.folds {
             let (ti, ty) = self.subset(train);
-            let train_rows = rows.select_rows(train.iter());
-            let Some(fit) = physics::fit(
+            let cols = rows.ncols().min(ti.len().saturating_sub(1)).max(1);
+            let a = rows.columns(0, cols);
+            let test_rows = rows.select_rows(test.iter());
+            let at = test_rows.columns(0, cols);
+            let yt = nalgebra::DVector::from_iterator(
+                test.len(),
+                test.iter().map(|&r| self.samples.values[r]),
+            );
+            let ata = full_ata.view((0, 0), (cols, cols)) - at.transpose() * at;
+            let aty = full_aty.rows(0, cols) - at.transpose() * yt;
+            let fitted = |beta: &nalgebra::DVector<f64>| {
+                let all = a * beta;
+                train.iter().map(|&r| all[r]).collect::<Vec<f64>>()
+            };
+            let Some(fit) = physics::fit_normal(
                 p,
-                &train_rows,
+                ata,
+                aty,
+                fitted,
                 n,
                 self.grid.step_um,
                 &ti,
@@ -408,9 +427,8 @@ impl<'a> CrossValidation<'a> {
             ) else {
                 return f64::INFINITY;
             };
-            let test_rows = rows.select_rows(test.iter());
-            let at: Vec<usize> = test.iter().map(|&r| self.samples.idx[r]).collect();
-            for (pred, &r) in fit.predict(&test_rows, &at).iter().zip(test) {
+            let held: Vec<usize> = test.iter().map(|&r| self.samples.idx[r]).collect();
+            for (pred, &r) in fit.predict(&test_rows, &held).iter().zip(test) {
                 sum += (pred - self.samples.values[r]).abs();
                 cnt += 1;
             }

@@ -181,15 +181,36 @@ pub fn fit(
     let cols = rows.ncols().min(m.saturating_sub(1)).max(1);
     let a = rows.columns(0, cols);
     let yv = DVector::from_column_slice(y);
-    let mut ata = a.transpose() * a;
+    let ata = a.transpose() * a;
     let aty = a.transpose() * &yv;
+    let fitted = |beta: &DVector<f64>| (a * beta).iter().copied().collect::<Vec<f64>>();
+    fit_normal(p, ata, aty, fitted, n, step_um, idx, y, noise_um)
+}
+
+/// [`fit`] from the normal equations of the samples (AᵀA and Aᵀy over their first `cols`
+/// columns, `cols` as [`fit`] chooses it) and a function giving the fitted values A·β at them:
+/// cross-validation forms each fold's equations as the whole set's minus the held-out rows'.
+#[allow(clippy::too_many_arguments)]
+pub fn fit_normal(
+    p: &PhysicsParams,
+    mut ata: DMatrix<f64>,
+    aty: DVector<f64>,
+    fitted: impl Fn(&DVector<f64>) -> Vec<f64>,
+    n: usize,
+    step_um: f64,
+    idx: &[usize],
+    y: &[f64],
+    noise_um: f64,
+) -> Option<Fitted> {
+    let m = idx.len();
+    let cols = ata.ncols();
     let lambda = p.ridge * m as f64;
     for c in 1..cols {
         ata[(c, c)] += lambda;
     }
     ata[(0, 0)] += 1e-12 * m as f64;
     let beta = ata.cholesky()?.solve(&aty);
-    let fitted = a * &beta;
+    let fitted = fitted(&beta);
     let resid: Vec<f64> = (0..m).map(|r| y[r] - fitted[r]).collect();
     let var = resid.iter().map(|v| v * v).sum::<f64>() / m as f64;
     let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
