@@ -222,3 +222,28 @@ fn reconstruct_with_clarabel_matches_fast_solver() {
         .fold(0.0, f64::max);
     assert!(d < 1e-6, "max difference {d} µm");
 }
+
+/// `bench families` refuses an unknown family or an m the 1,901-point grid cannot hold with one
+/// line and exit 2, before any reconstruction runs.
+#[test]
+fn bench_families_bad_arguments_give_one_line_exit_2() {
+    for (args, needle) in [
+        (
+            &["--families", "single,bogus"][..],
+            "unknown family \"bogus\"",
+        ),
+        (&["--m", "100,5000"][..], "--m"),
+        (&["--seeds", "0"][..], "--seeds"),
+    ] {
+        let o = bin()
+            .args(["bench", "families"])
+            .args(args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(o.stdout.is_empty(), "{args:?}");
+    }
+}

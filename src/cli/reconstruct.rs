@@ -24,9 +24,10 @@ pub struct Args {
     /// Sensor noise σ in µm (BPDN radius σ·√m; nugget of the physics model).
     #[arg(long, default_value_t = 0.01)]
     noise_um: f64,
-    /// Leadscrew thread pitch in µm (physics model).
-    #[arg(long, default_value_t = 400.0)]
-    pitch_um: f64,
+    /// Leadscrew thread pitch in µm, if known: a hint for the physics model, which otherwise
+    /// (and in addition) uses the periods it finds in the samples.
+    #[arg(long)]
+    pitch_um: Option<f64>,
     /// BP with more samples than the exact finish takes (m > 2000): stop at this certified
     /// relative duality gap (||θ||₁ - hᵀy) / ||θ||₁. Below 2000 samples BP is solved exactly.
     #[arg(long, default_value_t = 1e-3)]
@@ -55,7 +56,7 @@ pub fn run(a: Args) -> CliResult {
     if !(a.noise_um.is_finite() && a.noise_um >= 0.0) {
         return Err(CliError::input("--noise-um must be a finite number >= 0"));
     }
-    if !(a.pitch_um.is_finite() && a.pitch_um > 0.0) {
+    if a.pitch_um.is_some_and(|p| !(p.is_finite() && p > 0.0)) {
         return Err(CliError::input("--pitch-um must be a positive number"));
     }
     if !(a.gap_tol.is_finite() && a.gap_tol > 0.0 && a.gap_tol < 1.0) {

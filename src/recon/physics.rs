@@ -1,8 +1,9 @@
 //! A physics-aware reconstruction for leadscrew stages (beyond the paper).
 //!
 //! Error curve = slow trend (low DCT frequencies: scale, bow, long waves)
-//!             + leadscrew cyclic error (harmonics of the thread pitch, each with a slowly varying
-//!               envelope and phase: harmonic × Legendre polynomials of the position)
+//!             + cyclic errors (harmonics of each period found in the samples or given as the
+//!               thread pitch, each with a slowly varying envelope and phase: harmonic × Legendre
+//!               polynomials of the position)
 //!             + correlated roughness and local defects (an Ornstein–Uhlenbeck process, i.e. the
 //!               continuous AR(1)), seen through white sensor noise.
 //! The parametric part is a ridge least-squares fit; the residual is kriged with the OU prior by
@@ -26,15 +27,18 @@ pub fn legendre(k: usize, s: f64) -> f64 {
 }
 
 /// Model structure and hyper-parameters.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PhysicsParams {
     /// DCT trend frequencies 0..=trend_k.
     pub trend_k: usize,
-    /// Leadscrew harmonics 1..=harmonics of `pitch_um`.
+    /// Harmonics 1..=harmonics of every period in `periods_um`.
     pub harmonics: usize,
     /// Envelope/phase modulation: Legendre degrees 0..=envelope_deg.
     pub envelope_deg: usize,
+    /// The first of `periods_um` (0 when the model has no periodic term).
     pub pitch_um: f64,
+    /// Periods of the cyclic terms, µm.
+    pub periods_um: Vec<f64>,
     /// OU correlation length of the residual, µm.
     pub corr_um: f64,
     /// Ridge weight (relative to the sample count) on all but the constant column.
@@ -43,18 +47,24 @@ pub struct PhysicsParams {
 
 impl PhysicsParams {
     pub fn default_for(pitch_um: f64) -> Self {
+        Self::with_periods(vec![pitch_um])
+    }
+
+    /// Default structure on the given periods (fewer harmonics when there are several).
+    pub fn with_periods(periods_um: Vec<f64>) -> Self {
         Self {
             trend_k: 16,
-            harmonics: 4,
+            harmonics: if periods_um.len() > 1 { 2 } else { 4 },
             envelope_deg: 2,
-            pitch_um,
+            pitch_um: periods_um.first().copied().unwrap_or(0.0),
+            periods_um,
             corr_um: 12.0,
             ridge: 1e-4,
         }
     }
 
     pub fn columns(&self) -> usize {
-        self.trend_k + 1 + 2 * self.harmonics * (self.envelope_deg + 1)
+        self.trend_k + 1 + 2 * self.harmonics * (self.envelope_deg + 1) * self.periods_um.len()
     }
 }
 
@@ -82,14 +92,16 @@ pub fn design(
             a[(r, c)] = (std::f64::consts::PI * k as f64 * (i as f64 + 0.5) / nf).cos();
             c += 1;
         }
-        let w = 2.0 * std::f64::consts::PI * x / p.pitch_um;
-        for h in 1..=p.harmonics {
-            let (sn, cs) = (h as f64 * w).sin_cos();
-            for d in 0..=p.envelope_deg {
-                let l = legendre(d, s);
-                a[(r, c)] = cs * l;
-                a[(r, c + 1)] = sn * l;
-                c += 2;
+        for &period in &p.periods_um {
+            let w = 2.0 * std::f64::consts::PI * x / period;
+            for h in 1..=p.harmonics {
+                let (sn, cs) = (h as f64 * w).sin_cos();
+                for d in 0..=p.envelope_deg {
+                    let l = legendre(d, s);
+                    a[(r, c)] = cs * l;
+                    a[(r, c + 1)] = sn * l;
+                    c += 2;
+                }
             }
         }
     }
@@ -169,15 +181,36 @@ pub fn fit(
     let cols = rows.ncols().min(m.saturating_sub(1)).max(1);
     let a = rows.columns(0, cols);
     let yv = DVector::from_column_slice(y);
-    let mut ata = a.transpose() * a;
+    let ata = a.transpose() * a;
     let aty = a.transpose() * &yv;
+    let fitted = |beta: &DVector<f64>| (a * beta).iter().copied().collect::<Vec<f64>>();
+    fit_normal(p, ata, aty, fitted, n, step_um, idx, y, noise_um)
+}
+
+/// [`fit`] from the normal equations of the samples (AᵀA and Aᵀy over their first `cols`
+/// columns, `cols` as [`fit`] chooses it) and a function giving the fitted values A·β at them:
+/// cross-validation forms each fold's equations as the whole set's minus the held-out rows'.
+#[allow(clippy::too_many_arguments)]
+pub fn fit_normal(
+    p: &PhysicsParams,
+    mut ata: DMatrix<f64>,
+    aty: DVector<f64>,
+    fitted: impl Fn(&DVector<f64>) -> Vec<f64>,
+    n: usize,
+    step_um: f64,
+    idx: &[usize],
+    y: &[f64],
+    noise_um: f64,
+) -> Option<Fitted> {
+    let m = idx.len();
+    let cols = ata.ncols();
     let lambda = p.ridge * m as f64;
     for c in 1..cols {
         ata[(c, c)] += lambda;
     }
     ata[(0, 0)] += 1e-12 * m as f64;
     let beta = ata.cholesky()?.solve(&aty);
-    let fitted = a * &beta;
+    let fitted = fitted(&beta);
     let resid: Vec<f64> = (0..m).map(|r| y[r] - fitted[r]).collect();
     let var = resid.iter().map(|v| v * v).sum::<f64>() / m as f64;
     let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);

@@ -6,6 +6,7 @@ use csmetro_sim::ReferenceCurveParams;
 use serde::Serialize;
 use serde_json::json;
 
+mod families;
 mod kernels;
 mod speed;
 
@@ -35,6 +36,19 @@ enum What {
         /// Comma-separated methods.
         #[arg(long, default_value = "bp,pchip,linear,physics,auto")]
         methods: String,
+    },
+    /// `auto` (no pitch) on curves the simulator did not make (a generator of the bench's own, six
+    /// families): against `physics` told the true period, `bp` and `pchip`; period detections;
+    /// cv_error_um against the true error.
+    Families {
+        #[arg(long, default_value_t = 20)]
+        seeds: u64,
+        /// Comma-separated m values.
+        #[arg(long, default_value = "100,300,600,900")]
+        m: String,
+        /// Comma-separated families (single, two, limit, chirp, noise, steps).
+        #[arg(long, default_value = "single,two,limit,chirp,noise,steps")]
+        families: String,
     },
     /// Solve times (median, p90; first_ms: the first solve, which plans the transforms;
     /// median_best_of_3_ms: per curve the best of three solves, n = 1901 only; core_clock_ghz,
@@ -184,6 +198,29 @@ pub fn run(a: Args) -> CliResult {
             println!(
                 "{}",
                 json!({"benchmark": "accuracy", "n": 1901, "noise_um": 0.01, "rows": rows, "paper_table_ii": paper})
+            );
+        }
+        What::Families { seeds, m, families } => {
+            let ms: Vec<usize> = parse_list(&m, "m")?;
+            let fams: Vec<String> = parse_list(&families, "families")?;
+            if seeds == 0 || ms.iter().any(|&m| !(2..=1901).contains(&m)) {
+                return Err(CliError::input(
+                    "--seeds at least 1 and every --m in 2..=1901 (n = 1901)",
+                ));
+            }
+            if let Some(f) = fams
+                .iter()
+                .find(|f| !families::FAMILIES.contains(&f.as_str()))
+            {
+                return Err(CliError::input(format!(
+                    "--families: unknown family {f:?} (one of {})",
+                    families::FAMILIES.join(", ")
+                )));
+            }
+            let rows = families::run(seeds, &ms, &fams).map_err(CliError::failure)?;
+            println!(
+                "{}",
+                json!({"benchmark": "families", "n": 1901, "rows": rows})
             );
         }
         What::Dct { repeat } => println!("{}", dct_pairs(repeat.max(1))),
