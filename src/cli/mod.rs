@@ -8,6 +8,7 @@ pub mod gap;
 pub mod generate;
 pub mod ppp;
 pub mod reconstruct;
+pub mod reconstruct2d;
 pub mod run;
 pub mod serve;
 pub mod sim;
