@@ -78,14 +78,13 @@ fn grid(x: &str, y: &str) -> Grid2 {
 fn write_samples(path: &Path, g: &Grid2, s: &MapSamples) {
     let mut t = String::from("x_um,y_um,ex_um,ey_um,theta_urad\n");
     let th = s.theta.as_ref().unwrap();
-    for k in 0..s.len() {
+    for (k, theta) in th.iter().enumerate() {
         t += &format!(
-            "{},{},{},{},{}\n",
+            "{},{},{},{},{theta}\n",
             g.x.position(s.ix[k]),
             g.y.position(s.iy[k]),
             s.ex[k],
             s.ey[k],
-            th[k]
         );
     }
     std::fs::write(path, t).unwrap();

@@ -78,6 +78,9 @@ fn fill_outside(v: &mut [f64], nx: usize, ny: usize) {
             }
         }
     }
+    if covered_rows.is_empty() {
+        return;
+    }
     let mut q = 0;
     for j in 0..ny {
         while q + 1 < covered_rows.len()

@@ -32,7 +32,7 @@ pub struct Grid2 {
 impl Grid2 {
     /// Refuses grids of more than [`MAX_MAP_POINTS`] points before anything is allocated.
     pub fn new(x: Grid, y: Grid) -> Result<Self, String> {
-        let n = x.n.checked_mul(y.n).unwrap_or(usize::MAX);
+        let n = x.n.saturating_mul(y.n);
         if n > MAX_MAP_POINTS {
             return Err(format!(
                 "map grid {} x {} has {n} points, more than {MAX_MAP_POINTS}",
