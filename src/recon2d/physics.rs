@@ -368,7 +368,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_cubic_b_spline_basis_is_a_partition_of_unity_and_reproduces_lines() {
+    fn the_cubic_b_spline_basis_is_a_nonnegative_partition_of_unity() {
         let sp = Spline::new(-3.0, 17.0, 1.7);
         for k in 0..200 {
             let x = -3.0 + 20.0 * k as f64 / 199.0;
