@@ -18,7 +18,7 @@ use super::{folds, rms_xy, Candidate, Grid2, Map, MapSamples, CV_FOLDS};
 /// factors ~6 per candidate within the 10 s budget of a 1.6 M-point map.
 const MAX_UNKNOWNS: usize = 1200;
 /// Knot spacings cross-validated: the finest ones the samples allow.
-const MAX_KNOT_CANDIDATES: usize = 5;
+const MAX_KNOT_CANDIDATES: usize = 8;
 /// Curvature penalty weights tried by cross-validation, relative to the mean diagonal of AᵀA.
 const PENALTIES: [f64; 2] = [1e-4, 1e-1];
 /// Ridge on every coefficient, relative to the mean diagonal: it only settles the constants and
