@@ -7,6 +7,7 @@ pub mod gap;
 pub mod grid;
 pub mod iso230;
 pub mod recon;
+pub mod recon2d;
 pub mod report;
 pub mod samples;
 pub mod sampling;

@@ -19,6 +19,8 @@ struct Cli {
 enum Command {
     /// Recover a whole error curve from m samples on a grid.
     Reconstruct(cli::reconstruct::Args),
+    /// Recover the XY workspace error map e_x, e_y (θ) from samples at scattered grid points.
+    Reconstruct2d(cli::reconstruct2d::Args),
     /// Write a paper-like reference error curve (full and sampled) as CSV.
     Generate(cli::generate::Args),
     /// Reconstruction demo on generated data: every method against the ground truth.
@@ -67,6 +69,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Reconstruct(a) => cli::reconstruct::run(a),
+        Command::Reconstruct2d(a) => cli::reconstruct2d::run(a),
         Command::Generate(a) => cli::generate::run(a),
         Command::Demo(a) => cli::demo::run(a),
         Command::Bench(a) => cli::bench::run(a),

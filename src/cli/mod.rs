@@ -11,6 +11,7 @@ pub mod generate;
 pub mod move_cmd;
 pub mod ppp;
 pub mod reconstruct;
+pub mod reconstruct2d;
 pub mod run;
 pub mod serve;
 pub mod sim;

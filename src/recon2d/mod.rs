@@ -1,0 +1,410 @@
+//! The XY workspace error map e_x(x, y), e_y(x, y) (and θ(x, y)) from scattered samples on a 2D grid.
+//!
+//! Two methods: `physics`, a structured model of a stacked XY stage (each axis's own error along its
+//! travel, the other axis's straightness, and coupling terms linear in the other coordinate), and
+//! `linear`, linear interpolation on a Delaunay triangulation of the samples (the baseline).
+//! `auto` picks the one with the smaller k-fold cross-validation error.
+use std::path::Path;
+use std::str::FromStr;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::grid::Grid;
+
+pub mod linear;
+pub mod physics;
+
+/// Most points a map grid may have (nx·ny): 4 M, over twice the 1901 × 841 map.
+pub const MAX_MAP_POINTS: usize = 4_000_000;
+/// Largest samples file read: a few % of a full map is a few MB; 4 M rows of ~60 bytes fit.
+pub const MAX_MAP_SAMPLES_BYTES: u64 = 256 << 20;
+/// Folds of the cross-validation that picks the knot spacing and the method.
+pub const CV_FOLDS: usize = 5;
+
+/// The map grid: x fastest.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid2 {
+    pub x: Grid,
+    pub y: Grid,
+}
+
+impl Grid2 {
+    /// Refuses grids of more than [`MAX_MAP_POINTS`] points before anything is allocated.
+    pub fn new(x: Grid, y: Grid) -> Result<Self, String> {
+        let n = x.n.saturating_mul(y.n);
+        if n > MAX_MAP_POINTS {
+            return Err(format!(
+                "map grid {} x {} has {n} points, more than {MAX_MAP_POINTS}",
+                x.n, y.n
+            ));
+        }
+        Ok(Self { x, y })
+    }
+    pub fn len(&self) -> usize {
+        self.x.n * self.y.n
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Samples of the map: grid indices and the measured errors (µm; θ in µrad).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MapSamples {
+    pub ix: Vec<usize>,
+    pub iy: Vec<usize>,
+    pub ex: Vec<f64>,
+    pub ey: Vec<f64>,
+    pub theta: Option<Vec<f64>>,
+}
+
+impl MapSamples {
+    pub fn len(&self) -> usize {
+        self.ix.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.ix.is_empty()
+    }
+    /// The measured components: e_x, e_y, then θ if present.
+    pub fn components(&self) -> Vec<&[f64]> {
+        let mut c = vec![self.ex.as_slice(), self.ey.as_slice()];
+        if let Some(t) = &self.theta {
+            c.push(t.as_slice());
+        }
+        c
+    }
+    /// The samples at the given positions (in that order).
+    pub fn subset(&self, keep: &[usize]) -> Self {
+        let pick = |v: &[f64]| keep.iter().map(|&k| v[k]).collect::<Vec<f64>>();
+        Self {
+            ix: keep.iter().map(|&k| self.ix[k]).collect(),
+            iy: keep.iter().map(|&k| self.iy[k]).collect(),
+            ex: pick(&self.ex),
+            ey: pick(&self.ey),
+            theta: self.theta.as_deref().map(pick),
+        }
+    }
+}
+
+/// A reconstructed map, every component at every grid point, x fastest.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Map {
+    pub ex: Vec<f64>,
+    pub ey: Vec<f64>,
+    pub theta: Option<Vec<f64>>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method2 {
+    Auto,
+    Physics,
+    Linear,
+}
+
+impl FromStr for Method2 {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(Self::Auto),
+            "physics" => Ok(Self::Physics),
+            "linear" => Ok(Self::Linear),
+            _ => Err(format!("unknown method {s:?} (auto | physics | linear)")),
+        }
+    }
+}
+
+/// One cross-validated candidate: held-out RMS error over e_x and e_y (µm).
+#[derive(Debug, Clone, Serialize)]
+pub struct Candidate {
+    pub method: &'static str,
+    pub knot_um: Option<f64>,
+    pub cv_error_um: f64,
+}
+
+/// The solve figures printed by `--json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report2 {
+    pub method: &'static str,
+    pub nx: usize,
+    pub ny: usize,
+    pub m: usize,
+    pub solve_ms: f64,
+    /// Held-out RMS error of e_x and e_y of the chosen method (µm; includes the sensor noise).
+    pub cv_error_um: f64,
+    /// Knot spacing of the physics model's per-axis splines (µm), when physics was chosen.
+    pub knot_um: Option<f64>,
+    pub folds: usize,
+    pub candidates: Vec<Candidate>,
+}
+
+/// Assigns each of m samples to one of k folds, at random but reproducibly.
+pub(crate) fn folds(m: usize, k: usize) -> Vec<usize> {
+    use rand::seq::SliceRandom;
+    use rand::SeedableRng;
+    let mut order: Vec<usize> = (0..m).collect();
+    order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(0x2d_4d4150));
+    let mut fold = vec![0; m];
+    for (r, &s) in order.iter().enumerate() {
+        fold[s] = r % k;
+    }
+    fold
+}
+
+/// RMS over e_x and e_y of held-out predictions `pred[c][s]` against the samples.
+pub(crate) fn rms_xy(s: &MapSamples, pred: &[Vec<f64>]) -> f64 {
+    let mut sum = 0.0;
+    for (c, truth) in [&s.ex, &s.ey].into_iter().enumerate() {
+        sum += truth
+            .iter()
+            .zip(&pred[c])
+            .map(|(t, p)| (t - p) * (t - p))
+            .sum::<f64>();
+    }
+    (sum / (2 * s.len()).max(1) as f64).sqrt()
+}
+
+/// Reconstructs the whole map with `method` (`auto`: the smaller cross-validation error).
+pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, Report2), String> {
+    if s.len() < 3 {
+        return Err(format!("need at least 3 samples, found {}", s.len()));
+    }
+    let t0 = Instant::now();
+    let mut candidates = Vec::new();
+    let phys = match method {
+        Method2::Linear => None,
+        Method2::Physics => {
+            let (fit, mut cands) = physics::select(g, s)?;
+            candidates.append(&mut cands);
+            Some(fit)
+        }
+        // Too few samples for the model: auto is left with linear.
+        Method2::Auto => physics::select(g, s).ok().map(|(fit, mut cands)| {
+            candidates.append(&mut cands);
+            fit
+        }),
+    };
+    let lin_cv = if method != Method2::Physics {
+        let e = linear::cv_error(g, s);
+        candidates.push(Candidate {
+            method: "linear",
+            knot_um: None,
+            cv_error_um: e,
+        });
+        Some(e)
+    } else {
+        None
+    };
+    let use_physics = match (&phys, lin_cv) {
+        (Some(p), Some(l)) => p.cv_error_um <= l || !l.is_finite(),
+        (Some(_), None) => true,
+        _ => false,
+    };
+    let (map, name, cv, knot) = if use_physics {
+        let p = phys.expect("physics fitted");
+        (p.evaluate(g), "physics", p.cv_error_um, Some(p.knot_um))
+    } else {
+        (
+            linear::interpolate(g, s),
+            "linear",
+            lin_cv.unwrap_or(f64::NAN),
+            None,
+        )
+    };
+    let report = Report2 {
+        method: name,
+        nx: g.x.n,
+        ny: g.y.n,
+        m: s.len(),
+        solve_ms: t0.elapsed().as_secs_f64() * 1e3,
+        cv_error_um: cv,
+        knot_um: knot,
+        folds: CV_FOLDS,
+        candidates,
+    };
+    Ok((map, report))
+}
+
+/// At most 40 characters of a field for an error message.
+fn clip(s: &str) -> String {
+    match s.char_indices().nth(40) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s.to_string(),
+    }
+}
+
+/// Reads `x_um,y_um,ex_um,ey_um[,theta_urad]`; every error is one line naming file and line.
+pub fn read_map_samples_csv(path: &Path, g: &Grid2) -> Result<MapSamples, String> {
+    let name = path.display();
+    let text = crate::tomlpos::read_bounded(path, MAX_MAP_SAMPLES_BYTES)
+        .map_err(|e| format!("{name}: cannot read: {e}"))?;
+    parse_map_samples_csv(&text, g).map_err(|(line, msg)| format!("{name}:{line}: {msg}"))
+}
+
+/// Parses map sample CSV text; errors carry the 1-based line number.
+pub fn parse_map_samples_csv(text: &str, g: &Grid2) -> Result<MapSamples, (usize, String)> {
+    const HEADER: &str = "x_um,y_um,ex_um,ey_um[,theta_urad]";
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (hline, header) = lines
+        .next()
+        .ok_or((1, format!("empty file: expected header `{HEADER}`")))?;
+    let cols: Vec<String> = header
+        .split(',')
+        .map(|c| c.trim().trim_start_matches('\u{feff}').to_string())
+        .collect();
+    let col = |name: &str| cols.iter().position(|c| c == name);
+    let (cx, cy, cex, cey) = match (col("x_um"), col("y_um"), col("ex_um"), col("ey_um")) {
+        (Some(a), Some(b), Some(c), Some(d)) => (a, b, c, d),
+        _ => {
+            return Err((
+                hline + 1,
+                format!(
+                    "missing header `{HEADER}` (found {:?})",
+                    clip(header.trim())
+                ),
+            ))
+        }
+    };
+    let ct = col("theta_urad");
+    let mut s = MapSamples {
+        theta: ct.map(|_| Vec::new()),
+        ..Default::default()
+    };
+    let mut seen = std::collections::HashMap::new();
+    for (i, line) in lines {
+        let lineno = i + 1;
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        if fields.len() != cols.len() {
+            return Err((
+                lineno,
+                format!("expected {} fields, found {}", cols.len(), fields.len()),
+            ));
+        }
+        let num = |c: usize, what: &str| -> Result<f64, (usize, String)> {
+            let f = fields[c];
+            let v: f64 = f
+                .parse()
+                .map_err(|_| (lineno, format!("{what} {:?} is not a number", clip(f))))?;
+            if !v.is_finite() {
+                return Err((
+                    lineno,
+                    format!("{what} is {} (must be a finite number)", clip(f)),
+                ));
+            }
+            Ok(v)
+        };
+        let (x, y) = (num(cx, "x_um")?, num(cy, "y_um")?);
+        let ix = g.x.index_of(x).ok_or_else(|| {
+            (
+                lineno,
+                format!("x {x} µm is not on the grid {} (tolerance 1e-6 µm)", g.x),
+            )
+        })?;
+        let iy = g.y.index_of(y).ok_or_else(|| {
+            (
+                lineno,
+                format!("y {y} µm is not on the grid {} (tolerance 1e-6 µm)", g.y),
+            )
+        })?;
+        if let Some(first) = seen.insert((ix, iy), lineno) {
+            return Err((
+                lineno,
+                format!("duplicate point ({x}, {y}) µm (first at line {first})"),
+            ));
+        }
+        s.ix.push(ix);
+        s.iy.push(iy);
+        s.ex.push(num(cex, "ex_um")?);
+        s.ey.push(num(cey, "ey_um")?);
+        if let (Some(c), Some(t)) = (ct, s.theta.as_mut()) {
+            t.push(num(c, "theta_urad")?);
+        }
+    }
+    if s.len() < 3 {
+        return Err((
+            text.lines().count().max(1),
+            format!("need at least 3 samples, found {}", s.len()),
+        ));
+    }
+    Ok(s)
+}
+
+/// Writes the map with the samples' header at every grid point, x fastest.
+pub fn write_map_csv(path: &Path, g: &Grid2, map: &Map) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
+    write_map(&mut w, g, map)?;
+    w.flush()
+}
+
+pub fn write_map(w: &mut impl std::io::Write, g: &Grid2, map: &Map) -> std::io::Result<()> {
+    match map.theta {
+        Some(_) => writeln!(w, "x_um,y_um,ex_um,ey_um,theta_urad")?,
+        None => writeln!(w, "x_um,y_um,ex_um,ey_um")?,
+    }
+    for j in 0..g.y.n {
+        let y = g.y.position(j);
+        for i in 0..g.x.n {
+            let k = j * g.x.n + i;
+            let x = g.x.position(i);
+            match &map.theta {
+                Some(t) => writeln!(w, "{x},{y},{},{},{}", map.ex[k], map.ey[k], t[k])?,
+                None => writeln!(w, "{x},{y},{},{}", map.ex[k], map.ey[k])?,
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid() -> Grid2 {
+        Grid2::new("0:5:50".parse().unwrap(), "0:5:20".parse().unwrap()).unwrap()
+    }
+
+    #[test]
+    fn parses_columns_in_any_order_with_theta() {
+        let t = "y_um,x_um,ex_um,ey_um,theta_urad\n5,10,0.1,0.2,3\n20,50,1,2,4\n0,0,0,0,0\n";
+        let s = parse_map_samples_csv(t, &grid()).unwrap();
+        assert_eq!(s.ix, vec![2, 10, 0]);
+        assert_eq!(s.iy, vec![1, 4, 0]);
+        assert_eq!(s.ey, vec![0.2, 2.0, 0.0]);
+        assert_eq!(s.theta, Some(vec![3.0, 4.0, 0.0]));
+    }
+
+    #[test]
+    fn bad_rows_name_their_line() {
+        let head = "x_um,y_um,ex_um,ey_um\n0,0,0,0\n5,5,0,0\n";
+        for (row, want) in [
+            ("7,0,0,0", "not on the grid"),
+            ("0,25,0,0", "not on the grid"),
+            ("10,0,NaN,0", "finite"),
+            ("10,0,abc,0", "not a number"),
+            ("10,0,0", "expected 4 fields"),
+            ("5,5,1,1", "duplicate point (5, 5) µm (first at line 3)"),
+        ] {
+            let (line, msg) =
+                parse_map_samples_csv(&format!("{head}{row}\n"), &grid()).unwrap_err();
+            assert_eq!(line, 4, "{row}: {msg}");
+            assert!(msg.contains(want), "{row}: {msg}");
+        }
+        let (line, msg) =
+            parse_map_samples_csv("position_um,error_um\n0,0\n", &grid()).unwrap_err();
+        assert_eq!(line, 1);
+        assert!(msg.contains("missing header"), "{msg}");
+    }
+
+    #[test]
+    fn map_grids_are_bounded() {
+        let x: Grid = "0:1:99999".parse().unwrap();
+        let y: Grid = "0:1:99".parse().unwrap();
+        assert!(Grid2::new(x, y).unwrap_err().contains("more than 4000000"));
+        let y: Grid = "0:1:39".parse().unwrap();
+        assert_eq!(Grid2::new(x, y).unwrap().len(), 4_000_000);
+    }
+}
