@@ -10,6 +10,7 @@ use axum::http::StatusCode;
 pub mod config;
 pub mod manager;
 pub mod page;
+mod progress;
 pub mod routes;
 
 pub use config::{ConfigError, ServiceConfig};
