@@ -7,18 +7,12 @@
 //! Needs the `aravis` feature (libaravis): `cargo test --features aravis --test campaign_real_rig`.
 #![cfg(feature = "aravis")]
 mod common;
+mod rig;
 
-use std::sync::Arc;
+use std::path::Path;
 
 use common::{bin, json_of};
 use csmetro::store::Store;
-use csmetro_camera::{FakeGvCamera, FrameSource};
-use csmetro_hal::Pixels;
-use csmetro_ppp::render;
-use csmetro_ppp::{Optics, Pattern, PatternConfig, Pose};
-use csmetro_sim::SimStage;
-use csmetro_sim::{AxisId, StageModel};
-use csmetro_sim::{ControllerConfig, Endpoint, SimController};
 
 /// X carries a 1000 ppm scale error: the stage really stands 1 µm further per mm than commanded
 /// (and than its encoder says), so a sample can only show it if it came from the camera.
@@ -34,64 +28,16 @@ ppm = 1000.0
 ref_um = 0.0
 "#;
 
-fn tcp_port(sim: &SimController) -> u16 {
-    match sim.endpoint() {
-        Endpoint::Tcp(a) => a.port(),
-        other => panic!("expected TCP, got {other:?}"),
-    }
-}
-
 #[test]
 fn a_real_rig_campaign_runs_over_gcs_tcp_and_gige_vision() {
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
-    let model = StageModel::from_toml_str(MODEL).unwrap();
-    let stage = SimStage::new(model, 1000.0, [1.0, 2.0], 1.5, 5.0);
-    let cfg = ControllerConfig {
-        travel_mm: [-1.0, 14.0],
-        reference_switch_mm: 6.5,
-        ..ControllerConfig::default()
-    };
-    let sims: Vec<SimController> = rt.block_on(async {
-        let mut v = Vec::new();
-        for (a, start_mm) in [(AxisId::X, 1.0), (AxisId::Y, 2.0)] {
-            let c = ControllerConfig {
-                start_mm,
-                ..cfg.clone()
-            };
-            v.push(
-                SimController::start_tcp(stage.clone(), a, c, "127.0.0.1:0".parse().unwrap())
-                    .await
-                    .unwrap(),
-            );
-        }
-        v
-    });
-    let (px, py) = (tcp_port(&sims[0]), tcp_port(&sims[1]));
-
-    let pattern = Pattern::new(PatternConfig::default()).unwrap();
-    let seen = stage.clone();
-    let drawn = Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let drawn2 = drawn.clone();
-    let source: FrameSource = Arc::new(move |buf: &mut [u8], w: usize, h: usize| {
-        let (x, y) = seen.true_position_um();
-        let optics = Optics {
-            width: w,
-            height: h,
-            ..Optics::default()
-        };
-        let k = drawn2.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-        let f = render(&pattern, &optics, Pose::new(x, y, 0.0), k);
-        if let Pixels::Mono8(p) = f.pixels {
-            buf[..p.len()].copy_from_slice(&p);
-        }
-    });
-    let fake = FakeGvCamera::start(source).expect("fake GV camera on 127.0.0.1");
-
+    let _turn = rig::camera_turn();
     let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model.toml");
+    std::fs::write(&model, MODEL).unwrap();
+    let r = rig::Rig::start(
+        Path::new(env!("CARGO_BIN_EXE_csmetro")),
+        &rig::rig_file(dir.path(), Some(&model), 1.0, 2.0, true),
+    );
     let db = dir.path().join("real.db");
     let campaign = dir.path().join("real.toml");
     std::fs::write(
@@ -103,21 +49,21 @@ stage = "lab-xy"
 
 [hardware]
 kind = "real"
-# The decoder's optics: the fake sensor's full 1024 x 768 frame.
-optics = {{ width = 1024, height = 768 }}
+# The decoder's optics: the rig camera's full 640 x 640 frame.
+optics = {{ width = 640, height = 640 }}
 
 [hardware.controllers.x]
-transport = {{ kind = "tcp", address = "127.0.0.1:{px}" }}
+transport = {{ kind = "tcp", address = "{x}" }}
 soft_limits_um = [500.0, 3000.0]
 poll_interval_ms = 2
 
 [hardware.controllers.y]
-transport = {{ kind = "tcp", address = "127.0.0.1:{py}" }}
+transport = {{ kind = "tcp", address = "{y}" }}
 soft_limits_um = [500.0, 4000.0]
 poll_interval_ms = 2
 
 [hardware.camera]
-id = {{ ip = "{ip}" }}
+id = {{ serial = "CSMTEST01" }}
 exposure_us = 1000.0
 
 [axes.x]
@@ -143,7 +89,8 @@ method = "pchip"
 [outputs]
 dir = "{out}/{{name}}-{{id}}"
 "#,
-            ip = fake.ip(),
+            x = r.x,
+            y = r.y,
             out = dir.path().display(),
         ),
     )
@@ -164,7 +111,6 @@ dir = "{out}/{{name}}-{{id}}"
     assert_eq!(row.planned, 2 * 21 + 2 * 6);
     let samples = s.samples(1).unwrap();
     assert_eq!(samples.len() as u64, row.planned);
-    assert!(drawn.load(std::sync::atomic::Ordering::SeqCst) >= row.planned);
     let events = s.events_after(1, 0).unwrap();
     let rig = events.iter().find(|e| e.kind == "rig").expect("rig event");
     let describe = rig.data["describe"]
@@ -172,7 +118,7 @@ dir = "{out}/{{name}}-{{id}}"
         .unwrap_or_default()
         .to_string();
     assert!(
-        describe.contains("C-863") && describe.contains(fake.serial()),
+        describe.contains("C-863") && describe.contains("CSMTEST01"),
         "{describe}"
     );
     for r in &samples {
@@ -194,15 +140,21 @@ dir = "{out}/{{name}}-{{id}}"
             r.encoder_um
         );
     }
-    // Motion stopped and both axes at rest at the end.
-    rt.block_on(async {
-        for (sim, a) in sims.into_iter().zip([AxisId::X, AxisId::Y]) {
-            assert!(
-                !sim.stage().with_axis(a, |s, _| s.is_moving()),
-                "{a} at rest"
-            );
-            assert!(sim.controller().command_count() > 0);
-            sim.shutdown().await;
-        }
-    });
+    // Every move was followed by the driver's motion queries: the campaign did not end with an
+    // axis still moving.
+    let log = r.stop();
+    for axis in ["x", "y"] {
+        let sent: Vec<&str> = log
+            .iter()
+            .filter(|(a, _)| a == axis)
+            .map(|(_, c)| c.as_str())
+            .collect();
+        let last_move = sent.iter().rposition(|c| c.starts_with("MOV "));
+        let last_move = last_move.unwrap_or_else(|| panic!("{axis}: no MOV in {sent:?}"));
+        assert!(
+            sent[last_move + 1..].iter().any(|c| c.starts_with("ONT?")),
+            "{axis}: on-target never asked after the last move: {:?}",
+            &sent[last_move..]
+        );
+    }
 }

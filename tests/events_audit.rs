@@ -2,16 +2,13 @@
 //! cause and its origin (the command line, the API client's address, the operator's name when
 //! given), errors included, and a campaign's `updated_unix_s` moves with every sample.
 mod common;
+mod rig;
 
 use std::time::Duration;
 
 use common::{bin, campaign, Server};
 use csmetro::store::{EventRow, Store};
 use csmetro::types::CampaignState;
-use csmetro_sim::Endpoint;
-use csmetro_sim::SimStage;
-use csmetro_sim::{AxisId, StageModel};
-use csmetro_sim::{ControllerConfig, SimController};
 use serde_json::Value;
 
 fn state(v: &Value) -> &str {
@@ -124,47 +121,15 @@ fn pause_and_resume_over_http_are_events_that_say_who_and_from_where() {
     );
 }
 
-/// Two simulated C-863 controllers on TCP (the hardware path of a `kind = "real"` campaign).
-fn controllers(rt: &tokio::runtime::Runtime) -> (Vec<SimController>, u16, u16) {
-    let stage = SimStage::new(StageModel::default(), 1000.0, [1.0, 2.0], 1.5, 5.0);
-    let cfg = ControllerConfig {
-        travel_mm: [-1.0, 14.0],
-        reference_switch_mm: 6.5,
-        ..ControllerConfig::default()
-    };
-    let sims: Vec<SimController> = rt.block_on(async {
-        let mut v = Vec::new();
-        for a in [AxisId::X, AxisId::Y] {
-            v.push(
-                SimController::start_tcp(
-                    stage.clone(),
-                    a,
-                    cfg.clone(),
-                    "127.0.0.1:0".parse().unwrap(),
-                )
-                .await
-                .unwrap(),
-            );
-        }
-        v
-    });
-    let port = |s: &SimController| match s.endpoint() {
-        Endpoint::Tcp(a) => a.port(),
-        other => panic!("expected TCP, got {other:?}"),
-    };
-    let (px, py) = (port(&sims[0]), port(&sims[1]));
-    (sims, px, py)
-}
-
 #[test]
 fn a_camera_failure_is_an_error_event_before_the_campaign_is_requeued() {
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
-    let (_sims, px, py) = controllers(&rt);
     let dir = tempfile::tempdir().unwrap();
+    // Two simulated C-863 controllers on TCP (the hardware path of a `kind = "real"` campaign).
+    let rig = rig::Rig::start(
+        std::path::Path::new(env!("CARGO_BIN_EXE_csmetro")),
+        &rig::rig_file(dir.path(), None, 1.0, 2.0, false),
+    );
+    let (px, py) = (&rig.x, &rig.y);
     // The service's store (common::write_config): the foreground run uses the same file.
     let db = dir.path().join("var/csmetro.db");
     let file = dir.path().join("real.toml");
@@ -181,11 +146,11 @@ stage = "lab-xy"
 kind = "real"
 
 [hardware.controllers.x]
-transport = {{ kind = "tcp", address = "127.0.0.1:{px}" }}
+transport = {{ kind = "tcp", address = "{px}" }}
 soft_limits_um = [500.0, 3000.0]
 
 [hardware.controllers.y]
-transport = {{ kind = "tcp", address = "127.0.0.1:{py}" }}
+transport = {{ kind = "tcp", address = "{py}" }}
 soft_limits_um = [500.0, 4000.0]
 
 [hardware.camera]
