@@ -6,29 +6,22 @@ mod common;
 use std::path::Path;
 use std::process::Output;
 
-use common::{bin, repo};
+use common::{bin, repo, run_json, sim_header};
 use csmetro::store::Store;
 use csmetro::types::CampaignState;
 use serde_json::Value;
 
 /// `m` random targets per direction on x from `lo_um` over 250 µm (step 25 µm), results to `out`.
 fn campaign(dir: &Path, lo_um: f64, out: &Path, extra: &str) -> std::path::PathBuf {
+    let head = sim_header(
+        "fails",
+        "sim-fail",
+        &repo("config/sim/ideal.toml").display().to_string(),
+        1000.0,
+        3,
+    );
     let text = format!(
-        r#"[campaign]
-name = "fails"
-stage = "sim-fail"
-
-[hardware]
-kind = "sim"
-optics = {{ width = 640, height = 640 }}
-
-[hardware.sim]
-model = "{model}"
-time_scale = 1000
-transport = "pty"
-frame_time_s = 0.1
-seed = 3
-
+        r#"{head}
 [axes.x]
 range_um = [{lo_um}, {hi}]
 step_um = 25.0
@@ -47,22 +40,12 @@ max_retries = 1
 [outputs]
 dir = "{out}"
 {extra}"#,
-        model = repo("config/sim/ideal.toml").display(),
         hi = lo_um + 250.0,
         out = out.display(),
     );
     let p = dir.join("campaign.toml");
     std::fs::write(&p, text).unwrap();
     p
-}
-
-fn run(c: &Path, db: &Path) -> Output {
-    bin()
-        .args(["run", "--json", "--quiet", "--db"])
-        .arg(db)
-        .arg(c)
-        .output()
-        .unwrap()
 }
 
 fn summary(o: &Output) -> Value {
@@ -75,7 +58,7 @@ fn points_rejected_beyond_the_pattern_fail_the_campaign() {
     let db = dir.path().join("c.db");
     // Past the end of the pattern (and of the stage model's travel): no frame decodes.
     let c = campaign(dir.path(), 12_500.0, &dir.path().join("out"), "");
-    let o = run(&c, &db);
+    let o = run_json(&c, &db);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     let j = summary(&o);
@@ -137,7 +120,7 @@ fn results_that_cannot_be_written_are_an_error() {
     let out = dir.path().join("results");
     std::fs::create_dir_all(out.join("summary.json")).unwrap();
     let c = campaign(dir.path(), 1000.0, &out, "");
-    let o = run(&c, &db);
+    let o = run_json(&c, &db);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(

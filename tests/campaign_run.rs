@@ -7,28 +7,21 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{bin, json_of, repo};
+use common::{bin, json_of, repo, run_json, sim_header};
 use csmetro::store::Store;
 use csmetro::types::CampaignState;
 
 /// A small Y campaign: `points` grid points, `m` random targets per direction, full scan.
 fn campaign(dir: &Path, range_um: f64, m: usize) -> PathBuf {
+    let head = sim_header(
+        "it",
+        "sim-xy",
+        &repo("config/sim/demo_xy.toml").display().to_string(),
+        1000.0,
+        5,
+    );
     let text = format!(
-        r#"[campaign]
-name = "it"
-stage = "sim-xy"
-
-[hardware]
-kind = "sim"
-optics = {{ width = 640, height = 640 }}
-
-[hardware.sim]
-model = "{model}"
-time_scale = 1000
-transport = "pty"
-frame_time_s = 0.1
-seed = 5
-
+        r#"{head}
 [axes.y]
 range_um = [1000.0, {hi}]
 step_um = 5.0
@@ -52,22 +45,12 @@ noise_um = 0.01
 [outputs]
 dir = "{out}/{{name}}-{{id}}"
 "#,
-        model = repo("config/sim/demo_xy.toml").display(),
         hi = 1000.0 + range_um,
         out = dir.display(),
     );
     let p = dir.join("campaign.toml");
     std::fs::write(&p, text).unwrap();
     p
-}
-
-fn run(campaign: &Path, db: &Path) -> Output {
-    bin()
-        .args(["run", "--json", "--quiet", "--db"])
-        .arg(db)
-        .arg(campaign)
-        .output()
-        .unwrap()
 }
 
 fn store(db: &Path) -> Store {
@@ -121,7 +104,7 @@ fn a_campaign_runs_end_to_end_and_reports_against_the_truth() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
     let c = campaign(dir.path(), 400.0, 20);
-    let j = json_of(&run(&c, &db));
+    let j = json_of(&run_json(&c, &db));
     assert_eq!(j["state"], "done");
     let y = &j["axes"][0];
     assert_eq!(y["axis"], "y");
@@ -316,7 +299,7 @@ fn bad_campaign_files_name_file_line_and_key_and_nothing_is_stored() {
         let line = text.lines().position(|l| l.trim() == changed).unwrap() + 1;
         let f = dir.path().join("bad.toml");
         std::fs::write(&f, &text).unwrap();
-        let o = run(&f, &db);
+        let o = run_json(&f, &db);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(2), "{to}: {err}");
         assert!(
@@ -325,7 +308,7 @@ fn bad_campaign_files_name_file_line_and_key_and_nothing_is_stored() {
         );
         assert!(!db.exists(), "{to}: nothing stored before validation");
     }
-    let o = run(&dir.path().join("missing.toml"), &db);
+    let o = run_json(&dir.path().join("missing.toml"), &db);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("missing.toml"));
 }
@@ -373,7 +356,7 @@ fn adaptive_mode_stops_at_the_error_target_and_reports_the_saving() {
             ),
         )
         .unwrap();
-        let j = json_of(&run(&f, &dir.path().join(format!("a{k}.db"))));
+        let j = json_of(&run_json(&f, &dir.path().join(format!("a{k}.db"))));
         assert_eq!(j["state"], "done");
         summaries.push(j["axes"][0]["phases"]["cs"].clone());
     }
@@ -398,7 +381,7 @@ fn one_process_per_stage_a_second_run_and_a_starting_service_keep_off() {
     let mut child = spawn_run(&c, &db);
     wait_for_samples(&mut child, &db, 20);
 
-    let o = run(&c, &db);
+    let o = run_json(&c, &db);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
@@ -512,7 +495,7 @@ fn a_foreground_run_killed_beside_the_service_becomes_resumable_through_it() {
 fn the_summary_after_kill_9_sigterm_and_resume_equals_an_uninterrupted_runs() {
     let dir = tempfile::tempdir().unwrap();
     let c = campaign(dir.path(), 400.0, 20);
-    let whole = json_of(&run(&c, &dir.path().join("whole.db")));
+    let whole = json_of(&run_json(&c, &dir.path().join("whole.db")));
     let db = dir.path().join("c.db");
     let mut child = spawn_run(&c, &db);
     wait_for_samples(&mut child, &db, 30);
@@ -584,7 +567,7 @@ fn results_are_never_overwritten_and_each_campaign_has_its_report() {
     let dir = tempfile::tempdir().unwrap();
     let c = campaign(dir.path(), 100.0, 5);
     let (db_a, db_b) = (dir.path().join("a.db"), dir.path().join("b.db"));
-    let oa = run(&c, &db_a);
+    let oa = run_json(&c, &db_a);
     let ja = json_of(&oa);
     assert_eq!(ja["state"], "done");
     let err = String::from_utf8_lossy(&oa.stderr);
@@ -603,7 +586,7 @@ fn results_are_never_overwritten_and_each_campaign_has_its_report() {
     assert_eq!(marker(&out)["store_id"], id_a.as_str());
     let summary_a = std::fs::read(out.join("summary.json")).unwrap();
 
-    let jb = json_of(&run(&c, &db_b));
+    let jb = json_of(&run_json(&c, &db_b));
     assert_eq!(
         (jb["id"].as_i64(), jb["state"].as_str()),
         (Some(1), Some("done"))

@@ -46,9 +46,9 @@ pub fn repo(p: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
 }
 
-/// A campaign of `2 * m` targets on x (forward and backward) of a simulated stage.
-/// `time_scale`: simulated physical time runs that many times faster than the wall clock.
-pub fn campaign(name: &str, stage: &str, m: usize, time_scale: f64) -> String {
+/// The `[campaign]` and `[hardware]` sections of a test campaign on a simulated stage: the
+/// controllers on pseudo-terminals, a 640 × 640 camera whose frames take 0.1 s.
+pub fn sim_header(name: &str, stage: &str, model: &str, time_scale: f64, seed: u64) -> String {
     format!(
         r#"[campaign]
 name = "{name}"
@@ -59,12 +59,31 @@ kind = "sim"
 optics = {{ width = 640, height = 640 }}
 
 [hardware.sim]
-model = "ideal.toml"
+model = "{model}"
 time_scale = {time_scale}
 transport = "pty"
 frame_time_s = 0.1
-seed = 7
+seed = {seed}
+"#
+    )
+}
 
+/// `csmetro run --json --quiet --db DB CAMPAIGN`, to its end.
+pub fn run_json(campaign: &Path, db: &Path) -> std::process::Output {
+    bin()
+        .args(["run", "--json", "--quiet", "--db"])
+        .arg(db)
+        .arg(campaign)
+        .output()
+        .unwrap()
+}
+
+/// A campaign of `2 * m` targets on x (forward and backward) of a simulated stage.
+/// `time_scale`: simulated physical time runs that many times faster than the wall clock.
+pub fn campaign(name: &str, stage: &str, m: usize, time_scale: f64) -> String {
+    let head = sim_header(name, stage, "ideal.toml", time_scale, 7);
+    format!(
+        r#"{head}
 [axes.x]
 range_um = [0.0, 1000.0]
 step_um = 25.0
