@@ -46,26 +46,7 @@ fn a_real_rig_campaign_runs_over_gcs_tcp_and_gige_vision() {
             r#"[campaign]
 name = "real-rig"
 stage = "lab-xy"
-
-[hardware]
-kind = "real"
-# The decoder's optics: the rig camera's full 640 x 640 frame.
-optics = {{ width = 640, height = 640 }}
-
-[hardware.controllers.x]
-transport = {{ kind = "tcp", address = "{x}" }}
-soft_limits_um = [500.0, 3000.0]
-poll_interval_ms = 2
-
-[hardware.controllers.y]
-transport = {{ kind = "tcp", address = "{y}" }}
-soft_limits_um = [500.0, 4000.0]
-poll_interval_ms = 2
-
-[hardware.camera]
-id = {{ serial = "CSMTEST01" }}
-exposure_us = 1000.0
-
+{hardware}
 [axes.x]
 range_um = [1000.0, 1200.0]
 step_um = 10.0
@@ -89,8 +70,8 @@ method = "pchip"
 [outputs]
 dir = "{out}/{{name}}-{{id}}"
 "#,
-            x = r.x,
-            y = r.y,
+            hardware =
+                rig::real_hardware(&r.x, &r.y, [500.0, 3000.0], [500.0, 4000.0], rig::CAMERA),
             out = dir.path().display(),
         ),
     )

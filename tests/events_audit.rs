@@ -129,34 +129,25 @@ fn a_camera_failure_is_an_error_event_before_the_campaign_is_requeued() {
         std::path::Path::new(env!("CARGO_BIN_EXE_csmetro")),
         &rig::rig_file(dir.path(), None, 1.0, 2.0, false),
     );
-    let (px, py) = (&rig.x, &rig.y);
+    // No camera answers at 127.0.0.1 (and without the `aravis` feature there is no GigE
+    // camera support at all): the rig cannot open its camera.
+    let hardware = rig::real_hardware(
+        &rig.x,
+        &rig.y,
+        [500.0, 3000.0],
+        [500.0, 4000.0],
+        r#"{ ip = "127.0.0.1" }"#,
+    );
     // The service's store (common::write_config): the foreground run uses the same file.
     let db = dir.path().join("var/csmetro.db");
     let file = dir.path().join("real.toml");
-    // No camera answers at 127.0.0.1 (and without the `aravis` feature there is no GigE
-    // camera support at all): the rig cannot open its camera.
     std::fs::write(
         &file,
         format!(
             r#"[campaign]
 name = "no-camera"
 stage = "lab-xy"
-
-[hardware]
-kind = "real"
-
-[hardware.controllers.x]
-transport = {{ kind = "tcp", address = "{px}" }}
-soft_limits_um = [500.0, 3000.0]
-
-[hardware.controllers.y]
-transport = {{ kind = "tcp", address = "{py}" }}
-soft_limits_um = [500.0, 4000.0]
-
-[hardware.camera]
-id = {{ ip = "127.0.0.1" }}
-exposure_us = 1000.0
-
+{hardware}
 [axes.x]
 range_um = [1000.0, 1200.0]
 step_um = 10.0

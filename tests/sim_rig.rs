@@ -112,30 +112,11 @@ fn a_real_campaign_on_the_simulated_rig_recovers_the_curve_as_the_sim_kind_does(
             r#"[campaign]
 name = "rig"
 stage = "sim-rig-test"
-
-[hardware]
-kind = "real"
-optics = {{ width = 640, height = 640 }}
-
-[hardware.controllers.x]
-transport = {{ kind = "tcp", address = "{x}" }}
-soft_limits_um = [0.0, 9000.0]
-poll_interval_ms = 2
-
-[hardware.controllers.y]
-transport = {{ kind = "tcp", address = "{y}" }}
-soft_limits_um = [0.0, 4000.0]
-poll_interval_ms = 2
-
-[hardware.camera]
-id = {{ serial = "CSMTEST01" }}
-exposure_us = 1000.0
-{COMMON}
+{hardware}{COMMON}
 [outputs]
 dir = "{out}/{{name}}-{{id}}"
 "#,
-            x = r.x,
-            y = r.y,
+            hardware = rig::real_hardware(&r.x, &r.y, [0.0, 9000.0], [0.0, 4000.0], rig::CAMERA),
             out = dir.path().display(),
         ),
     )

@@ -35,6 +35,9 @@ pub fn rig_file(dir: &Path, model: Option<&Path>, x_mm: f64, y_mm: f64, camera: 
     p
 }
 
+/// The rig camera's `id` in a campaign file.
+pub const CAMERA: &str = r#"{ serial = "CSMTEST01" }"#;
+
 pub struct Rig {
     child: Child,
     pub x: String,
@@ -108,4 +111,39 @@ impl Drop for Rig {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// The `[hardware]` of a `kind = "real"` campaign on a rig's controllers at `x` and `y` (soft
+/// limits in µm), its camera given as a TOML `id` value (`{ serial = "CSMTEST01" }` for the
+/// rig's own), the decoder's optics the rig camera's full 640 × 640 frame.
+pub fn real_hardware(
+    x: &str,
+    y: &str,
+    x_lim_um: [f64; 2],
+    y_lim_um: [f64; 2],
+    camera: &str,
+) -> String {
+    let [x0, x1] = x_lim_um;
+    let [y0, y1] = y_lim_um;
+    format!(
+        r#"
+[hardware]
+kind = "real"
+optics = {{ width = 640, height = 640 }}
+
+[hardware.controllers.x]
+transport = {{ kind = "tcp", address = "{x}" }}
+soft_limits_um = [{x0:?}, {x1:?}]
+poll_interval_ms = 2
+
+[hardware.controllers.y]
+transport = {{ kind = "tcp", address = "{y}" }}
+soft_limits_um = [{y0:?}, {y1:?}]
+poll_interval_ms = 2
+
+[hardware.camera]
+id = {camera}
+exposure_us = 1000.0
+"#
+    )
 }
