@@ -46,8 +46,7 @@ fn truth_um(p: f64) -> f64 {
 }
 
 /// A campaign of x over `range_um` at 10 µm, `m` random targets each way (`tail`: more of its
-/// `[sampling]` and its `[reconstruction]`), on the
-/// `hardware` given, results below `out`.
+/// `[sampling]` and its `[reconstruction]`), on the `hardware` given, results below `out`.
 fn x_campaign(
     name: &str,
     hardware: &str,
