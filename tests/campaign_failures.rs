@@ -6,7 +6,7 @@ mod common;
 use std::path::Path;
 use std::process::Output;
 
-use common::{bin, repo, run_json, sim_header};
+use common::{repo, resume, run_json, sim_header};
 use csmetro::store::Store;
 use csmetro::types::CampaignState;
 use serde_json::Value;
@@ -102,11 +102,7 @@ fn points_rejected_beyond_the_pattern_fail_the_campaign() {
     assert_eq!(fin.data["state"], "failed", "{}", fin.data);
     assert!(!fin.data["errors"].as_array().unwrap().is_empty());
     // Failed for good: nothing to resume.
-    let o = bin()
-        .args(["resume", "1", "--db"])
-        .arg(&db)
-        .output()
-        .unwrap();
+    let o = resume(1, &[], &db);
     assert_eq!(o.status.code(), Some(2));
 }
 

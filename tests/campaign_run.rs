@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{bin, json_of, repo, run_json, sim_header};
+use common::{bin, json_of, repo, resume, run_json, sim_header};
 use csmetro::store::Store;
 use csmetro::types::CampaignState;
 
@@ -216,13 +216,7 @@ fn kill_9_then_resume_loses_nothing_and_measures_nothing_twice() {
     let planned = store(&db).campaign(1).unwrap().unwrap().planned;
     assert!((before.len() as u64) < planned, "killed mid-run");
 
-    let j = json_of(
-        &bin()
-            .args(["resume", "1", "--json", "--quiet", "--db"])
-            .arg(&db)
-            .output()
-            .unwrap(),
-    );
+    let j = json_of(&resume(1, &["--json", "--quiet"], &db));
     assert_eq!(j["state"], "done");
     let s = store(&db);
     let after = s.samples(1).unwrap();
@@ -240,11 +234,7 @@ fn kill_9_then_resume_loses_nothing_and_measures_nothing_twice() {
     assert!(events.iter().any(|e| e.kind == "resumed_from_store"));
     assert_eq!(s.campaign(1).unwrap().unwrap().state, CampaignState::Done);
     // A finished campaign cannot be resumed again.
-    let o = bin()
-        .args(["resume", "1", "--db"])
-        .arg(&db)
-        .output()
-        .unwrap();
+    let o = resume(1, &[], &db);
     assert_eq!(o.status.code(), Some(2));
 }
 
@@ -326,13 +316,7 @@ fn sigterm_stops_motion_and_leaves_the_campaign_resumable() {
     assert!(err.contains("motion stopped"), "{err}");
     let row = store(&db).campaign(1).unwrap().unwrap();
     assert_eq!(row.state, CampaignState::Interrupted);
-    let j = json_of(
-        &bin()
-            .args(["resume", "1", "--json", "--quiet", "--db"])
-            .arg(&db)
-            .output()
-            .unwrap(),
-    );
+    let j = json_of(&resume(1, &["--json", "--quiet"], &db));
     assert_eq!(j["state"], "done");
     assert_eq!(store(&db).sample_count(1).unwrap(), row.planned);
 }
@@ -390,11 +374,7 @@ fn one_process_per_stage_a_second_run_and_a_starting_service_keep_off() {
         "{err}"
     );
     assert_eq!(store(&db).campaigns().unwrap().len(), 1, "nothing stored");
-    let o = bin()
-        .args(["resume", "1", "--db"])
-        .arg(&db)
-        .output()
-        .unwrap();
+    let o = resume(1, &[], &db);
     assert_eq!(o.status.code(), Some(1));
 
     common::write_config(dir.path(), "127.0.0.1:0", None);
@@ -515,13 +495,7 @@ fn the_summary_after_kill_9_sigterm_and_resume_equals_an_uninterrupted_runs() {
         (store(&db).sample_count(1).unwrap()) < 202,
         "stopped mid-run"
     );
-    let j = json_of(
-        &bin()
-            .args(["resume", "1", "--json", "--quiet", "--db"])
-            .arg(&db)
-            .output()
-            .unwrap(),
-    );
+    let j = json_of(&resume(1, &["--json", "--quiet"], &db));
     assert_eq!(j["state"], "done");
     assert_eq!(j["samples"], 202);
     let (y, w) = (&j["axes"][0], &whole["axes"][0]);

@@ -78,6 +78,18 @@ pub fn run_json(campaign: &Path, db: &Path) -> std::process::Output {
         .unwrap()
 }
 
+/// `csmetro resume ID --db DB` with `flags` (e.g. `--json`, `--quiet`), to its end.
+pub fn resume(id: i64, flags: &[&str], db: &Path) -> std::process::Output {
+    bin()
+        .arg("resume")
+        .arg(id.to_string())
+        .args(flags)
+        .arg("--db")
+        .arg(db)
+        .output()
+        .unwrap()
+}
+
 /// A campaign of `2 * m` targets on x (forward and backward) of a simulated stage.
 /// `time_scale`: simulated physical time runs that many times faster than the wall clock.
 pub fn campaign(name: &str, stage: &str, m: usize, time_scale: f64) -> String {
