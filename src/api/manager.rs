@@ -775,11 +775,16 @@ impl Manager {
                 .set_state(id, CampaignState::Paused, Some(&msg))
                 .map_err(store_err)?;
         }
+        self.emit_by_operator(id, "paused", origin);
+        self.status(id)
+    }
+
+    /// An operator's pause or resume as an event (and a log line) saying who.
+    fn emit_by_operator(&self, id: i64, kind: &str, origin: &Origin) {
         let mut data = origin.fields();
         data["cause"] = json!("operator");
-        self.emit(id, "paused", data);
-        tracing::info!(campaign = id, by = %origin.describe(), "paused");
-        self.status(id)
+        self.emit(id, kind, data);
+        tracing::info!(campaign = id, by = %origin.describe(), "{kind}");
     }
 
     /// Continues a paused campaign, or queues an interrupted one again (it resumes from its
@@ -810,10 +815,7 @@ impl Manager {
                     .set_state(id, CampaignState::Running, None)
                     .map_err(store_err)?;
                 drop(inner);
-                let mut data = origin.fields();
-                data["cause"] = json!("operator");
-                self.emit(id, "resumed", data);
-                tracing::info!(campaign = id, by = %origin.describe(), "resumed");
+                self.emit_by_operator(id, "resumed", origin);
                 return self.status(id);
             } else if inner.queue_position(id).is_some() {
                 drop(inner);

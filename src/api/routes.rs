@@ -161,13 +161,18 @@ async fn list(State(app): State<App>) -> ApiResult<Json<Vec<CampaignStatus>>> {
     blocking(move || m.list()).await.map(Json)
 }
 
-/// Store calls take the store's mutex and touch the disk: keep them off the async workers.
+/// Store calls take the store's mutex and touch the disk: keep them off the async workers. The
+/// call runs inside the runtime: submitting, resuming and aborting schedule tasks on it.
 async fn blocking<T: Send + 'static>(
     f: impl FnOnce() -> ApiResult<T> + Send + 'static,
 ) -> ApiResult<T> {
-    tokio::task::spawn_blocking(f)
-        .await
-        .map_err(|e| ApiError::internal(e.to_string()))?
+    let rt = tokio::runtime::Handle::current();
+    tokio::task::spawn_blocking(move || {
+        let _g = rt.enter();
+        f()
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))?
 }
 
 #[derive(Deserialize)]
@@ -207,15 +212,12 @@ async fn submit(
     }
     let m = app.manager.clone();
     let policy = app.policy.clone();
-    // `submit` schedules on the runtime: enter it from the blocking thread.
-    let rt = tokio::runtime::Handle::current();
     let st = blocking(move || {
         // The client's file is untrusted: it may name files only where the service allows and
         // write only below the results directory. Errors name the client's file name only.
         let origin = submitted_origin(&name);
         Campaign::parse_submitted(&text, &origin, &policy)
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
-        let _g = rt.enter();
         m.submit_by(&text, &name, &who)
     })
     .await?;
@@ -254,13 +256,7 @@ async fn resume(
     Path(id): Path<i64>,
 ) -> ApiResult<Json<CampaignStatus>> {
     let m = app.manager.clone();
-    let rt = tokio::runtime::Handle::current();
-    blocking(move || {
-        let _g = rt.enter();
-        m.resume_by(id, &who)
-    })
-    .await
-    .map(Json)
+    blocking(move || m.resume_by(id, &who)).await.map(Json)
 }
 
 async fn abort(
@@ -269,13 +265,7 @@ async fn abort(
     Path(id): Path<i64>,
 ) -> ApiResult<Json<CampaignStatus>> {
     let m = app.manager.clone();
-    let rt = tokio::runtime::Handle::current();
-    blocking(move || {
-        let _g = rt.enter();
-        m.abort_by(id, &who)
-    })
-    .await
-    .map(Json)
+    blocking(move || m.abort_by(id, &who)).await.map(Json)
 }
 
 #[derive(Deserialize)]
