@@ -16,7 +16,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Grid START:STEP:END in µm.
-    #[arg(long, default_value = "0:5:9500")]
+    #[arg(long, default_value = "0:5:9500", allow_hyphen_values = true)]
     grid: String,
     /// Number of samples m (random design unless --design says otherwise).
     #[arg(long, default_value_t = 600)]

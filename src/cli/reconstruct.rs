@@ -13,7 +13,8 @@ pub struct Args {
     #[arg(long)]
     samples: PathBuf,
     /// Grid START:STEP:END in µm, e.g. 0:5:9500.
-    #[arg(long)]
+    // A travel may start below zero: `--grid -20:5:20` is a grid, not a flag.
+    #[arg(long, allow_hyphen_values = true)]
     grid: String,
     /// auto | bp | bpdn | pchip | linear | physics
     #[arg(long, default_value = "auto")]

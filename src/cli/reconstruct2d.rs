@@ -12,10 +12,12 @@ pub struct Args {
     #[arg(long)]
     samples: PathBuf,
     /// X grid START:STEP:END in µm, e.g. 0:5:9500.
-    #[arg(long)]
+    // A travel may start below zero: `--grid -20:5:20` is a grid, not a flag.
+    #[arg(long, allow_hyphen_values = true)]
     grid_x: String,
     /// Y grid START:STEP:END in µm, e.g. 0:5:4200.
-    #[arg(long)]
+    // A travel may start below zero: `--grid -20:5:20` is a grid, not a flag.
+    #[arg(long, allow_hyphen_values = true)]
     grid_y: String,
     /// auto | physics | linear
     #[arg(long, default_value = "auto")]
