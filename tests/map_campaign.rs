@@ -7,6 +7,8 @@ mod common;
 
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::{Duration, Instant};
 
 use common::{bin, json_of};
 use csmetro::campaign::spec::Campaign;
@@ -75,7 +77,7 @@ fn truth(x: f64, y: f64) -> (f64, f64) {
     (ex, ey)
 }
 
-fn campaign(dir: &Path, extra: &str) -> PathBuf {
+fn campaign(dir: &Path, extra: &str, time_scale: f64) -> PathBuf {
     std::fs::write(dir.join("model.toml"), MODEL).unwrap();
     let text = format!(
         r#"[campaign]
@@ -88,7 +90,7 @@ optics = {{ width = 640, height = 640 }}
 
 [hardware.sim]
 model = "model.toml"
-time_scale = 10000
+time_scale = {time_scale}
 transport = "pty"
 frame_time_s = 0.1
 seed = 3
@@ -127,11 +129,38 @@ fn slope(p: &[f64], v: &[f64]) -> f64 {
     sxy / sxx
 }
 
+/// Reads `map_forward.csv` of a results folder: every grid point, x fastest, close to the truth.
+fn check_map(out: &Path) -> Vec<Vec<f64>> {
+    let csv = std::fs::read_to_string(out.join("map_forward.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("x_um,y_um,ex_um,ey_um,theta_urad"));
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), NX * NY);
+    let (mut sum, mut max, mut n) = (0.0f64, 0.0f64, 0.0);
+    for (k, r) in rows.iter().enumerate() {
+        let (x, y) = (X0 + STEP * (k % NX) as f64, Y0 + STEP * (k / NX) as f64);
+        assert_eq!((r[0], r[1]), (x, y), "row {k}: x fastest");
+        let (tx, ty) = truth(x, y);
+        for d in [r[2] - tx, r[3] - ty] {
+            sum += d.abs();
+            max = max.max(d.abs());
+            n += 1.0;
+        }
+    }
+    let mean = sum / n;
+    eprintln!("map vs closed-form truth: mean {mean:.4} µm, max {max:.4} µm");
+    // A point approached from the wrong side in x would be 2 µm off (the backlash).
+    assert!(mean < 0.05 && max < 0.3, "mean {mean} max {max}");
+    rows
+}
+
 #[test]
 fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
-    let c = campaign(dir.path(), "");
+    let c = campaign(dir.path(), "", 10000.0);
     let o = bin()
         .args(["run", "--json", "--quiet", "--db"])
         .arg(&db)
@@ -155,27 +184,7 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
 
     // The map file: every grid point, x fastest, close to the truth.
     let out = dir.path().join("map-1");
-    let csv = std::fs::read_to_string(out.join("map_forward.csv")).unwrap();
-    let mut lines = csv.lines();
-    assert_eq!(lines.next(), Some("x_um,y_um,ex_um,ey_um,theta_urad"));
-    let rows: Vec<Vec<f64>> = lines
-        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
-        .collect();
-    assert_eq!(rows.len(), NX * NY);
-    let (mut sum, mut max, mut n) = (0.0f64, 0.0f64, 0.0);
-    for (k, r) in rows.iter().enumerate() {
-        let (x, y) = (X0 + STEP * (k % NX) as f64, Y0 + STEP * (k / NX) as f64);
-        assert_eq!((r[0], r[1]), (x, y), "row {k}: x fastest");
-        let (tx, ty) = truth(x, y);
-        for d in [r[2] - tx, r[3] - ty] {
-            sum += d.abs();
-            max = max.max(d.abs());
-            n += 1.0;
-        }
-    }
-    let mean = sum / n;
-    eprintln!("map vs closed-form truth: mean {mean:.4} µm, max {max:.4} µm");
-    assert!(mean < 0.05 && max < 0.3, "mean {mean} max {max}");
+    let rows = check_map(&out);
 
     // ISO 230-1: squareness from the reference lines' slopes, computed here from the truth.
     let xs: Vec<f64> = (0..NX).map(|i| X0 + STEP * i as f64).collect();
@@ -208,6 +217,10 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
         let p = out.join(f);
         assert!(p.is_file() && p.metadata().unwrap().len() > 100, "{f}");
     }
+    // report.html: the heat maps embedded, the ISO 230-1 figures in its summary.
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("alt=\"plots/map_forward_ey.png\""));
+    assert!(html.contains("squareness X to Y"));
     let comp = std::fs::read_to_string(out.join("compensation_map_forward.csv")).unwrap();
     let mut comp = comp.lines();
     assert_eq!(comp.next(), Some("x_um,y_um,corr_x_um,corr_y_um"));
@@ -223,7 +236,7 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
 #[test]
 fn bad_map_sections_name_the_line_and_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let c = campaign(dir.path(), "");
+    let c = campaign(dir.path(), "", 10000.0);
     let text = std::fs::read_to_string(&c).unwrap();
     let line_of = |needle: &str| text.lines().position(|l| l.starts_with(needle)).unwrap() + 1;
     for (from, to, key) in [
@@ -254,4 +267,52 @@ fn bad_map_sections_name_the_line_and_the_key() {
     );
     let e = Campaign::parse(&bad, "map.toml", dir.path()).unwrap_err();
     assert!(e.to_string().contains("map.polygon"), "{e}");
+}
+
+#[test]
+fn a_map_campaign_killed_mid_run_resumes_without_losing_or_repeating_a_point() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    let c = campaign(dir.path(), "", 1000.0);
+    let mut child = bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(&db)
+        .arg(&c)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    loop {
+        assert!(child.try_wait().unwrap().is_none(), "ended before the kill");
+        let n = Store::open(&db).ok().and_then(|s| s.sample_count(1).ok());
+        if n.is_some_and(|n| n >= 60) {
+            break;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(120), "no progress");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    let before = Store::open(&db).unwrap().samples(1).unwrap();
+    assert!(before.len() >= 60 && before.len() < 200, "{}", before.len());
+    let j = json_of(
+        &bin()
+            .args(["resume", "1", "--json", "--quiet", "--db"])
+            .arg(&db)
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(j["state"], "done", "{j}");
+    let after = Store::open(&db).unwrap().samples(1).unwrap();
+    let mut seqs: Vec<u64> = after.iter().map(|s| s.target.seq).collect();
+    seqs.sort_unstable();
+    seqs.dedup();
+    assert_eq!((after.len(), seqs.len()), (200, 200), "every point once");
+    for b in &before {
+        let a = after.iter().find(|a| a.target.seq == b.target.seq).unwrap();
+        assert_eq!((a.meas_x_um, a.unix_s), (b.meas_x_um, b.unix_s));
+    }
+    // The points measured after the resume were approached as the first ones were.
+    check_map(&dir.path().join("map-1"));
 }
