@@ -8,7 +8,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::plot::{encode_png, register_fonts, tick, PlotOptions, FONT_FAMILY};
+use super::plot::{frame, render_png, render_svg, tick, Fonts, PlotOptions};
 use super::ReportError;
 use crate::recon2d::Grid2;
 
@@ -83,31 +83,13 @@ fn colour(t: f64, diverging: bool) -> RGBColor {
 /// The heat map as an SVG document.
 pub fn heatmap_svg(h: &HeatMap<'_>, opts: &PlotOptions) -> Result<String, ReportError> {
     check(h)?;
-    register_fonts();
-    let mut out = String::new();
-    {
-        let root = SVGBackend::with_string(&mut out, (opts.width, opts.height)).into_drawing_area();
-        draw(&root, h).map_err(|e| heat_error(h, e))?;
-        root.present().map_err(|e| heat_error(h, e.to_string()))?;
-    }
-    Ok(out)
+    render_svg(opts, |root| draw(root, h)).map_err(|e| heat_error(h, e))
 }
 
 /// The heat map as a PNG file, drawn by the same code as [`heatmap_svg`].
 pub fn heatmap_png(h: &HeatMap<'_>, opts: &PlotOptions) -> Result<Vec<u8>, ReportError> {
     check(h)?;
-    if opts.width == 0 || opts.height == 0 {
-        return Err(heat_error(h, "zero-sized plot".into()));
-    }
-    register_fonts();
-    let mut rgb = vec![0u8; opts.width as usize * opts.height as usize * 3];
-    {
-        let root =
-            BitMapBackend::with_buffer(&mut rgb, (opts.width, opts.height)).into_drawing_area();
-        draw(&root, h).map_err(|e| heat_error(h, e))?;
-        root.present().map_err(|e| heat_error(h, e.to_string()))?;
-    }
-    encode_png(&rgb, opts.width, opts.height).map_err(|e| heat_error(h, e))
+    render_png(opts, |root| draw(root, h)).map_err(|e| heat_error(h, e))
 }
 
 fn check(h: &HeatMap<'_>) -> Result<(), ReportError> {
@@ -127,14 +109,15 @@ fn check(h: &HeatMap<'_>) -> Result<(), ReportError> {
 
 fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, h: &HeatMap<'_>) -> Result<(), String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
-    let (w, hpx) = root.dim_in_pixel();
-    let small = (hpx / 50).clamp(11, 18);
-    let label_font = (FONT_FAMILY, small).into_font();
-    let desc_font = (FONT_FAMILY, small + 2).into_font();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let body = root
-        .titled(&h.title, (FONT_FAMILY, small + 6).into_font())
-        .map_err(|e| err(&e))?;
+    let (w, _) = root.dim_in_pixel();
+    let (
+        Fonts {
+            small,
+            label: label_font,
+            desc: desc_font,
+        },
+        body,
+    ) = frame(root, &h.title)?;
     let (plot, bar) = body.split_horizontally(w.saturating_sub(small * 9));
     let (cx, cy, v) = blocks(h);
     let (lo, hi) = v
