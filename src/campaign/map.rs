@@ -220,17 +220,29 @@ pub fn add_to_report(
                 json!({"ex": diff_stats(&r.map.ex, &tx), "ey": diff_stats(&r.map.ey, &ty)});
             j["truth_iso230_1"] = iso_json(&iso230_1(g, &tx, &ty));
             let res = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p - q).collect();
-            let d = |c: &str| {
+            // The baseline side by side: linear interpolation on a triangulation of the same
+            // samples.
+            let (lin_x, lin_y) = if r.report.method == "linear" {
+                (r.map.ex.clone(), r.map.ey.clone())
+            } else {
+                let l = crate::recon2d::linear::interpolate(g, &r.samples);
+                (l.ex, l.ey)
+            };
+            j["linear_vs_truth"] =
+                json!({"ex": diff_stats(&lin_x, &tx), "ey": diff_stats(&lin_y, &ty)});
+            let mm = |v: &Value| {
                 format!(
                     "{:.4}/{:.4}",
-                    j["vs_truth"][c]["mean_abs_um"].as_f64().unwrap_or(f64::NAN),
-                    j["vs_truth"][c]["max_abs_um"].as_f64().unwrap_or(f64::NAN)
+                    v["mean_abs_um"].as_f64().unwrap_or(f64::NAN),
+                    v["max_abs_um"].as_f64().unwrap_or(f64::NAN)
                 )
             };
             text.push_str(&format!(
-                "map {dir} vs truth (mean/max |error| µm): e_x {}, e_y {}\n",
-                d("ex"),
-                d("ey")
+                "map {dir} vs truth (mean/max |error| µm): e_x {}, e_y {}; linear interpolation of the same samples: e_x {}, e_y {}\n",
+                mm(&j["vs_truth"]["ex"]),
+                mm(&j["vs_truth"]["ey"]),
+                mm(&j["linear_vs_truth"]["ex"]),
+                mm(&j["linear_vs_truth"]["ey"])
             ));
             fields.push((
                 "residual_ex".into(),
