@@ -260,6 +260,17 @@ fn bad_map_sections_name_the_line_and_the_key() {
             assert!(msg.contains(key), "{msg}");
         }
     }
+    // Lines and a map are separate campaigns.
+    let bad = text.replace(
+        "[acquisition]",
+        "[axes.y]\nrange_um = [0.0, 500.0]\nstep_um = 5.0\nother_at_um = 100.0\nm = 20\n\n[acquisition]",
+    );
+    let e = Campaign::parse(&bad, "map.toml", dir.path()).unwrap_err();
+    let msg = e.to_string();
+    assert!(
+        msg.starts_with(&format!("map.toml:{}: map", line_of("[map]"))) && msg.contains("[axes.*]"),
+        "{msg}"
+    );
     // A polygon too small for m points.
     let bad = text.replace(
         "seed = 9\n",

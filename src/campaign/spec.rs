@@ -904,6 +904,15 @@ fn validate(
             if spec.compensation.is_some() {
                 return Err(fail("map", "a map campaign runs uncompensated".into()));
             }
+            // The simulator's truth of a map is planar (both axes' errors at once), a line's is
+            // not: lines and a map are separate campaigns.
+            if !spec.axes.is_empty() {
+                return Err(fail(
+                    "map",
+                    "a map campaign has no [axes.*]: characterize lines in a campaign of their own"
+                        .into(),
+                ));
+            }
             let p = map::validate_map(m, a.approach_um, &limits_of, fail)?;
             planned += (p.design.m * p.directions.len()) as u64;
             if planned > MAX_PLANNED {
