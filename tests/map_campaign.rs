@@ -68,11 +68,12 @@ period_um = 600
 cos_um = [0.2]
 "#;
 
-/// The model above at (x, y), both axes approached forward: (e_x, e_y), µm.
-fn truth(x: f64, y: f64) -> (f64, f64) {
+/// The model above at (x, y), both axes approached forward (`d` = 1) or backward (-1):
+/// (e_x, e_y), µm.
+fn truth(x: f64, y: f64, d: f64) -> (f64, f64) {
     let s = 2.0 * x / 9500.0 - 1.0;
     let p2 = 0.5 * (3.0 * s * s - 1.0);
-    let ex = 150e-6 * x + 0.3 * (TAU * x / 800.0).cos() + 1.0 + 40e-6 * y;
+    let ex = 150e-6 * x + 0.3 * (TAU * x / 800.0).cos() + d + 40e-6 * y;
     let ey = 0.5 * p2 - 100e-6 * y + 0.2 * (TAU * y / 600.0).cos();
     (ex, ey)
 }
@@ -129,9 +130,10 @@ fn slope(p: &[f64], v: &[f64]) -> f64 {
     sxy / sxx
 }
 
-/// Reads `map_forward.csv` of a results folder: every grid point, x fastest, close to the truth.
-fn check_map(out: &Path) -> Vec<Vec<f64>> {
-    let csv = std::fs::read_to_string(out.join("map_forward.csv")).unwrap();
+/// Reads `map_<dir>.csv` of a results folder: every grid point, x fastest, close to the truth.
+fn check_map(out: &Path, dir: &str) -> Vec<Vec<f64>> {
+    let d = if dir == "forward" { 1.0 } else { -1.0 };
+    let csv = std::fs::read_to_string(out.join(format!("map_{dir}.csv"))).unwrap();
     let mut lines = csv.lines();
     assert_eq!(lines.next(), Some("x_um,y_um,ex_um,ey_um,theta_urad"));
     let rows: Vec<Vec<f64>> = lines
@@ -142,7 +144,7 @@ fn check_map(out: &Path) -> Vec<Vec<f64>> {
     for (k, r) in rows.iter().enumerate() {
         let (x, y) = (X0 + STEP * (k % NX) as f64, Y0 + STEP * (k / NX) as f64);
         assert_eq!((r[0], r[1]), (x, y), "row {k}: x fastest");
-        let (tx, ty) = truth(x, y);
+        let (tx, ty) = truth(x, y, d);
         for d in [r[2] - tx, r[3] - ty] {
             sum += d.abs();
             max = max.max(d.abs());
@@ -150,7 +152,7 @@ fn check_map(out: &Path) -> Vec<Vec<f64>> {
         }
     }
     let mean = sum / n;
-    eprintln!("map vs closed-form truth: mean {mean:.4} µm, max {max:.4} µm");
+    eprintln!("map {dir} vs closed-form truth: mean {mean:.4} µm, max {max:.4} µm");
     // A point approached from the wrong side in x would be 2 µm off (the backlash).
     assert!(mean < 0.05 && max < 0.3, "mean {mean} max {max}");
     rows
@@ -160,7 +162,11 @@ fn check_map(out: &Path) -> Vec<Vec<f64>> {
 fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
-    let c = campaign(dir.path(), "", 10000.0);
+    let c = campaign(
+        dir.path(),
+        "directions = [\"forward\", \"backward\"]\n",
+        10000.0,
+    );
     let o = bin()
         .args(["run", "--json", "--quiet", "--db"])
         .arg(&db)
@@ -172,10 +178,10 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
 
     // Every point stored, each with both axes on target.
     let samples = Store::open(&db).unwrap().samples(1).unwrap();
-    assert_eq!(samples.len(), 200);
+    assert_eq!(samples.len(), 400);
     assert!(samples.iter().all(|s| s.target.run.phase.as_str() == "map"));
     let m = &j["map"];
-    assert_eq!(m["measurements"], 200);
+    assert_eq!(m["measurements"], 400);
     assert_eq!((m["nx"].as_u64(), m["ny"].as_u64()), (Some(40), Some(20)));
     // The campaign's time against the full 5 µm scan of the same rectangle (391 x 191 points).
     assert_eq!(m["full_scan_estimate"]["points"], 391 * 191);
@@ -184,13 +190,21 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
 
     // The map file: every grid point, x fastest, close to the truth.
     let out = dir.path().join("map-1");
-    let rows = check_map(&out);
+    let rows = check_map(&out, "forward");
+    // Backward: every point approached from +x and +y, the x backlash the other way.
+    check_map(&out, "backward");
 
     // ISO 230-1: squareness from the reference lines' slopes, computed here from the truth.
     let xs: Vec<f64> = (0..NX).map(|i| X0 + STEP * i as f64).collect();
     let ys: Vec<f64> = (0..NY).map(|i| Y0 + STEP * i as f64).collect();
-    let a_x = slope(&xs, &xs.iter().map(|&x| truth(x, Y0).1).collect::<Vec<_>>());
-    let a_y = slope(&ys, &ys.iter().map(|&y| truth(X0, y).0).collect::<Vec<_>>());
+    let a_x = slope(
+        &xs,
+        &xs.iter().map(|&x| truth(x, Y0, 1.0).1).collect::<Vec<_>>(),
+    );
+    let a_y = slope(
+        &ys,
+        &ys.iter().map(|&y| truth(X0, y, 1.0).0).collect::<Vec<_>>(),
+    );
     let want = -(a_x + a_y) * 1e6;
     let iso = &m["runs"][0]["iso230_1"];
     let got = iso["squareness_urad"].as_f64().unwrap();
@@ -325,5 +339,5 @@ fn a_map_campaign_killed_mid_run_resumes_without_losing_or_repeating_a_point() {
         assert_eq!((a.meas_x_um, a.unix_s), (b.meas_x_um, b.unix_s));
     }
     // The points measured after the resume were approached as the first ones were.
-    check_map(&dir.path().join("map-1"));
+    check_map(&dir.path().join("map-1"), "forward");
 }
