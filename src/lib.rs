@@ -11,6 +11,7 @@ pub mod recon2d;
 pub mod report;
 pub mod samples;
 pub mod sampling;
+pub mod sampling2d;
 pub mod store;
 pub mod synth;
 mod tomlpos;

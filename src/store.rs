@@ -35,7 +35,7 @@ use serde::Serialize;
 use crate::types::{AxisId, CampaignState, Direction, Phase, RunKey, SampleRecord, Target};
 
 /// The schema this build writes. Bump it and append to [`MIGRATIONS`] to change the schema.
-pub const SCHEMA_VERSION: i32 = 2;
+pub const SCHEMA_VERSION: i32 = 3;
 
 /// `PRAGMA application_id` of a csmetro store ("CSMT"), so `file(1)`-like tools and
 /// [`Store::open`] can tell a csmetro database from another SQLite file.
@@ -121,6 +121,42 @@ CREATE TABLE store_info (
     value TEXT NOT NULL
 );
 INSERT INTO store_info (key, value) VALUES ('id', lower(hex(randomblob(8))));
+CREATE TRIGGER samples_touch_campaign AFTER INSERT ON samples BEGIN
+    UPDATE campaigns
+       SET updated_unix_s = max(updated_unix_s, (julianday('now') - 2440587.5) * 86400.0)
+     WHERE id = NEW.campaign_id;
+END;
+"#,
+    // 2 -> 3: samples of `[map]` runs (phase 'map'). SQLite cannot alter a CHECK: the table is
+    // rebuilt with every row, and its trigger recreated.
+    r#"
+CREATE TABLE samples_v3 (
+    id          INTEGER PRIMARY KEY,
+    campaign_id INTEGER NOT NULL REFERENCES campaigns (id) ON DELETE CASCADE,
+    seq         INTEGER NOT NULL CHECK (seq >= 0),
+    phase       TEXT    NOT NULL CHECK (phase IN ('cs', 'full', 'map')),
+    axis        TEXT    NOT NULL CHECK (axis IN ('x', 'y')),
+    direction   TEXT    NOT NULL CHECK (direction IN ('forward', 'backward')),
+    cycle       INTEGER NOT NULL CHECK (cycle >= 0),
+    grid_index  INTEGER NOT NULL CHECK (grid_index >= 0),
+    target_x_um REAL,
+    target_y_um REAL,
+    meas_x_um   REAL,
+    meas_y_um   REAL,
+    theta_mrad  REAL,
+    encoder_um  REAL,
+    time_s      REAL,
+    unix_s      REAL,
+    quality     REAL,
+    frames      INTEGER NOT NULL CHECK (frames >= 0),
+    rejected    INTEGER NOT NULL CHECK (rejected >= 0),
+    point_s     REAL,
+    raw_bits    TEXT,
+    UNIQUE (campaign_id, seq)
+);
+INSERT INTO samples_v3 SELECT * FROM samples;
+DROP TABLE samples;
+ALTER TABLE samples_v3 RENAME TO samples;
 CREATE TRIGGER samples_touch_campaign AFTER INSERT ON samples BEGIN
     UPDATE campaigns
        SET updated_unix_s = max(updated_unix_s, (julianday('now') - 2440587.5) * 86400.0)

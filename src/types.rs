@@ -13,6 +13,9 @@ pub enum Phase {
     Cs,
     /// Every grid point, the conventional scan the paper compares against.
     Full,
+    /// Random points of the XY plane, both axes moving (a `[map]` campaign; the run's axis is
+    /// x by convention, its direction the approach side on both axes).
+    Map,
 }
 
 impl Phase {
@@ -20,12 +23,14 @@ impl Phase {
         match self {
             Phase::Cs => "cs",
             Phase::Full => "full",
+            Phase::Map => "map",
         }
     }
     pub fn parse(s: &str) -> Option<Self> {
         match s {
             "cs" => Some(Phase::Cs),
             "full" => Some(Phase::Full),
+            "map" => Some(Phase::Map),
             _ => None,
         }
     }

@@ -19,6 +19,8 @@ use super::rig::Rig;
 use super::spec::Campaign;
 use crate::types::{AxisId, Phase, RunKey, SampleRecord, Target};
 
+mod map;
+
 /// What the operator (or the service) asks of a running campaign.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Control {
@@ -399,6 +401,9 @@ impl<'a> Engine<'a> {
         first: &Target,
         positioning: bool,
     ) -> Result<(), EngineError> {
+        if run.phase == Phase::Map {
+            return self.map_approach(run, first, positioning).await;
+        }
         let other = run.axis.other();
         let other_at = match other {
             AxisId::X => first.target_x_um,
@@ -458,8 +463,12 @@ impl<'a> Engine<'a> {
         let acq = &self.campaign.spec.acquisition;
         let (settle, dwell, frames) = (acq.settle_s, acq.dwell_s, acq.frames_per_point);
         let from = self.planned_from_um.take();
-        let command_um = self.commanded_um(t)?;
-        let move_s = self.move_axis(t.run.axis, command_um, from).await?;
+        let move_s = if t.run.phase == Phase::Map {
+            self.map_move(t).await?
+        } else {
+            let command_um = self.commanded_um(t)?;
+            self.move_axis(t.run.axis, command_um, from).await?
+        };
         let wait = settle + dwell;
         tokio::time::sleep(self.rig.time.wall(wait)).await;
         let encoder_um = self

@@ -1,6 +1,7 @@
 //! Campaigns: plans as data (a TOML file), the acquisition engine that runs them on any
 //! hardware behind the `csmetro-hal` traits, and the reconstruction worker.
 pub mod engine;
+pub mod map;
 pub mod plan;
 pub mod preflight;
 pub mod results;

@@ -73,7 +73,7 @@ pub fn plan(c: &Campaign) -> Plan {
         for &phase in &phases {
             let (idx, chunks): (Vec<usize>, Vec<usize>) = match phase {
                 Phase::Full => ((0..n).collect(), vec![n]),
-                Phase::Cs => cs_design(ax, s.design, s.seed, s.batch),
+                Phase::Cs | Phase::Map => cs_design(ax, s.design, s.seed, s.batch),
             };
             for cycle in 0..a.cycles {
                 for &direction in &a.directions {
@@ -124,6 +124,10 @@ pub fn plan(c: &Campaign) -> Plan {
                 }
             }
         }
+    }
+    // `[map]`: its runs come after the lines'.
+    if let Some(mp) = &c.map {
+        batches.extend(super::map::batches(mp, &mut seq));
     }
     Plan { batches }
 }

@@ -219,6 +219,11 @@ pub fn needed_span_um(c: &Campaign, a: AxisId) -> Option<(f64, f64)> {
             add(p.other_at_um, p.other_at_um);
         }
     }
+    // A map moves both axes over its grid, with the approach travel on either side.
+    if let Some(m) = &c.map {
+        let g = if a == AxisId::X { m.grid.x } else { m.grid.y };
+        add(g.start_um - approach, g.end_um() + approach);
+    }
     span
 }
 
@@ -638,6 +643,18 @@ approach_um = {approach_um}
         // x: its grid ± 25 µm, and 4000 µm while y is characterized.
         assert_eq!(needed_span_um(&c, AxisId::X), Some((975.0, 4000.0)));
         assert_eq!(needed_span_um(&c, AxisId::Y), Some((475.0, 3000.0)));
+    }
+
+    #[test]
+    fn a_map_needs_its_grid_with_the_approach_on_both_axes() {
+        let text = "[campaign]\nname = \"pf\"\n[hardware]\nkind = \"sim\"\n[map]\n\
+            x_range_um = [1000.0, 2000.0]\ny_range_um = [500.0, 900.0]\nstep_um = [50.0, 50.0]\n\
+            m = 20\n[acquisition]\napproach_um = 30.0\n";
+        let c = Campaign::parse(text, "pf.toml", Path::new(".")).unwrap();
+        assert_eq!(needed_span_um(&c, AxisId::X), Some((970.0, 2030.0)));
+        assert_eq!(needed_span_um(&c, AxisId::Y), Some((470.0, 930.0)));
+        let e = limits_verdict(&c, AxisId::Y, (0.0, 920.0), (-1000.0, 14_000.0)).unwrap_err();
+        assert!(e.contains("[470, 930] µm"), "{e}");
     }
 
     #[test]

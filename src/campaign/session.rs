@@ -308,6 +308,7 @@ pub async fn execute_with(
         engine.run(&p).await
     };
     let StoreRecorder { worker, .. } = rec;
+    let maps = worker.maps();
     // Wall time decoding in this attempt (the physical figures are in the samples).
     let decode_s: BTreeMap<String, f64> = match &outcome {
         Ok(o) => o
@@ -344,6 +345,7 @@ pub async fn execute_with(
         .await
         .unwrap_or_default();
     let truth = TruthSource::new(&rig, &c);
+    let motion_settle_s = rig.motion.map_or(0.0, |m| m.settle_s);
     rig.close().await;
     // Halted before the end: stopped (resumable) or aborted, motion already stopped.
     let halted = match outcome.end {
@@ -406,6 +408,15 @@ pub async fn execute_with(
         &samples,
         &truth,
     );
+    let maps = std::mem::take(&mut *maps.lock().unwrap_or_else(|p| p.into_inner()));
+    errors.extend(super::map::add_to_report(
+        &c,
+        &maps,
+        &t,
+        &truth,
+        motion_settle_s,
+        &mut rep,
+    ));
     let (store_id, created) = {
         let s = lock(&store);
         let sid = s.store_id().unwrap_or_else(|e| {

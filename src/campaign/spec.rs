@@ -22,7 +22,8 @@ use crate::types::{AxisId, Direction};
 pub struct CampaignSpec {
     pub campaign: Meta,
     pub hardware: Hardware,
-    /// `[axes.x]`, `[axes.y]`: the axes to characterize, in that order.
+    /// `[axes.x]`, `[axes.y]`: the axes to characterize, in that order (none for a `[map]`).
+    #[serde(default)]
     pub axes: BTreeMap<String, AxisSpec>,
     #[serde(default)]
     pub sampling: Sampling,
@@ -35,6 +36,9 @@ pub struct CampaignSpec {
     /// `[compensation]`: run the whole campaign compensated (see [`crate::compensation`]).
     #[serde(default)]
     pub compensation: Option<crate::compensation::CompensationSpec>,
+    /// `[map]`: an XY workspace map (see [`map`]).
+    #[serde(default)]
+    pub map: Option<MapSpec>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -342,6 +346,8 @@ pub struct Campaign {
     pub axes: Vec<AxisPlan>,
     pub method: Method,
     pub solver: Solver,
+    /// `[map]`, resolved.
+    pub map: Option<MapPlan>,
 }
 
 /// One axis, resolved.
@@ -468,7 +474,7 @@ impl Campaign {
             key: path.to_string(),
             message,
         };
-        let c = validate(&spec, trust, &fail).map(|(axes, method, solver)| Campaign {
+        let c = validate(&spec, trust, &fail).map(|(axes, method, solver, map)| Campaign {
             spec,
             text: text.to_string(),
             origin: origin.into(),
@@ -476,6 +482,7 @@ impl Campaign {
             axes,
             method,
             solver,
+            map,
         })?;
         crate::compensation::check_spec(&c, matches!(trust, Trust::Submitted(_)))
             .map_err(|(k, m)| fail(k, m))?;
@@ -509,7 +516,7 @@ impl Campaign {
     }
 }
 
-type Validated = (Vec<AxisPlan>, Method, Solver);
+type Validated = (Vec<AxisPlan>, Method, Solver, Option<MapPlan>);
 
 /// A campaign or stage name: it becomes part of file names, so a short plain word.
 fn check_name(v: &str) -> Result<(), String> {
@@ -544,10 +551,10 @@ fn validate(
             format!("must be at most {MAX_DESCRIPTION_LEN} bytes"),
         ));
     }
-    if spec.axes.is_empty() {
+    if spec.axes.is_empty() && spec.map.is_none() {
         return Err(fail(
             "axes",
-            "no axis to characterize: add [axes.x] and/or [axes.y]".into(),
+            "no axis to characterize: add [axes.x] and/or [axes.y] (or a [map])".into(),
         ));
     }
     let h = &spec.hardware;
@@ -892,9 +899,37 @@ fn validate(
             target_error_um,
         });
     }
-    Ok((plans, method, solver))
+    let map = match &spec.map {
+        Some(m) => {
+            if spec.compensation.is_some() {
+                return Err(fail("map", "a map campaign runs uncompensated".into()));
+            }
+            // The simulator's truth of a map is planar (both axes' errors at once), a line's is
+            // not: lines and a map are separate campaigns.
+            if !spec.axes.is_empty() {
+                return Err(fail(
+                    "map",
+                    "a map campaign has no [axes.*]: characterize lines in a campaign of their own"
+                        .into(),
+                ));
+            }
+            let p = map::validate_map(m, a.approach_um, &limits_of, fail)?;
+            planned += (p.design.m * p.directions.len()) as u64;
+            if planned > MAX_PLANNED {
+                return Err(fail(
+                    "map",
+                    format!("the campaign would plan more than {MAX_PLANNED} measurements"),
+                ));
+            }
+            Some(p)
+        }
+        None => None,
+    };
+    Ok((plans, method, solver, map))
 }
 
+pub mod map;
+pub use map::{MapPlan, MapSpec};
 mod paths;
 use paths::{check_submitted_outputs, load_model, probe_outputs};
 

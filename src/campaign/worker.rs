@@ -100,10 +100,14 @@ pub fn settings(c: &Campaign) -> ReconSettings {
     }
 }
 
+/// The maps the worker reconstructed (`[map]` runs), filled as each map run completes.
+pub type Maps = std::sync::Arc<std::sync::Mutex<Vec<Result<super::map::MapResult, String>>>>;
+
 /// Handle of the worker thread.
 pub struct Worker {
     tx: mpsc::Sender<Msg>,
     handle: JoinHandle<Vec<Curve>>,
+    maps: Maps,
 }
 
 impl Worker {
@@ -115,6 +119,9 @@ impl Worker {
     ) -> Worker {
         let grids: BTreeMap<_, Grid> = c.axes.iter().map(|a| (a.axis, a.grid)).collect();
         let settings = settings(c);
+        let map_plan = c.map.clone();
+        let maps = Maps::default();
+        let maps2 = maps.clone();
         let (tx, rx) = mpsc::channel::<Msg>();
         let handle = std::thread::Builder::new()
             .name("csmetro-recon".into())
@@ -127,6 +134,11 @@ impl Worker {
                         Msg::Sample(s) => samples.push(s),
                         Msg::RunDone(run) => {
                             if !done.insert(run) {
+                                continue;
+                            }
+                            if let (Phase::Map, Some(mp)) = (run.phase, &map_plan) {
+                                let r = super::map::reconstruct_run(mp, run, &samples);
+                                maps2.lock().unwrap_or_else(|p| p.into_inner()).push(r);
                                 continue;
                             }
                             let Some(grid) = grids.get(&run.axis) else {
@@ -147,7 +159,12 @@ impl Worker {
                 curves
             })
             .expect("spawn the reconstruction worker");
-        Worker { tx, handle }
+        Worker { tx, handle, maps }
+    }
+
+    /// The maps reconstructed so far (all of them once [`Worker::finish`] returned).
+    pub fn maps(&self) -> Maps {
+        self.maps.clone()
     }
 
     pub fn sample(&self, s: &SampleRecord) {

@@ -6,7 +6,9 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::plot::{encode_png, finite_points, padded_range, register_fonts, tick, value_range};
+use super::plot::{
+    finite_points, frame, padded_range, render_png, render_svg, tick, value_range, Fonts,
+};
 use super::{AxisIso230, PlotOptions, ReportError, FONT_FAMILY};
 
 const UP: RGBColor = RGBColor(31, 119, 180);
@@ -48,42 +50,24 @@ pub(crate) fn figures_line(f: &AxisIso230) -> String {
 
 /// The chart of `f` as an SVG document.
 pub fn iso_chart_svg(f: &AxisIso230, opts: &PlotOptions) -> Result<String, ReportError> {
-    register_fonts();
-    let mut out = String::new();
-    {
-        let root = SVGBackend::with_string(&mut out, (opts.width, opts.height)).into_drawing_area();
-        draw(&root, f).map_err(|e| chart_error(f, e))?;
-        root.present().map_err(|e| chart_error(f, e.to_string()))?;
-    }
-    Ok(out)
+    render_svg(opts, |root| draw(root, f)).map_err(|e| chart_error(f, e))
 }
 
 /// The chart of `f` as a PNG file, drawn by the same code as [`iso_chart_svg`].
 pub fn iso_chart_png(f: &AxisIso230, opts: &PlotOptions) -> Result<Vec<u8>, ReportError> {
-    if opts.width == 0 || opts.height == 0 {
-        return Err(chart_error(f, "zero-sized plot".into()));
-    }
-    register_fonts();
-    let mut rgb = vec![0u8; opts.width as usize * opts.height as usize * 3];
-    {
-        let root =
-            BitMapBackend::with_buffer(&mut rgb, (opts.width, opts.height)).into_drawing_area();
-        draw(&root, f).map_err(|e| chart_error(f, e))?;
-        root.present().map_err(|e| chart_error(f, e.to_string()))?;
-    }
-    encode_png(&rgb, opts.width, opts.height).map_err(|e| chart_error(f, e))
+    render_png(opts, |root| draw(root, f)).map_err(|e| chart_error(f, e))
 }
 
 fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &AxisIso230) -> Result<(), String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
-    let (_, h) = root.dim_in_pixel();
-    let small = (h / 50).clamp(11, 18);
-    let label_font = (FONT_FAMILY, small).into_font();
-    let desc_font = (FONT_FAMILY, small + 2).into_font();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let body = root
-        .titled(&chart_title(f), (FONT_FAMILY, small + 6).into_font())
-        .map_err(|e| err(&e))?;
+    let (
+        Fonts {
+            small,
+            label: label_font,
+            desc: desc_font,
+        },
+        body,
+    ) = frame(root, &chart_title(f))?;
     // The figures, in bold, on a strip of their own above the plot: never hidden by a curve.
     let (strip, plot) = body.split_vertically(small * 2 + 8);
     strip

@@ -16,8 +16,10 @@
 //! engine renders it itself; so does `report.html` ([`html::report_html`]), which also needs
 //! the campaign's log (the rig's identification, the attempts).
 mod compensation;
+pub mod heatmap;
 pub mod html;
 mod iso;
+pub mod iso230_1;
 mod isoplot;
 mod plot;
 mod table;

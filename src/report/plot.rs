@@ -49,33 +49,74 @@ pub fn register_fonts() {
 /// The plot of `curve` as an SVG document.
 pub fn plot_svg(curve: &ComponentCurve, opts: &PlotOptions) -> Result<String, ReportError> {
     curve.validate()?;
-    register_fonts();
-    let mut out = String::new();
-    {
-        let root = SVGBackend::with_string(&mut out, (opts.width, opts.height)).into_drawing_area();
-        draw(&root, curve).map_err(|reason| plot_error(curve, reason))?;
-        root.present()
-            .map_err(|e| plot_error(curve, e.to_string()))?;
-    }
-    Ok(out)
+    render_svg(opts, |root| draw(root, curve)).map_err(|reason| plot_error(curve, reason))
 }
 
 /// The plot of `curve` as a PNG file (8-bit RGB), drawn by the same code as [`plot_svg`].
 pub fn plot_png(curve: &ComponentCurve, opts: &PlotOptions) -> Result<Vec<u8>, ReportError> {
     curve.validate()?;
+    render_png(opts, |root| draw(root, curve)).map_err(|reason| plot_error(curve, reason))
+}
+
+/// Runs a chart's drawing on an SVG document of `opts`' size (fonts registered first).
+pub(super) fn render_svg(
+    opts: &PlotOptions,
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Result<(), String>,
+) -> Result<String, String> {
+    register_fonts();
+    let mut out = String::new();
+    {
+        let root = SVGBackend::with_string(&mut out, (opts.width, opts.height)).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    Ok(out)
+}
+
+/// Runs the same drawing on an RGB bitmap and encodes it as PNG.
+pub(super) fn render_png(
+    opts: &PlotOptions,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), String>,
+) -> Result<Vec<u8>, String> {
     if opts.width == 0 || opts.height == 0 {
-        return Err(plot_error(curve, "zero-sized plot".into()));
+        return Err("zero-sized plot".into());
     }
     register_fonts();
     let mut rgb = vec![0u8; opts.width as usize * opts.height as usize * 3];
     {
         let root =
             BitMapBackend::with_buffer(&mut rgb, (opts.width, opts.height)).into_drawing_area();
-        draw(&root, curve).map_err(|reason| plot_error(curve, reason))?;
-        root.present()
-            .map_err(|e| plot_error(curve, e.to_string()))?;
+        draw(&root)?;
+        root.present().map_err(|e| e.to_string())?;
     }
-    encode_png(&rgb, opts.width, opts.height).map_err(|e| plot_error(curve, e))
+    encode_png(&rgb, opts.width, opts.height)
+}
+
+/// Fonts of a chart, scaled to its height: tick labels, axis descriptions; `small` in px.
+pub(super) struct Fonts {
+    pub small: u32,
+    pub label: FontDesc<'static>,
+    pub desc: FontDesc<'static>,
+}
+
+/// The frame every chart shares: a white page, the title on top, fonts scaled to the height.
+/// Returns the fonts and the area below the title.
+pub(super) fn frame<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    title: &str,
+) -> Result<(Fonts, DrawingArea<DB, Shift>), String> {
+    let (_, h) = root.dim_in_pixel();
+    let small = (h / 50).clamp(11, 18);
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let body = root
+        .titled(title, (FONT_FAMILY, small + 6).into_font())
+        .map_err(|e| e.to_string())?;
+    let fonts = Fonts {
+        small,
+        label: (FONT_FAMILY, small).into_font(),
+        desc: (FONT_FAMILY, small + 2).into_font(),
+    };
+    Ok((fonts, body))
 }
 
 /// An 8-bit RGB buffer as a PNG file.
@@ -173,15 +214,14 @@ fn draw<DB: DrawingBackend>(
     c: &ComponentCurve,
 ) -> Result<(), String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
-    let (_, h) = root.dim_in_pixel();
-    let small = (h / 50).clamp(11, 18);
-    let label_font = (FONT_FAMILY, small).into_font();
-    let desc_font = (FONT_FAMILY, small + 2).into_font();
-
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let body = root
-        .titled(&title(c), (FONT_FAMILY, small + 6).into_font())
-        .map_err(|e| err(&e))?;
+    let (
+        Fonts {
+            small,
+            label: label_font,
+            desc: desc_font,
+        },
+        body,
+    ) = frame(root, &title(c))?;
     let residual = c.residual_um();
     let (upper, lower) = match residual {
         Some(_) => {

@@ -94,6 +94,7 @@ impl SummaryRow {
             (Phase::Full, _) => "full scan".into(),
             (Phase::Cs, Some(m)) if !m.is_empty() => format!("CS ({m})"),
             (Phase::Cs, _) => "CS".into(),
+            (Phase::Map, _) => "map".into(),
         }
     }
 

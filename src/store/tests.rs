@@ -762,6 +762,40 @@ fn a_schema_1_store_is_migrated_and_gets_an_identity() {
 }
 
 #[test]
+fn a_schema_2_store_keeps_its_samples_and_takes_map_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("v2.db");
+    let id;
+    {
+        let store = Store::open(&path).unwrap();
+        id = new_campaign(&store, "s");
+        assert!(store.insert_sample(id, &sample(0)).unwrap());
+    }
+    {
+        // Back to schema 2 as an older csmetro wrote it: the samples table without 'map'.
+        let conn = Connection::open(&path).unwrap();
+        conn.execute_batch("CREATE TABLE s2 AS SELECT * FROM samples; DROP TABLE samples;")
+            .unwrap();
+        let create = MIGRATIONS[0]
+            .split("CREATE TABLE samples (")
+            .nth(1)
+            .and_then(|t| t.split(");").next())
+            .unwrap();
+        conn.execute_batch(&format!(
+            "CREATE TABLE samples ({create}); INSERT INTO samples SELECT * FROM s2; DROP TABLE s2;"
+        ))
+        .unwrap();
+        conn.pragma_update(None, "user_version", 2).unwrap();
+    }
+    let store = Store::open(&path).unwrap();
+    assert_eq!(store.samples(id).unwrap(), vec![sample(0)]);
+    let mut m = sample(1);
+    m.target.run.phase = Phase::Map;
+    assert!(store.insert_sample(id, &m).unwrap());
+    assert_eq!(store.samples(id).unwrap()[1].target.run.phase, Phase::Map);
+}
+
+#[test]
 fn updated_unix_s_moves_with_every_committed_sample() {
     let store = Store::open_in_memory().unwrap();
     let id = new_campaign(&store, "s");

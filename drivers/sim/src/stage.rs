@@ -310,6 +310,8 @@ impl AxisState {
 struct Inner {
     axes: [AxisState; 2],
     last_moving: AxisId,
+    /// Planar truth (2D maps): both axes' errors act, see [`StageModel::deviation_2d`].
+    planar: bool,
 }
 
 /// The two-axis simulated stage (cheap to clone; clones share state).
@@ -338,6 +340,7 @@ impl SimStage {
             inner: Arc::new(Mutex::new(Inner {
                 axes,
                 last_moving: AxisId::X,
+                planar: false,
             })),
             model: Arc::new(model),
             clock: SimClock::new(time_scale),
@@ -375,6 +378,13 @@ impl SimStage {
         r
     }
 
+    /// Planar truth on or off: on, the true position carries the errors of both axes, each
+    /// from its own last approach direction (a 2D map); off (the default), those of the last
+    /// moving axis only (line campaigns, the paper's model).
+    pub fn set_planar(&self, on: bool) {
+        self.lock().planar = on;
+    }
+
     /// Encoder positions (x, y) in µm now: what `POS?` reports.
     pub fn encoder_um(&self) -> (f64, f64) {
         let now = self.clock.now_s();
@@ -400,19 +410,25 @@ impl SimStage {
     pub fn true_position_at_um(&self, time_s: Option<f64>) -> (f64, f64) {
         let now = self.clock.now_s();
         // One lock for a consistent snapshot of both axes.
-        let (x, y, moving, direction) = {
+        let (x, y, moving, direction, planar) = {
             let mut g = self.lock();
             for a in g.axes.iter_mut() {
                 a.update(now);
             }
             let p = |i: usize| g.axes[i].position(now) * 1000.0;
+            let planar = g.planar.then(|| (g.axes[0].last_dir, g.axes[1].last_dir));
             (
                 p(0),
                 p(1),
                 g.last_moving,
                 g.axes[idx(g.last_moving)].last_dir,
+                planar,
             )
         };
+        if let Some((dx, dy)) = planar {
+            let d = self.model.deviation_2d(x, y, dx, dy, time_s.unwrap_or(now));
+            return (x + d.x_um, y + d.y_um);
+        }
         let d = self.model.deviation(&SampleContext {
             moving,
             direction,
@@ -499,6 +515,31 @@ mod tests {
         let (x, y) = stage.true_position_um();
         assert!(
             (x - 500.0).abs() < 1e-9 && (y - 2003.0).abs() < 1e-9,
+            "{x} {y}"
+        );
+    }
+
+    #[test]
+    fn planar_truth_keeps_the_error_of_the_axis_that_moved_first() {
+        let model = StageModel::default()
+            .with(Effect::new(
+                AxisId::X,
+                EffectKind::Backlash { reversal_um: 2.0 },
+            ))
+            .with(Effect::new(
+                AxisId::Y,
+                EffectKind::Backlash { reversal_um: 6.0 },
+            ));
+        let stage = SimStage::new(model, 1e6, [1.0, 1.0], 1.0, 10.0);
+        stage.set_planar(true);
+        stage.with_axis(AxisId::X, |a, now| a.start(now, 0.5, 1.0, MotionKind::Move));
+        std::thread::sleep(Duration::from_millis(5));
+        stage.with_axis(AxisId::Y, |a, now| a.start(now, 2.0, 1.0, MotionKind::Move));
+        std::thread::sleep(Duration::from_millis(5));
+        // x came backward (-1 µm) and keeps it while y moves forward (+3 µm).
+        let (x, y) = stage.true_position_um();
+        assert!(
+            (x - 499.0).abs() < 1e-9 && (y - 2003.0).abs() < 1e-9,
             "{x} {y}"
         );
     }

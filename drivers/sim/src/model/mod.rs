@@ -168,6 +168,40 @@ impl StageModel {
         total
     }
 
+    /// Planar truth of an XY stage at (x, y), both axes having come to rest: each axis's own
+    /// effects with that axis's approach direction (+1/-1), the global effects once. The line
+    /// rule of [`deviation`](Self::deviation) (only the moving axis acts) measures one axis at a
+    /// time; a point of a 2D map carries the errors of both axes at once.
+    pub fn deviation_2d(
+        &self,
+        x_um: f64,
+        y_um: f64,
+        direction_x: f64,
+        direction_y: f64,
+        time_s: f64,
+    ) -> Deviation {
+        let ctx = |moving: AxisId, direction: f64| SampleContext {
+            moving,
+            direction,
+            target_x_um: x_um,
+            target_y_um: y_um,
+            time_s,
+        };
+        let (cx, cy) = (ctx(AxisId::X, direction_x), ctx(AxisId::Y, direction_y));
+        let mut total = Deviation::default();
+        for e in &self.effects {
+            let c = if e.kind.is_global() || e.axis == AxisId::X {
+                &cx
+            } else {
+                &cy
+            };
+            let d = e.deviation(self, c);
+            total.x_um += d.x_um;
+            total.y_um += d.y_um;
+        }
+        total
+    }
+
     /// Deviation of a single effect (index into `effects`), zero if it does not act on the sample.
     pub fn effect_deviation(&self, index: usize, c: &SampleContext) -> Deviation {
         let e = &self.effects[index];
@@ -248,6 +282,41 @@ mod tests {
             (x - 4750.1).abs() < 1e-9 && (y - 1000.0).abs() < 1e-12,
             "{x} {y}"
         );
+    }
+
+    #[test]
+    fn planar_truth_adds_both_axes_each_with_its_own_direction() {
+        let m = StageModel::from_toml_str(
+            r#"
+            [[effect]]
+            kind = "backlash"
+            axis = "x"
+            reversal_um = 2.0
+            [[effect]]
+            kind = "scale"
+            axis = "y"
+            ppm = 100
+            ref_um = 0
+            [[effect]]
+            kind = "squareness"
+            axis = "y"
+            angle_urad = 50
+            [[effect]]
+            kind = "camera_rotation"
+            axis = "x"
+            angle_urad = 10
+            "#,
+        )
+        .unwrap();
+        // x approached backward: -1 µm of backlash; y at 2000 µm: +0.2 µm of scale, and its
+        // squareness puts 0.1 µm on x; the camera rotation acts once.
+        let d = m.deviation_2d(1000.0, 2000.0, -1.0, 1.0, 0.0);
+        let x = -1.0 + 50e-6 * 2000.0 - 10e-6 * 2000.0;
+        let y = 100e-6 * 2000.0 + 10e-6 * 1000.0;
+        assert!((d.x_um - x).abs() < 1e-12, "{} vs {x}", d.x_um);
+        assert!((d.y_um - y).abs() < 1e-12, "{} vs {y}", d.y_um);
+        let f = m.deviation_2d(1000.0, 2000.0, 1.0, 1.0, 0.0);
+        assert!((f.x_um - d.x_um - 2.0).abs() < 1e-12);
     }
 
     #[test]
