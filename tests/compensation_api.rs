@@ -115,10 +115,14 @@ fn a_verification_campaign_runs_on_the_service_and_its_verdict_is_served() {
     }
     assert!(x["max_abs_after_um"].is_number() && x["expected_um"].is_number());
     // Both passes' samples are the campaign's (2 cycles x 2 directions x each target).
-    let targets: usize = ["iso_targets_um", "unvisited_targets_um", "extrapolated_targets_um"]
-        .iter()
-        .map(|k| x[*k].as_array().unwrap().len())
-        .sum();
+    let targets: usize = [
+        "iso_targets_um",
+        "unvisited_targets_um",
+        "extrapolated_targets_um",
+    ]
+    .iter()
+    .map(|k| x[*k].as_array().unwrap().len())
+    .sum();
     assert_eq!(
         common::stored_seqs(&srv.db(), vid).len(),
         2 * 2 * 2 * targets

@@ -413,10 +413,14 @@ fn a_verify_campaign_runs_the_verification_and_refuses_what_it_cannot_verify() {
     assert!(ratio > 8.0, "E before/after {ratio}: {x}");
     // Both passes stored as the campaign's samples (2 cycles x 2 directions x each target),
     // the verdict, table, plot and report among its results.
-    let targets: usize = ["iso_targets_um", "unvisited_targets_um", "extrapolated_targets_um"]
-        .iter()
-        .map(|k| x[*k].as_array().unwrap().len())
-        .sum();
+    let targets: usize = [
+        "iso_targets_um",
+        "unvisited_targets_um",
+        "extrapolated_targets_um",
+    ]
+    .iter()
+    .map(|k| x[*k].as_array().unwrap().len())
+    .sum();
     assert!(targets >= 21, "{x}");
     let store = csmetro::store::Store::open(db).unwrap();
     assert_eq!(store.samples(id).unwrap().len(), 2 * 2 * 2 * targets);

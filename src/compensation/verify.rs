@@ -82,7 +82,11 @@ pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>, Vec<
         Some((lo, hi)) => {
             let i = |p: f64, up: bool| {
                 let u = (p - g.start_um) / g.step_um;
-                let u = if up { (u - 1e-6).ceil() } else { (u + 1e-6).floor() };
+                let u = if up {
+                    (u - 1e-6).ceil()
+                } else {
+                    (u + 1e-6).floor()
+                };
                 u.clamp(0.0, (g.n - 1) as f64) as usize
             };
             let (a, b) = (i(lo, true), i(hi, false));
@@ -280,6 +284,12 @@ pub struct AxisVerdict {
     pub extrapolated_targets_um: Vec<f64>,
     pub max_abs_before_extrapolated_um: Option<f64>,
     pub max_abs_after_extrapolated_um: Option<f64>,
+    /// RMS over targets and directions of the mean compensated deviation, µm: what the
+    /// characterisation's `cv_error_um` estimates (the check of the expected residual).
+    pub rms_after_um: f64,
+    /// Measurements per run of the characterisation and its grid points (when known).
+    pub characterisation_m: Option<u64>,
+    pub grid_points: Option<u64>,
     pub cycles: u32,
 }
 
@@ -305,6 +315,9 @@ pub struct Verdict {
 pub struct Prior {
     pub cv_error_um: Option<f64>,
     pub repeatability_um: Option<f64>,
+    /// Measurements per run of the driving components (largest) and the grid's points.
+    pub m: Option<u64>,
+    pub grid_points: Option<u64>,
 }
 
 /// Reads [`Prior`] of `axis` from a results summary (`summary.json`).
@@ -330,9 +343,17 @@ pub fn prior_from_summary(summary: &Value, axis: AxisId) -> Prior {
         .into_iter()
         .flatten()
         .reduce(f64::max);
+    let m = ax.and_then(|x| x["components"].as_array()).and_then(|cs| {
+        cs.iter()
+            .filter(|c| c["component"].as_str().is_some_and(|n| n.ends_with(&own)))
+            .filter_map(|c| c["cs"]["m"].as_u64())
+            .max()
+    });
     Prior {
         cv_error_um: cv,
         repeatability_um: r,
+        m,
+        grid_points: ax.and_then(|x| x["grid_points"].as_u64()),
     }
 }
 
@@ -346,6 +367,23 @@ fn approaches(samples: &[SampleRecord], axis: AxisId, keep: &dyn Fn(f64) -> bool
             deviation_um: s.error_um(axis),
         })
         .collect()
+}
+
+/// RMS of the mean deviation per (target, direction), µm; NaN without approaches.
+fn rms_of_means(a: &[Approach]) -> f64 {
+    let mut per: BTreeMap<(i64, bool), (f64, usize)> = BTreeMap::new();
+    for x in a {
+        let e = per
+            .entry(((x.target_um * 1e6).round() as i64, x.forward))
+            .or_insert((0.0, 0));
+        e.0 += x.deviation_um;
+        e.1 += 1;
+    }
+    if per.is_empty() {
+        return f64::NAN;
+    }
+    let ss: f64 = per.values().map(|(s, n)| (s / *n as f64).powi(2)).sum();
+    (ss / per.len() as f64).sqrt()
 }
 
 fn abs_stats(a: &[Approach]) -> (f64, f64) {
@@ -493,6 +531,7 @@ pub async fn run(
         let (fb, fa) = (fig(before)?, fig(after)?);
         let (mean_b, max_b) = abs_stats(&approaches(before, *axis, &measured));
         let (mean_a, max_a) = abs_stats(&approaches(after, *axis, &measured));
+        let rms_a = rms_of_means(&approaches(after, *axis, &measured));
         let (_, max_b_ext) = abs_stats(&approaches(before, *axis, &is_ext));
         let (_, max_a_ext) = abs_stats(&approaches(after, *axis, &is_ext));
         let (_, max_b_un) = abs_stats(&approaches(before, *axis, &is_un));
@@ -528,6 +567,9 @@ pub async fn run(
             iso_targets_um: iso.clone(),
             unvisited_targets_um: un.clone(),
             measured_span_um: opts.measured_span_um[*axis as usize],
+            rms_after_um: rms_a,
+            characterisation_m: p.m,
+            grid_points: p.grid_points,
             extrapolated_targets_um: ext.clone(),
             max_abs_before_extrapolated_um: (!ext.is_empty()).then_some(max_b_ext),
             max_abs_after_extrapolated_um: (!ext.is_empty()).then_some(max_a_ext),
@@ -600,6 +642,21 @@ pub fn table(v: &Verdict) -> String {
             opt(a.repeatability_um),
             if a.passed { "passed" } else { "FAILED" }
         ));
+        let m = match (a.characterisation_m, a.grid_points) {
+            (Some(m), Some(n)) if n > 0 => format!(
+                "characterised with m = {m} of {n} grid points per run ({:.1} %); ",
+                100.0 * m as f64 / n as f64
+            ),
+            _ => String::new(),
+        };
+        if let Some(cv) = a.cv_error_um.filter(|v| *v > 0.0) {
+            s.push_str(&format!(
+                "{:<5} {m}rms of the mean residual {:.3} µm vs its CV error estimate {cv:.3} µm ({:+.0} %)\n",
+                a.axis.to_uppercase(),
+                a.rms_after_um,
+                100.0 * (a.rms_after_um / cv - 1.0)
+            ));
+        }
         if let (Some((lo, hi)), Some(after), Some(before)) = (
             a.measured_span_um,
             a.max_abs_after_extrapolated_um,
@@ -918,14 +975,15 @@ m = 40
 
     #[test]
     fn prior_reads_the_driving_components_and_r() {
-        let s = json!({"axes": [{"axis": "x", "components": [
-            {"component": "ef_xx", "cs": {"cv_error_um": 0.05}},
-            {"component": "eb_xx", "cs": {"cv_error_um": 0.07}},
-            {"component": "ef_xy", "cs": {"cv_error_um": 0.9}}]}],
+        let s = json!({"axes": [{"axis": "x", "grid_points": 1901, "components": [
+            {"component": "ef_xx", "cs": {"cv_error_um": 0.05, "m": 100}},
+            {"component": "eb_xx", "cs": {"cv_error_um": 0.07, "m": 100}},
+            {"component": "ef_xy", "cs": {"cv_error_um": 0.9, "m": 300}}]}],
             "iso230": {"x": {"measured": {"r_um": 2.5, "r_up_um": 0.04, "r_down_um": 0.03}}}});
         let p = prior_from_summary(&s, AxisId::X);
         assert_eq!(p.cv_error_um, Some(0.07));
         assert_eq!(p.repeatability_um, Some(0.04));
+        assert_eq!((p.m, p.grid_points), (Some(100), Some(1901)));
         let q = prior_from_summary(&s, AxisId::Y);
         assert!(q.cv_error_um.is_none() && q.repeatability_um.is_none());
     }
