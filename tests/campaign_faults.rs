@@ -4,50 +4,25 @@ mod common;
 use std::path::Path;
 use std::process::Output;
 
-use common::{bin, json_of, repo};
+use common::{bin, json_of, SimFile};
 use csmetro::store::Store;
 
 fn campaign(dir: &Path, faults: &str) -> std::path::PathBuf {
-    let text = format!(
-        r#"[campaign]
-name = "faulty"
-stage = "sim-faults"
-
-[hardware]
-kind = "sim"
-optics = {{ width = 640, height = 640 }}
-
-[hardware.sim]
-model = "{model}"
-time_scale = 1000
-transport = "pty"
-frame_time_s = 0.1
-seed = 3
-
-[axes.x]
-range_um = [1000.0, 1250.0]
-step_um = 25.0
-other_at_um = 2100.0
-m = 5
-
-[sampling]
-design = "random"
-seed = 4
-
-[acquisition]
-directions = ["forward", "backward"]
-settle_s = 0.2
-
-[outputs]
-dir = "{out}/{{id}}"
-
-{faults}"#,
-        model = repo("config/sim/ideal.toml").display(),
-        out = dir.join("out").display(),
-    );
-    let p = dir.join("campaign.toml");
-    std::fs::write(&p, text).unwrap();
-    p
+    let out = format!("{}/{{id}}", dir.join("out").display());
+    SimFile {
+        name: "faulty",
+        stage: "sim-faults",
+        model: "ideal.toml",
+        campaign: "",
+        sim: "transport = \"pty\"\nframe_time_s = 0.1\nseed = 3",
+        rest:
+            "[axes.x]\nrange_um = [1000.0, 1250.0]\nstep_um = 25.0\nother_at_um = 2100.0\nm = 5\n\n\
+               [sampling]\ndesign = \"random\"\nseed = 4\n\n\
+               [acquisition]\ndirections = [\"forward\", \"backward\"]\nsettle_s = 0.2",
+        outputs: out,
+        tail: faults,
+    }
+    .write(&dir.join("campaign.toml"))
 }
 
 fn run(c: &Path, db: &Path) -> Output {

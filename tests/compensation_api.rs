@@ -73,3 +73,73 @@ fn a_move_waits_for_no_campaign_and_uses_the_stage_s_compensation() {
     assert_eq!(s, 400);
     srv.terminate();
 }
+
+/// A verification submitted as a campaign (`verify = ID`, no axes of its own) runs on the
+/// service; its verdict is at `GET /campaigns/{id}/verification` (404 for a campaign without
+/// one). An id not in this service's store, or of another stage, is refused at submit.
+#[test]
+fn a_verification_campaign_runs_on_the_service_and_its_verdict_is_served() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut srv = Server::start(dir.path(), None);
+    let stage = "verify-api-xy";
+    let id = srv.submit(&common::campaign("char", stage, 20, 1000.0));
+    srv.wait_for(id, 120.0, |st| st["state"] == "done");
+    let (s, v) = srv.get(&format!("/campaigns/{id}/verification"));
+    assert_eq!(s, 404, "{v}");
+    // The characterisation's file less its axes and sampling, two cycles (R), `verify = ID`.
+    let verify_file = |stage: &str, of: i64| {
+        let t = common::campaign("ver", stage, 20, 1000.0);
+        let (a, b) = (
+            t.find("[axes.x]").unwrap(),
+            t.find("[acquisition]").unwrap(),
+        );
+        format!("{}{}", &t[..a], &t[b..])
+            .replacen("[acquisition]\n", "[acquisition]\ncycles = 2\n", 1)
+            .replacen("stage = ", &format!("verify = {of}\nstage = "), 1)
+    };
+    let vid = srv.submit(&verify_file(stage, id));
+    let st = srv.wait_for(vid, 120.0, |st| {
+        st["state"] == "done" || st["state"] == "failed"
+    });
+    let (s, v) = srv.get(&format!("/campaigns/{vid}/verification"));
+    assert_eq!(s, 200, "{v}");
+    assert_eq!(v["campaign"], id);
+    assert_eq!(v["passed"], st["state"] == "done", "{v} {st}");
+    let x = &v["axes"][0];
+    assert_eq!(x["axis"], "x");
+    for k in ["a_um", "b_um", "e_um", "m_um", "r_um"] {
+        assert!(
+            x["before"][k].is_number() && x["after"][k].is_number(),
+            "{k}: {x}"
+        );
+    }
+    assert!(x["max_abs_after_um"].is_number() && x["expected_um"].is_number());
+    // Both passes' samples are the campaign's (2 cycles x 2 directions x each target).
+    let targets: usize = [
+        "iso_targets_um",
+        "unvisited_targets_um",
+        "extrapolated_targets_um",
+    ]
+    .iter()
+    .map(|k| x[*k].as_array().unwrap().len())
+    .sum();
+    assert_eq!(
+        common::stored_seqs(&srv.db(), vid).len(),
+        2 * 2 * 2 * targets
+    );
+    // Refused at submit: not in this store, another stage's characterisation.
+    let body = verify_file(stage, 999);
+    let (s, v) = srv.post("/campaigns", Some(("application/toml", body.as_str())));
+    assert_eq!(s, 400, "{v}");
+    assert!(
+        v["error"].as_str().unwrap().contains("no campaign 999"),
+        "{v}"
+    );
+    let body = verify_file("other-xy", id);
+    let (s, v) = srv.post("/campaigns", Some(("application/toml", body.as_str())));
+    assert_eq!(s, 400, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("ran on stage"), "{v}");
+    let (s, _) = srv.get("/campaigns/999/verification");
+    assert_eq!(s, 404);
+    srv.terminate();
+}

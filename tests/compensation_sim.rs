@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 use std::sync::OnceLock;
 
-use common::{bin, repo};
+use common::{bin, SimFile};
 use serde_json::Value;
 
 const STAGE: &str = "comp-sim-xy";
@@ -25,40 +25,17 @@ fn characterised() -> &'static (PathBuf, PathBuf) {
     static ONCE: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     ONCE.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap().keep();
-        let text = format!(
-            r#"[campaign]
-name = "char"
-stage = "{STAGE}"
-[hardware]
-kind = "sim"
-optics = {{ width = 640, height = 640 }}
-[hardware.sim]
-model = "{model}"
-time_scale = 1000
-seed = 5
-[axes.x]
-range_um = [1000.0, 3000.0]
-step_um = 5.0
-other_at_um = 2100.0
-m = 120
-[sampling]
-design = "random"
-seed = 11
-[acquisition]
-directions = ["forward", "backward"]
-cycles = 2
-settle_s = 2.0
-dwell_s = 0.5
-[reconstruction]
-noise_um = 0.01
-[outputs]
-dir = "{out}/{{name}}-{{id}}"
-"#,
-            model = repo("config/sim/demo_xy.toml").display(),
-            out = dir.display(),
-        );
-        let camp = dir.join("char.toml");
-        std::fs::write(&camp, text).unwrap();
+        let camp = sim_file(
+            &dir,
+            "char",
+            "",
+            "[axes.x]\nrange_um = [1000.0, 3000.0]\nstep_um = 5.0\nother_at_um = 2100.0\nm = 120\n\n\
+             [sampling]\ndesign = \"random\"\nseed = 11\n\n\
+             [acquisition]\ndirections = [\"forward\", \"backward\"]\ncycles = 2\nsettle_s = 2.0\n\
+             dwell_s = 0.5\n\n[reconstruction]\nnoise_um = 0.01",
+            "",
+        )
+        .write(&dir.join("char.toml"));
         let db = dir.join("csmetro.db");
         let o = bin()
             .args(["run", "--quiet", "--db"])
@@ -294,40 +271,41 @@ fn a_compensated_move_lands_where_asked_and_refuses_rather_than_clips() {
     refused(&o, "soft limits");
 }
 
+/// The campaign files of this test: the demo stage model, results under `dir`.
+fn sim_file<'a>(
+    dir: &Path,
+    name: &'a str,
+    campaign: &'a str,
+    rest: &'a str,
+    tail: &'a str,
+) -> SimFile<'a> {
+    let outputs = format!("{}/{{name}}-{{id}}", dir.display());
+    SimFile {
+        name,
+        stage: STAGE,
+        model: "demo_xy.toml",
+        campaign,
+        sim: "seed = 5",
+        rest,
+        outputs,
+        tail,
+    }
+}
+
 /// A campaign file that runs compensated: x over [1500, 2500] µm every 25 µm, both directions.
 fn compensated_campaign(section: &str) -> PathBuf {
     let (_, results) = characterised();
     let dir = results.parent().unwrap();
-    let text = format!(
-        r#"[campaign]
-name = "comp"
-stage = "{STAGE}"
-[hardware]
-kind = "sim"
-optics = {{ width = 640, height = 640 }}
-[hardware.sim]
-model = "{model}"
-time_scale = 1000
-seed = 5
-[axes.x]
-range_um = [1500.0, 2500.0]
-step_um = 25.0
-other_at_um = 2100.0
-[sampling]
-design = "full"
-[acquisition]
-directions = ["forward", "backward"]
-settle_s = 2.0
-[outputs]
-dir = "{out}/{{name}}-{{id}}"
-{section}
-"#,
-        model = repo("config/sim/demo_xy.toml").display(),
-        out = dir.display(),
-    );
-    let p = dir.join(format!("comp-{}.toml", section.len()));
-    std::fs::write(&p, text).unwrap();
-    p
+    sim_file(
+        dir,
+        "comp",
+        "",
+        "[axes.x]\nrange_um = [1500.0, 2500.0]\nstep_um = 25.0\nother_at_um = 2100.0\n\n\
+         [sampling]\ndesign = \"full\"\n\n\
+         [acquisition]\ndirections = [\"forward\", \"backward\"]\nsettle_s = 2.0",
+        section,
+    )
+    .write(&dir.join(format!("comp-{}.toml", section.len())))
 }
 
 #[test]
@@ -394,4 +372,131 @@ fn a_campaign_with_a_compensation_section_runs_compensated() {
         .map(|s| s.error_um(csmetro::types::AxisId::X).abs())
         .collect();
     assert!(raw.iter().fold(0.0f64, |m, e| m.max(*e)) > 2.0);
+}
+
+/// `[campaign] verify = 1`: the verification as a campaign through `csmetro run` — stored,
+/// reported, its verdict kept — and refused at load, with file and line, when its id cannot be
+/// verified.
+#[test]
+fn a_verify_campaign_runs_the_verification_and_refuses_what_it_cannot_verify() {
+    let _one = serial();
+    let (db, results) = characterised();
+    let dir = results.parent().unwrap();
+    let run = |camp: &Path| {
+        bin()
+            .args(["run", "--quiet", "--json", "--db"])
+            .arg(db)
+            .arg(camp)
+            .output()
+            .unwrap()
+    };
+    let acq = "[acquisition]\ncycles = 2\nsettle_s = 2.0";
+    let camp = sim_file(dir, "ver", "verify = 1", acq, "").write(&dir.join("ver.toml"));
+    let o = run(&camp);
+    let v = only_json(&o);
+    let id = v["id"].as_i64().unwrap();
+    assert_eq!(v["campaign"], 1, "{v}");
+    assert_eq!(v["verify"], 1, "{v}");
+    let passed = v["passed"].as_bool().unwrap();
+    assert_eq!(v["state"], if passed { "done" } else { "failed" }, "{v}");
+    assert_eq!(o.status.code(), Some(if passed { 0 } else { 1 }));
+    let x = &v["axes"][0];
+    assert_eq!(x["axis"], "x");
+    for f in [&x["before"], &x["after"]] {
+        for k in ["a_um", "b_um", "e_um", "m_um", "r_um"] {
+            assert!(f[k].is_number(), "{k} in {f}");
+        }
+    }
+    assert!(figure(&x["before"], "b_um") > 1.5, "{x}");
+    assert!(figure(&x["after"], "b_um").abs() < 0.3, "{x}");
+    let ratio = figure(&x["before"], "e_um") / figure(&x["after"], "e_um");
+    assert!(ratio > 8.0, "E before/after {ratio}: {x}");
+    // Both passes stored as the campaign's samples (2 cycles x 2 directions x each target),
+    // the verdict, table, plot and report among its results.
+    let targets: usize = [
+        "iso_targets_um",
+        "unvisited_targets_um",
+        "extrapolated_targets_um",
+    ]
+    .iter()
+    .map(|k| x[*k].as_array().unwrap().len())
+    .sum();
+    assert!(targets >= 21, "{x}");
+    let store = csmetro::store::Store::open(db).unwrap();
+    assert_eq!(store.samples(id).unwrap().len(), 2 * 2 * 2 * targets);
+    let verdict = store.result(id, "verify/verify.json").unwrap().unwrap().1;
+    let verdict: Value = serde_json::from_slice(&verdict).unwrap();
+    assert_eq!(verdict["axes"][0]["after"], x["after"]);
+    let out = dir.join(format!("ver-{id}"));
+    let txt = std::fs::read_to_string(out.join("summary.txt")).unwrap();
+    assert!(
+        txt.contains("verification of campaign 1") && txt.contains("after"),
+        "{txt}"
+    );
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(
+        html.contains("data:image/svg+xml;base64,"),
+        "no plot in the report"
+    );
+    assert!(out.join("verify/verify_x.svg").exists());
+    drop(store);
+
+    // Refused at load (exit 2, the file and the line of `verify`), nothing stored or moved.
+    let count = || {
+        csmetro::store::Store::open(db)
+            .unwrap()
+            .campaigns()
+            .unwrap()
+            .len()
+    };
+    // A finished campaign of this stage without compensation tables.
+    let bare = {
+        let s = csmetro::store::Store::open(db).unwrap();
+        let row = s.campaign(1).unwrap().unwrap();
+        let bare = s
+            .create_campaign("bare", &row.spec_toml, &row.spec_path, STAGE, 0)
+            .unwrap();
+        s.set_state(bare, csmetro::types::CampaignState::Done, None)
+            .unwrap();
+        bare
+    };
+    let before = count();
+    let (of_verification, of_bare) = (format!("verify = {id}"), format!("verify = {bare}"));
+    let other_stage = SimFile {
+        stage: "lab-xy",
+        ..sim_file(dir, "ver", "verify = 1", acq, "")
+    };
+    let cases = [
+        (
+            sim_file(dir, "ver", "verify = 99", acq, ""),
+            "no campaign 99".to_string(),
+        ),
+        (other_stage, "ran on stage \"comp-sim-xy\"".into()),
+        (
+            sim_file(dir, "ver", &of_verification, acq, ""),
+            "is a verification".into(),
+        ),
+        (
+            sim_file(dir, "ver", &of_bare, acq, ""),
+            "no compensation table".into(),
+        ),
+    ];
+    for (k, (f, needle)) in cases.iter().enumerate() {
+        let p = f.write(&dir.join(format!("bad-ver-{k}.toml")));
+        let o = run(&p);
+        refused(&o, needle);
+        // `verify` is on line 4 of the file.
+        refused(&o, &format!("{}:4:", p.display()));
+    }
+    // Axes of its own: the verification measures the characterisation's.
+    let p = sim_file(
+        dir,
+        "ver",
+        "verify = 1",
+        "[axes.x]\nrange_um = [1500.0, 2500.0]\nstep_um = 25.0\nother_at_um = 2100.0\nm = 10",
+        "",
+    )
+    .write(&dir.join("bad-ver-axes.toml"));
+    refused(&run(&p), "leave out [axes]");
+    assert_eq!(count(), before);
 }

@@ -13,6 +13,7 @@
 //! | `GET /campaigns/{id}/samples[?after=N&limit=L]` | committed samples in commit order: `{"id", "samples": [{"n", "sample"}], "next"}`; `next` is the `after` of the following page (live `sample` events a client missed are all here) |
 //! | `GET /campaigns/{id}/results` | `{"id": .., "results": [names]}` |
 //! | `GET /campaigns/{id}/results/{*name}` | the bytes, with their stored content type |
+//! | `GET /campaigns/{id}/verification` | the verdict of a verification (`csmetro verify ID --json`'s object) of characterisation `id` or by verification campaign `id`; 404 when none |
 //! | `POST /stages/{name}/move` | body `{"x_um", "y_um"?, "direction"?, "approach_um"?, "compensation_from"?, "hardware_from"?, "measure"?}`: a (compensated) move; 409 while a campaign runs or waits on that stage |
 //!
 //! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`;
@@ -113,6 +114,7 @@ pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy
         .route("/campaigns/{id}/samples", get(samples))
         .route("/campaigns/{id}/results", get(results))
         .route("/campaigns/{id}/results/{*name}", get(result))
+        .route("/campaigns/{id}/verification", get(verification))
         .route("/stages/{name}/move", post(move_stage))
         .fallback(|| async { ApiError::not_found("no such route") })
         .layer(middleware::from_fn_with_state(app.clone(), auth))
@@ -476,4 +478,21 @@ async fn move_stage(
         });
     drop(lock);
     out.map(Json)
+}
+
+/// `GET /campaigns/{id}/verification`: the stored verdict, see [`crate::compensation::verify`].
+async fn verification(
+    State(app): State<App>,
+    Path(id): Path<i64>,
+) -> ApiResult<Json<serde_json::Value>> {
+    let m = app.manager.clone();
+    let (_, bytes) = blocking(move || m.result(id, crate::compensation::verify::VERDICT_FILE))
+        .await
+        .map_err(|e| match e.status {
+            StatusCode::NOT_FOUND => ApiError::not_found(format!("no verification: {}", e.message)),
+            _ => e,
+        })?;
+    serde_json::from_slice(&bytes)
+        .map(Json)
+        .map_err(|_| ApiError::internal("the stored verification is not JSON"))
 }

@@ -31,20 +31,20 @@ pub struct Event {
 
 pub type SharedStore = Arc<Mutex<Store>>;
 
-fn lock(s: &SharedStore) -> std::sync::MutexGuard<'_, Store> {
+pub(crate) fn lock(s: &SharedStore) -> std::sync::MutexGuard<'_, Store> {
     s.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Stores a new campaign (state queued) and returns its id.
 pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, String> {
-    let p = plan(c);
+    let planned = crate::compensation::campaign::planned(c).unwrap_or(plan(c).total() as u64);
     lock(store)
         .create_campaign(
             &c.spec.campaign.name,
             &c.text,
             &c.origin,
             &c.spec.campaign.stage,
-            p.total() as u64,
+            planned,
         )
         .map_err(|e| e.to_string())
 }
@@ -59,7 +59,11 @@ pub fn load_stored(store: &SharedStore, id: i64) -> Result<Campaign, String> {
         .parent()
         .map(|p| p.to_path_buf())
         .unwrap_or_default();
-    Campaign::parse(&row.spec_toml, &row.spec_path, &base).map_err(|e| e.to_string())
+    let mut c =
+        Campaign::parse(&row.spec_toml, &row.spec_path, &base).map_err(|e| e.to_string())?;
+    // `verify = ID`: the characterisation's axes.
+    crate::compensation::campaign::resolve(&mut c, &lock(store)).map_err(|e| e.to_string())?;
+    Ok(c)
 }
 
 struct StoreRecorder {
@@ -73,7 +77,13 @@ struct StoreRecorder {
     truth_log: Option<std::fs::File>,
 }
 
-fn emit(store: &SharedStore, events: &broadcast::Sender<Event>, id: i64, kind: &str, data: Value) {
+pub(crate) fn emit(
+    store: &SharedStore,
+    events: &broadcast::Sender<Event>,
+    id: i64,
+    kind: &str,
+    data: Value,
+) {
     let unix_s = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs_f64())
@@ -189,6 +199,13 @@ pub async fn execute_with(
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     opts: Options,
 ) -> Result<Finished, String> {
+    if c.spec.campaign.verify.is_some() {
+        let origin = opts.origin.unwrap_or_else(Origin::service);
+        return crate::compensation::campaign::execute(
+            store, id, c, control, events, on_sample, origin,
+        )
+        .await;
+    }
     let truth_log = match &opts.truth_log {
         Some(p) => Some(
             std::fs::OpenOptions::new()

@@ -22,7 +22,8 @@ use crate::types::{AxisId, Direction};
 pub struct CampaignSpec {
     pub campaign: Meta,
     pub hardware: Hardware,
-    /// `[axes.x]`, `[axes.y]`: the axes to characterize, in that order (none for a `[map]`).
+    /// `[axes.x]`, `[axes.y]`: the axes to characterize, in that order (none for a `[map]`). A
+    /// verification (`[campaign] verify = ID`) has none: it measures the characterisation's.
     #[serde(default)]
     pub axes: BTreeMap<String, AxisSpec>,
     #[serde(default)]
@@ -50,6 +51,10 @@ pub struct Meta {
     /// The stage this campaign runs on; one campaign runs per stage at a time.
     #[serde(default = "default_stage")]
     pub stage: String,
+    /// `verify = ID`: this campaign verifies stored characterisation ID with its compensation
+    /// (see [`crate::compensation::campaign`]); its axes are the characterisation's.
+    #[serde(default)]
+    pub verify: Option<i64>,
 }
 
 fn default_stage() -> String {
@@ -551,7 +556,9 @@ fn validate(
             format!("must be at most {MAX_DESCRIPTION_LEN} bytes"),
         ));
     }
-    if spec.axes.is_empty() && spec.map.is_none() {
+    if let Some(id) = spec.campaign.verify {
+        crate::compensation::campaign::check_spec(spec, id).map_err(|(k, m)| fail(k, m))?;
+    } else if spec.axes.is_empty() && spec.map.is_none() {
         return Err(fail(
             "axes",
             "no axis to characterize: add [axes.x] and/or [axes.y] (or a [map])".into(),

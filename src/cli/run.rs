@@ -80,8 +80,13 @@ fn take_stage(db: &std::path::Path, stage: &str) -> Result<StageLock, CliError> 
 
 pub fn run(a: Args) -> CliResult {
     let origin = origin(a.operator.as_deref())?;
-    let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
+    let mut c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
+    crate::compensation::campaign::resolve(
+        &mut c,
+        &store.lock().unwrap_or_else(|e| e.into_inner()),
+    )
+    .map_err(|e| CliError::input(e.to_string()))?;
     let _stage = take_stage(&a.db, &c.spec.campaign.stage)?;
     preflight(&c, &a.db, "nothing was recorded or moved")?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
@@ -169,7 +174,8 @@ fn foreground(
         .build()
         .map_err(|e| CliError::failure(e.to_string()))?;
     rt.block_on(async move {
-        let planned = crate::campaign::plan::plan(&c).total() as u64;
+        let planned = crate::compensation::campaign::planned(&c)
+            .unwrap_or(crate::campaign::plan::plan(&c).total() as u64);
         let stored = store
             .lock()
             .unwrap_or_else(|e| e.into_inner())

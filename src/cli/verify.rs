@@ -98,6 +98,10 @@ pub fn run(a: Args) -> CliResult {
         .flatten()
         .and_then(|(_, b)| serde_json::from_slice(&b).ok())
         .unwrap_or_default();
+    let samples = store
+        .samples(a.id)
+        .map_err(|e| CliError::failure(e.to_string()))?;
+    let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&samples, ax));
     let shared = Arc::new(Mutex::new(store));
     let c = session::load_stored(&shared, a.id).map_err(CliError::failure)?;
     for ax in &c.axes {
@@ -112,6 +116,7 @@ pub fn run(a: Args) -> CliResult {
         unvisited_targets: a.unvisited,
         seed: a.seed,
         expected_um: a.expected_um,
+        measured_span_um: measured,
     };
     let prior = move |axis: AxisId| -> Prior { prior_from_summary(&summary, axis) };
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -131,19 +136,17 @@ pub fn run(a: Args) -> CliResult {
             }
             let _ = tx.send(Control::Abort);
         });
-        let mut progress = move |kind: &str, data: &serde_json::Value| {
+        let mut progress = verify::Progress(move |kind: &str, data: &serde_json::Value| {
             if !quiet && matches!(kind, "pass" | "frame_rejected" | "point_failed") {
                 eprintln!("{kind}: {data}");
             }
-        };
-        verify::run(a.id, &c, Arc::new(comp), &prior, &opts, rx, &mut progress).await
+        });
+        let done = Default::default();
+        verify::run(a.id, &c, Arc::new(comp), &prior, &opts, rx, &done, &mut progress).await
     });
-    let v = verdict.map_err(|e| {
-        if e.starts_with("compensation:") {
-            CliError::input(e)
-        } else {
-            CliError::failure(e)
-        }
+    let v = verdict.map_err(|e| match e {
+        verify::VerifyError::Refused(m) => CliError::input(m),
+        e => CliError::failure(e.to_string()),
     })?;
     // Results next to the characterisation's: in the store (so `report` and the API serve
     // them) and in its output directory.

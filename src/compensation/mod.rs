@@ -13,6 +13,7 @@ use std::path::Path;
 use crate::report::compensation_columns;
 use crate::types::{AxisId, Direction};
 
+pub mod campaign;
 pub mod motion;
 pub mod verify;
 

@@ -2,6 +2,7 @@
 //! ISO 230-2 style targets (from the characterisation's grid, repeated cycles, both directions)
 //! and at random targets between grid points the characterisation never visited; report the
 //! ISO 230-2 figures and the residual errors before and after side by side.
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use rand::{Rng, SeedableRng};
@@ -32,6 +33,11 @@ pub struct VerifyOptions {
     /// Largest |residual| that passes, µm; default per axis: 3 × the characterisation's CV error
     /// estimate + the repeatability R.
     pub expected_um: Option<f64>,
+    /// Per axis (x, y): the span the characterisation measured in every direction, µm. The
+    /// grid beyond it holds the reconstruction's extrapolation, not a measured correction: the
+    /// ISO and never-visited targets are drawn inside it, the grid's ends outside it are
+    /// measured and reported apart ([`AxisVerdict::extrapolated_targets_um`]).
+    pub measured_span_um: [Option<(f64, f64)>; 2],
 }
 
 impl Default for VerifyOptions {
@@ -42,22 +48,65 @@ impl Default for VerifyOptions {
             unvisited_targets: 10,
             seed: 1,
             expected_um: None,
+            measured_span_um: [None, None],
         }
     }
+}
+
+/// The span of `axis` every measured direction of `samples` covers: (largest first target,
+/// smallest last target), µm; `None` without samples of that axis.
+pub fn measured_span(samples: &[SampleRecord], axis: AxisId) -> Option<(f64, f64)> {
+    let mut per: [Option<(f64, f64)>; 2] = [None, None];
+    for s in samples.iter().filter(|s| s.target.run.axis == axis) {
+        let t = s.target.target_um();
+        let d = &mut per[usize::from(s.target.run.direction == Direction::Backward)];
+        *d = Some(d.map_or((t, t), |(lo, hi)| (lo.min(t), hi.max(t))));
+    }
+    per.into_iter()
+        .flatten()
+        .reduce(|a, b| (a.0.max(b.0), a.1.min(b.1)))
+        .filter(|(lo, hi)| lo <= hi)
 }
 
 /// Most targets and cycles a verification accepts (bounds on what a flag can ask).
 pub const MAX_TARGETS: usize = 1000;
 pub const MAX_CYCLES: u32 = 50;
 
-/// The verification targets of one axis, µm, ascending: (ISO targets on the grid, unvisited).
-pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>) {
+/// The verification targets of one axis, µm, ascending: (ISO targets on the grid, unvisited,
+/// the grid's ends outside the measured span).
+pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let g = ax.grid;
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ ((ax.axis as u64 + 1) * 0x5DEE_CE66));
-    let n = opts.iso_targets.clamp(2, g.n);
+    // Grid indices [i0, i0 + span] inside the measured span (the whole grid when unknown).
+    let (i0, i1) = match opts.measured_span_um[ax.axis as usize] {
+        Some((lo, hi)) => {
+            let i = |p: f64, up: bool| {
+                let u = (p - g.start_um) / g.step_um;
+                let u = if up {
+                    (u - 1e-6).ceil()
+                } else {
+                    (u + 1e-6).floor()
+                };
+                u.clamp(0.0, (g.n - 1) as f64) as usize
+            };
+            let (a, b) = (i(lo, true), i(hi, false));
+            if b > a {
+                (a, b)
+            } else {
+                (0, g.n - 1)
+            }
+        }
+        None => (0, g.n - 1),
+    };
+    let ext: Vec<f64> = [0, g.n - 1]
+        .into_iter()
+        .filter(|&i| i < i0 || i > i1)
+        .map(|i| g.position(i))
+        .collect();
+    let n = opts.iso_targets.clamp(2, i1 - i0 + 1);
     // Evenly spread grid indices, each moved by a random fraction of the spacing (ISO 230-2
     // spaces targets unevenly so that periodic errors are not sampled at one phase).
-    let span = (g.n - 1) as f64;
+    let span = (i1 - i0) as f64;
     let mut iso: Vec<usize> = (0..n)
         .map(|i| {
             let base = span * i as f64 / (n - 1) as f64;
@@ -66,7 +115,7 @@ pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>) {
             } else {
                 rng.random_range(-0.3..0.3) * span / (n - 1) as f64
             };
-            (base + jitter).round().clamp(0.0, span) as usize
+            i0 + (base + jitter).round().clamp(0.0, span) as usize
         })
         .collect();
     iso.sort_unstable();
@@ -75,16 +124,17 @@ pub fn targets(ax: &AxisPlan, opts: &VerifyOptions) -> (Vec<f64>, Vec<f64>) {
     let mut un: Vec<f64> = (0..opts.unvisited_targets)
         .map(|_| {
             // Strictly between two grid points, at least 20 % of a step from either.
-            let i = rng.random_range(0..g.n - 1);
+            let i = rng.random_range(i0..i1);
             g.position(i) + g.step_um * rng.random_range(0.2..0.8)
         })
         .collect();
     un.sort_by(f64::total_cmp);
-    (iso, un)
+    (iso, un, ext)
 }
 
-/// An axis's verification targets: (axis, ISO targets, never-visited targets), µm.
-type TargetSet = (AxisId, Vec<f64>, Vec<f64>);
+/// An axis's verification targets: (axis, ISO targets, never-visited targets, extrapolated
+/// grid ends), µm.
+type TargetSet = (AxisId, Vec<f64>, Vec<f64>, Vec<f64>);
 
 /// The runs of one pass: per axis, cycle and direction, one sweep over all its targets.
 fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<TargetSet>) {
@@ -92,8 +142,8 @@ fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<TargetSe
     let mut seq = seq0;
     let mut sets = Vec::new();
     for ax in &c.axes {
-        let (iso, un) = targets(ax, opts);
-        let mut all: Vec<f64> = iso.iter().chain(&un).copied().collect();
+        let (iso, un, ext) = targets(ax, opts);
+        let mut all: Vec<f64> = iso.iter().chain(&un).chain(&ext).copied().collect();
         all.sort_by(f64::total_cmp);
         for cycle in 0..opts.cycles {
             for &direction in &c.spec.acquisition.directions {
@@ -136,24 +186,45 @@ fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<TargetSe
                 });
             }
         }
-        sets.push((ax.axis, iso, un));
+        sets.push((ax.axis, iso, un, ext));
     }
     (Plan { batches }, sets)
 }
 
-/// Keeps the samples; events go to an optional progress callback.
+/// Where a verification's samples and events go besides its verdict: the CLI prints progress,
+/// a verification campaign commits them to its store.
+pub trait Sink: Send {
+    /// Commits one sample; `Ok(false)` when its target was stored already.
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String>;
+    fn event(&mut self, kind: &str, data: &Value);
+}
+
+/// Progress only: samples are kept in the verdict, events go to a callback.
+pub struct Progress<F: FnMut(&str, &Value) + Send>(pub F);
+
+impl<F: FnMut(&str, &Value) + Send> Sink for Progress<F> {
+    fn sample(&mut self, _: &SampleRecord) -> Result<bool, String> {
+        Ok(true)
+    }
+    fn event(&mut self, kind: &str, data: &Value) {
+        (self.0)(kind, data);
+    }
+}
+
+/// Keeps the samples; commits them and the events to the sink.
 struct Collect<'a> {
     samples: Vec<SampleRecord>,
-    on_event: &'a mut (dyn FnMut(&str, &Value) + Send),
+    sink: &'a mut dyn Sink,
 }
 
 impl Recorder for Collect<'_> {
     fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
+        let fresh = self.sink.sample(s)?;
         self.samples.push(*s);
-        Ok(true)
+        Ok(fresh)
     }
     fn event(&mut self, kind: &str, data: Value) {
-        (self.on_event)(kind, &data);
+        self.sink.event(kind, &data);
     }
     fn run_done(&mut self, _run: RunKey) {}
     fn cv_error_um(&mut self, _run: RunKey) -> Option<f64> {
@@ -205,6 +276,20 @@ pub struct AxisVerdict {
     pub repeatability_um: Option<f64>,
     pub iso_targets_um: Vec<f64>,
     pub unvisited_targets_um: Vec<f64>,
+    /// The span the characterisation measured in every direction, µm (when known): the
+    /// figures above are taken inside it.
+    pub measured_span_um: Option<(f64, f64)>,
+    /// Grid ends outside that span, where the table is the reconstruction's extrapolation:
+    /// measured, reported here, not part of the figures or the verdict.
+    pub extrapolated_targets_um: Vec<f64>,
+    pub max_abs_before_extrapolated_um: Option<f64>,
+    pub max_abs_after_extrapolated_um: Option<f64>,
+    /// RMS over targets and directions of the mean compensated deviation, µm: what the
+    /// characterisation's `cv_error_um` estimates (the check of the expected residual).
+    pub rms_after_um: f64,
+    /// Measurements per run of the characterisation and its grid points (when known).
+    pub characterisation_m: Option<u64>,
+    pub grid_points: Option<u64>,
     pub cycles: u32,
 }
 
@@ -230,6 +315,9 @@ pub struct Verdict {
 pub struct Prior {
     pub cv_error_um: Option<f64>,
     pub repeatability_um: Option<f64>,
+    /// Measurements per run of the driving components (largest) and the grid's points.
+    pub m: Option<u64>,
+    pub grid_points: Option<u64>,
 }
 
 /// Reads [`Prior`] of `axis` from a results summary (`summary.json`).
@@ -255,9 +343,17 @@ pub fn prior_from_summary(summary: &Value, axis: AxisId) -> Prior {
         .into_iter()
         .flatten()
         .reduce(f64::max);
+    let m = ax.and_then(|x| x["components"].as_array()).and_then(|cs| {
+        cs.iter()
+            .filter(|c| c["component"].as_str().is_some_and(|n| n.ends_with(&own)))
+            .filter_map(|c| c["cs"]["m"].as_u64())
+            .max()
+    });
     Prior {
         cv_error_um: cv,
         repeatability_um: r,
+        m,
+        grid_points: ax.and_then(|x| x["grid_points"].as_u64()),
     }
 }
 
@@ -273,6 +369,23 @@ fn approaches(samples: &[SampleRecord], axis: AxisId, keep: &dyn Fn(f64) -> bool
         .collect()
 }
 
+/// RMS of the mean deviation per (target, direction), µm; NaN without approaches.
+fn rms_of_means(a: &[Approach]) -> f64 {
+    let mut per: BTreeMap<(i64, bool), (f64, usize)> = BTreeMap::new();
+    for x in a {
+        let e = per
+            .entry(((x.target_um * 1e6).round() as i64, x.forward))
+            .or_insert((0.0, 0));
+        e.0 += x.deviation_um;
+        e.1 += 1;
+    }
+    if per.is_empty() {
+        return f64::NAN;
+    }
+    let ss: f64 = per.values().map(|(s, n)| (s / *n as f64).powi(2)).sum();
+    (ss / per.len() as f64).sqrt()
+}
+
 fn abs_stats(a: &[Approach]) -> (f64, f64) {
     if a.is_empty() {
         return (f64::NAN, f64::NAN);
@@ -282,35 +395,71 @@ fn abs_stats(a: &[Approach]) -> (f64, f64) {
     (mean, max)
 }
 
+/// Why a verification gave no verdict.
+#[derive(Debug, Clone, PartialEq)]
+pub enum VerifyError {
+    /// The request or the compensation cannot be served (nothing moved).
+    Refused(String),
+    /// Stopped (shutdown, resumable) or aborted by the operator; motion stopped.
+    Halted(EndState),
+    /// The hardware or the store failed; motion stopped.
+    Failed(String),
+}
+
+impl std::fmt::Display for VerifyError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            VerifyError::Refused(m) | VerifyError::Failed(m) => f.write_str(m),
+            VerifyError::Halted(EndState::Aborted) => {
+                f.write_str("verification aborted; motion stopped")
+            }
+            VerifyError::Halted(_) => f.write_str("verification stopped; motion stopped"),
+        }
+    }
+}
+
+/// Targets of a verification of `c`'s axes: (before pass, after pass). The after pass's
+/// targets are numbered after the before pass's.
+pub fn planned(c: &Campaign, opts: &VerifyOptions) -> (u64, u64) {
+    let n = plan_of(c, opts, 0).0.total() as u64;
+    (n, n)
+}
+
 /// Runs the verification of characterisation `id` (campaign `c`, its compensation `comp`) on
 /// the campaign's hardware: a pass without, then a pass with the compensation. Every
-/// compensated command is computed (and any refused) before the stage moves.
+/// compensated command is computed (and any refused) before the stage moves. Targets in
+/// `done` (a resumed verification campaign) are not measured again; their samples count.
+#[allow(clippy::too_many_arguments)]
 pub async fn run(
     id: i64,
     c: &Campaign,
     comp: Arc<Compensation>,
-    prior: &dyn Fn(AxisId) -> Prior,
+    prior: &(dyn Fn(AxisId) -> Prior + Sync),
     opts: &VerifyOptions,
     control: watch::Receiver<Control>,
-    on_event: &mut (dyn FnMut(&str, &Value) + Send),
-) -> Result<Verdict, String> {
+    done: &BTreeMap<u64, SampleRecord>,
+    sink: &mut dyn Sink,
+) -> Result<Verdict, VerifyError> {
+    use VerifyError::{Failed, Halted, Refused};
     if opts.cycles == 0 || opts.cycles > MAX_CYCLES {
-        return Err(format!("cycles must be 1..={MAX_CYCLES}"));
+        return Err(Refused(format!("cycles must be 1..={MAX_CYCLES}")));
     }
     if opts.iso_targets < 2 || opts.iso_targets + opts.unvisited_targets > MAX_TARGETS {
-        return Err(format!(
+        return Err(Refused(format!(
             "targets: at least 2 on the grid, at most {MAX_TARGETS} in all"
-        ));
+        )));
     }
     comp.check_stage(&c.spec.campaign.stage)
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| Refused(e.to_string()))?;
     for ax in &c.axes {
         comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| Refused(e.to_string()))?;
     }
     let (before_plan, sets) = plan_of(c, opts, 0);
     let (after_plan, _) = plan_of(c, opts, before_plan.total() as u64);
-    let mut rig = rig::build(c).await.map_err(|e| format!("hardware: {e}"))?;
+    let mut rig = rig::build(c)
+        .await
+        .map_err(|e| Failed(format!("hardware: {e}")))?;
     // Every compensated command before anything moves; the time of the computation per move.
     let mut compute_us_max: f64 = 0.0;
     for t in after_plan.batches.iter().flat_map(|b| &b.targets) {
@@ -320,20 +469,26 @@ pub async fn run(
         compute_us_max = compute_us_max.max(t0.elapsed().as_secs_f64() * 1e6);
         if let Err(e) = r {
             rig.close().await;
-            return Err(format!("compensation: {e}"));
+            return Err(Refused(format!("compensation: {e}")));
         }
     }
     let mut acquisition_s = 0.0;
     let mut passes: Vec<Vec<SampleRecord>> = Vec::new();
+    let split = before_plan.total() as u64;
     for (k, plan) in [&before_plan, &after_plan].into_iter().enumerate() {
         let pass = ["before", "after"][k];
-        on_event("pass", &json!({"pass": pass, "targets": plan.total()}));
+        sink.event("pass", &json!({"pass": pass, "targets": plan.total()}));
+        let stored: BTreeMap<u64, SampleRecord> = done
+            .iter()
+            .filter(|(&seq, _)| (seq < split) == (k == 0))
+            .map(|(&seq, s)| (seq, *s))
+            .collect();
         let mut rec = Collect {
-            samples: Vec::new(),
-            on_event,
+            samples: stored.values().copied().collect(),
+            sink: &mut *sink,
         };
         let r = {
-            let mut e = Engine::new(c, &mut rig, &mut rec, control.clone(), Default::default());
+            let mut e = Engine::new(c, &mut rig, &mut rec, control.clone(), stored);
             if k == 1 {
                 e.compensation = Some(comp.clone());
             }
@@ -344,12 +499,12 @@ pub async fn run(
             Err(e) => {
                 rig.stop_all().await;
                 rig.close().await;
-                return Err(format!("stopped: {e}"));
+                return Err(Failed(format!("stopped: {e}")));
             }
         };
         if out.end != EndState::Done {
             rig.close().await;
-            return Err("verification aborted; motion stopped".into());
+            return Err(Halted(out.end));
         }
         acquisition_s += out
             .stats
@@ -361,21 +516,24 @@ pub async fn run(
     rig.close().await;
     let (before, after) = (&passes[0], &passes[1]);
     let mut axes = Vec::new();
-    for (axis, iso, un) in &sets {
+    for (axis, iso, un, ext) in &sets {
         let on = |list: &Vec<f64>| {
             let list = list.clone();
             move |p: f64| list.iter().any(|q| (q - p).abs() < 1e-9)
         };
-        let (is_iso, is_un) = (on(iso), on(un));
+        let (is_iso, is_un, is_ext) = (on(iso), on(un), on(ext));
+        let measured = |p: f64| !is_ext(p);
         let tol = 1e-6;
         let fig = |s: &[SampleRecord]| {
             evaluate(&approaches(s, *axis, &is_iso), tol)
-                .ok_or_else(|| format!("axis {axis}: no samples at the ISO targets"))
+                .ok_or_else(|| Failed(format!("axis {axis}: no samples at the ISO targets")))
         };
         let (fb, fa) = (fig(before)?, fig(after)?);
-        let all = |_: f64| true;
-        let (mean_b, max_b) = abs_stats(&approaches(before, *axis, &all));
-        let (mean_a, max_a) = abs_stats(&approaches(after, *axis, &all));
+        let (mean_b, max_b) = abs_stats(&approaches(before, *axis, &measured));
+        let (mean_a, max_a) = abs_stats(&approaches(after, *axis, &measured));
+        let rms_a = rms_of_means(&approaches(after, *axis, &measured));
+        let (_, max_b_ext) = abs_stats(&approaches(before, *axis, &is_ext));
+        let (_, max_a_ext) = abs_stats(&approaches(after, *axis, &is_ext));
         let (_, max_b_un) = abs_stats(&approaches(before, *axis, &is_un));
         let (_, max_a_un) = abs_stats(&approaches(after, *axis, &is_un));
         let p = prior(*axis);
@@ -408,6 +566,13 @@ pub async fn run(
             repeatability_um: repeat,
             iso_targets_um: iso.clone(),
             unvisited_targets_um: un.clone(),
+            measured_span_um: opts.measured_span_um[*axis as usize],
+            rms_after_um: rms_a,
+            characterisation_m: p.m,
+            grid_points: p.grid_points,
+            extrapolated_targets_um: ext.clone(),
+            max_abs_before_extrapolated_um: (!ext.is_empty()).then_some(max_b_ext),
+            max_abs_after_extrapolated_um: (!ext.is_empty()).then_some(max_a_ext),
             cycles: opts.cycles,
         });
     }
@@ -477,6 +642,36 @@ pub fn table(v: &Verdict) -> String {
             opt(a.repeatability_um),
             if a.passed { "passed" } else { "FAILED" }
         ));
+        let m = match (a.characterisation_m, a.grid_points) {
+            (Some(m), Some(n)) if n > 0 => format!(
+                "characterised with m = {m} of {n} grid points per run ({:.1} %); ",
+                100.0 * m as f64 / n as f64
+            ),
+            _ => String::new(),
+        };
+        if let Some(cv) = a.cv_error_um.filter(|v| *v > 0.0) {
+            s.push_str(&format!(
+                "{:<5} {m}rms of the mean residual {:.3} µm vs its CV error estimate {cv:.3} µm ({:+.0} %)\n",
+                a.axis.to_uppercase(),
+                a.rms_after_um,
+                100.0 * (a.rms_after_um / cv - 1.0)
+            ));
+        }
+        if let (Some((lo, hi)), Some(after), Some(before)) = (
+            a.measured_span_um,
+            a.max_abs_after_extrapolated_um,
+            a.max_abs_before_extrapolated_um,
+        ) {
+            s.push_str(&format!(
+                "{:<5} grid ends outside the characterised span [{lo}, {hi}] µm ({}): max |error| {before:.3} before, {after:.3} µm after (extrapolated table, not in the figures or the verdict)\n",
+                a.axis.to_uppercase(),
+                a.extrapolated_targets_um
+                    .iter()
+                    .map(|p| format!("{p}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        }
     }
     s.push_str(&format!(
         "{}\n",
@@ -599,6 +794,52 @@ pub fn plot_svg(v: &Verdict, axis: &str) -> Result<String, String> {
     Ok(out)
 }
 
+/// The stored verdict (the JSON of `csmetro verify --json`), among a campaign's results.
+pub const VERDICT_FILE: &str = "verify/verify.json";
+
+/// `report.html` of a verification campaign: verdict, the side-by-side table, the plots of both
+/// curves (embedded), the campaign file.
+pub fn report_html(v: &Verdict, id: i64, name: &str, text: &str, origin: &str) -> String {
+    use crate::report::html::esc;
+    use base64::Engine as _;
+    let title = format!(
+        "csmetro campaign {id} — {name}: verification of campaign {}",
+        v.campaign
+    );
+    let mut h = format!(
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title>\
+         <style>body{{font-family:sans-serif;max-width:1250px;margin:1em auto}}pre{{background:#f4f4f4;padding:.5em;overflow-x:auto}}\
+         img{{max-width:100%}}.bad{{color:#b00020}}</style></head><body>\n<h1>{t}</h1>\n",
+        t = esc(&title)
+    );
+    h.push_str(&format!(
+        "<p>Verdict: <b{}>{}</b>. Stage {}, compensation {}. Units: µm (error = measured − wanted position).</p>\n",
+        if v.passed { "" } else { " class=\"bad\"" },
+        if v.passed { "passed" } else { "FAILED" },
+        esc(&v.stage),
+        esc(&v.compensation)
+    ));
+    h.push_str(&format!(
+        "<h2>Before / after (ISO 230-2)</h2>\n<pre>{}</pre>\n",
+        esc(&table(v))
+    ));
+    for a in &v.axes {
+        if let Ok(svg) = plot_svg(v, &a.axis) {
+            h.push_str(&format!(
+                "<figure><img alt=\"axis {ax}\" src=\"data:image/svg+xml;base64,{}\"></figure>\n",
+                base64::engine::general_purpose::STANDARD.encode(svg),
+                ax = esc(&a.axis)
+            ));
+        }
+    }
+    h.push_str(&format!(
+        "<h2>Campaign file</h2>\n<p>{}</p>\n<pre>{}</pre>\n</body></html>\n",
+        esc(origin),
+        esc(text)
+    ));
+    h
+}
+
 /// The verification's result files (name relative to the characterisation's results, content
 /// type, bytes).
 pub fn files(v: &Verdict) -> Vec<(String, String, Vec<u8>)> {
@@ -609,7 +850,7 @@ pub fn files(v: &Verdict) -> Vec<(String, String, Vec<u8>)> {
             table(v).into_bytes(),
         ),
         (
-            "verify/verify.json".into(),
+            VERDICT_FILE.into(),
             "application/json".into(),
             serde_json::to_vec_pretty(&json(v)).unwrap_or_default(),
         ),
@@ -655,7 +896,8 @@ m = 40
     fn iso_targets_are_on_the_grid_and_the_others_never_are() {
         let c = campaign();
         let ax = &c.axes[0];
-        let (iso, un) = targets(ax, &VerifyOptions::default());
+        let (iso, un, ext) = targets(ax, &VerifyOptions::default());
+        assert!(ext.is_empty());
         assert_eq!(iso.len(), 11);
         assert_eq!(iso[0], 100.0);
         assert_eq!(*iso.last().unwrap(), 1100.0);
@@ -676,16 +918,72 @@ m = 40
         assert_eq!(p.total(), 5 * 2 * 21);
     }
 
+    /// A characterisation that measured [123, 1041] µm forward and [118, 1060] µm backward:
+    /// the figures' targets stay inside [123, 1041], the grid's ends are measured apart.
+    #[test]
+    fn targets_stay_inside_the_measured_span_and_the_ends_are_apart() {
+        let c = campaign();
+        let ax = &c.axes[0];
+        let sample = |p: f64, d: Direction| {
+            let run = RunKey {
+                phase: Phase::Cs,
+                axis: AxisId::X,
+                direction: d,
+                cycle: 0,
+            };
+            SampleRecord {
+                target: Target {
+                    seq: 0,
+                    run,
+                    grid_index: 0,
+                    target_x_um: p,
+                    target_y_um: 100.0,
+                },
+                meas_x_um: p,
+                meas_y_um: 100.0,
+                theta_mrad: 0.0,
+                encoder_um: p,
+                time_s: 0.0,
+                unix_s: 0.0,
+                quality: 1.0,
+                frames: 1,
+                rejected: 0,
+                point_s: 0.0,
+            }
+        };
+        let f = Direction::Forward;
+        let b = Direction::Backward;
+        let s: Vec<SampleRecord> = [(123.0, f), (600.0, f), (1041.0, f), (118.0, b), (1060.0, b)]
+            .into_iter()
+            .map(|(p, d)| sample(p, d))
+            .collect();
+        let span = measured_span(&s, AxisId::X).unwrap();
+        assert_eq!(span, (123.0, 1041.0));
+        assert!(measured_span(&s, AxisId::Y).is_none());
+        let opts = VerifyOptions {
+            measured_span_um: [Some(span), None],
+            ..VerifyOptions::default()
+        };
+        let (iso, un, ext) = targets(ax, &opts);
+        assert_eq!(ext, vec![100.0, 1100.0]);
+        // On the grid inside the span: 125 and 1040 the outermost.
+        assert_eq!(iso[0], 125.0);
+        assert_eq!(*iso.last().unwrap(), 1040.0);
+        assert!(un.iter().all(|p| (125.0..1040.0).contains(p)), "{un:?}");
+        assert_eq!(iso.len(), 11);
+    }
+
     #[test]
     fn prior_reads_the_driving_components_and_r() {
-        let s = json!({"axes": [{"axis": "x", "components": [
-            {"component": "ef_xx", "cs": {"cv_error_um": 0.05}},
-            {"component": "eb_xx", "cs": {"cv_error_um": 0.07}},
-            {"component": "ef_xy", "cs": {"cv_error_um": 0.9}}]}],
+        let s = json!({"axes": [{"axis": "x", "grid_points": 1901, "components": [
+            {"component": "ef_xx", "cs": {"cv_error_um": 0.05, "m": 100}},
+            {"component": "eb_xx", "cs": {"cv_error_um": 0.07, "m": 100}},
+            {"component": "ef_xy", "cs": {"cv_error_um": 0.9, "m": 300}}]}],
             "iso230": {"x": {"measured": {"r_um": 2.5, "r_up_um": 0.04, "r_down_um": 0.03}}}});
         let p = prior_from_summary(&s, AxisId::X);
         assert_eq!(p.cv_error_um, Some(0.07));
         assert_eq!(p.repeatability_um, Some(0.04));
+        assert_eq!((p.m, p.grid_points), (Some(100), Some(1901)));
         let q = prior_from_summary(&s, AxisId::Y);
         assert!(q.cv_error_um.is_none() && q.repeatability_um.is_none());
     }

@@ -373,3 +373,45 @@ pub fn stored_seqs(db: &Path, id: i64) -> Vec<u64> {
         .map(|r| r.target.seq)
         .collect()
 }
+
+/// A campaign file on a simulated stage (stage model `config/sim/{model}`, a 640 x 640 camera,
+/// simulated time 1000x): the tests that write their own files share this one fixture.
+pub struct SimFile<'a> {
+    pub name: &'a str,
+    pub stage: &'a str,
+    pub model: &'a str,
+    /// More `[campaign]` keys (`verify = 1`).
+    pub campaign: &'a str,
+    /// More `[hardware.sim]` keys (`seed = 5`, `transport = "pty"`).
+    pub sim: &'a str,
+    /// The sections after `[hardware.sim]`: `[axes.*]`, `[sampling]`, `[acquisition]`, ...
+    pub rest: &'a str,
+    /// `[outputs] dir` (`{id}`, `{name}` expand).
+    pub outputs: String,
+    /// Sections after `[outputs]`.
+    pub tail: &'a str,
+}
+
+impl SimFile<'_> {
+    pub fn text(&self) -> String {
+        format!(
+            "[campaign]\nname = \"{}\"\nstage = \"{}\"\n{}\n\n[hardware]\nkind = \"sim\"\n\
+             optics = {{ width = 640, height = 640 }}\n\n[hardware.sim]\nmodel = \"{}\"\n\
+             time_scale = 1000\n{}\n\n{}\n\n[outputs]\ndir = \"{}\"\n\n{}",
+            self.name,
+            self.stage,
+            self.campaign,
+            repo("config/sim").join(self.model).display(),
+            self.sim,
+            self.rest,
+            self.outputs,
+            self.tail
+        )
+    }
+
+    /// Writes the file to `path` and returns it.
+    pub fn write(&self, path: &Path) -> PathBuf {
+        std::fs::write(path, self.text()).unwrap();
+        path.to_path_buf()
+    }
+}

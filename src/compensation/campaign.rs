@@ -1,0 +1,453 @@
+//! A verification as a campaign: a campaign file with `[campaign] verify = ID` (and no `[axes]`)
+//! measures stored characterisation ID again without and with its compensation, as
+//! `csmetro verify ID` does, but queued, stored, streamed and reported like any campaign (CLI
+//! `run`, the service's `POST /campaigns`). Its hardware and acquisition settings are the file's;
+//! its axes, grids and compensation are the characterisation's, which must be in the same store,
+//! finished, of the same stage and have compensation tables: all checked at load.
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use serde_json::{json, Value};
+use tokio::sync::{broadcast, watch};
+
+use super::verify::{self, prior_from_summary, Prior, Sink, VerifyError, VerifyOptions};
+use super::Compensation;
+use crate::campaign::engine::{Control, EndState, Outcome};
+use crate::campaign::session::{emit, lock, Event, Finished, SharedStore};
+use crate::campaign::spec::{Campaign, CampaignSpec, HardwareKind, SpecError};
+use crate::store::Store;
+use crate::tomlpos::{line_of, span_of};
+use crate::types::{AxisId, CampaignState, Origin, SampleRecord};
+
+/// ISO 230-2's measurement cycles per direction, when the file does not set
+/// `[acquisition] cycles`.
+pub const DEFAULT_CYCLES: u32 = 5;
+
+/// Checks a verification's own keys (before any store is at hand): an id, no `[axes]`, no
+/// `[compensation]`. Errors: (key, message).
+pub fn check_spec(spec: &CampaignSpec, id: i64) -> Result<(), (&'static str, String)> {
+    if id <= 0 {
+        return Err(("campaign.verify", "must be a campaign id (> 0)".into()));
+    }
+    if !spec.axes.is_empty() {
+        return Err((
+            "axes",
+            format!("a verification measures the axes of characterisation {id}: leave out [axes]"),
+        ));
+    }
+    if spec.map.is_some() {
+        return Err((
+            "map",
+            format!("a verification measures the axes of characterisation {id}: leave out [map]"),
+        ));
+    }
+    if spec.compensation.is_some() {
+        return Err((
+            "compensation",
+            format!(
+                "a verification applies the compensation of characterisation {id}: leave out [compensation]"
+            ),
+        ));
+    }
+    if spec.acquisition.cycles > verify::MAX_CYCLES {
+        return Err((
+            "acquisition.cycles",
+            format!(
+                "a verification measures at most {} cycles",
+                verify::MAX_CYCLES
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// What a verification campaign measures: targets and cycles as `csmetro verify` chooses them;
+/// cycles from `[acquisition] cycles` when the file sets it, else ISO 230-2's 5.
+pub fn options(c: &Campaign) -> VerifyOptions {
+    let cycles = if span_of(&c.text, "acquisition.cycles").is_some() {
+        c.spec.acquisition.cycles
+    } else {
+        DEFAULT_CYCLES
+    };
+    VerifyOptions {
+        cycles,
+        ..VerifyOptions::default()
+    }
+}
+
+/// Resolves a verification campaign against `store`: its axes become the characterisation's
+/// (unchanged for any other campaign). Refused, at `campaign.verify`'s line: an id not in this
+/// store, of another stage, not finished, itself a verification, without compensation tables,
+/// or a characterisation this file's hardware or directions cannot measure.
+pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
+    let Some(id) = c.spec.campaign.verify else {
+        return Ok(());
+    };
+    let key = "campaign.verify";
+    let err = |message: String| SpecError {
+        origin: c.origin.clone(),
+        line: span_of(&c.text, key)
+            .map(|s| line_of(&c.text, s.start))
+            .unwrap_or(0),
+        key: key.into(),
+        message,
+    };
+    let row = store
+        .campaign(id)
+        .map_err(|e| err(format!("store: {e}")))?
+        .ok_or_else(|| err(format!("no campaign {id} in this store")))?;
+    let stage = &c.spec.campaign.stage;
+    if &row.stage != stage {
+        return Err(err(format!(
+            "campaign {id} ran on stage {:?}, not on {stage:?}",
+            row.stage
+        )));
+    }
+    let base = std::path::Path::new(&row.spec_path)
+        .parent()
+        .map(std::path::Path::to_path_buf)
+        .unwrap_or_default();
+    let ch = Campaign::parse(&row.spec_toml, &row.spec_path, &base).map_err(|_| {
+        err(format!(
+            "campaign {id}: its stored file no longer validates"
+        ))
+    })?;
+    if ch.spec.campaign.verify.is_some() || ch.axes.is_empty() {
+        return Err(err(format!(
+            "campaign {id} is a verification, not a characterisation"
+        )));
+    }
+    if row.state != CampaignState::Done {
+        return Err(err(format!(
+            "campaign {id} is {}: only a finished characterisation can be verified",
+            row.state.as_str()
+        )));
+    }
+    let comp = Compensation::from_store(store, id, &row.stage).map_err(|e| err(e.to_string()))?;
+    let h = &c.spec.hardware;
+    let pre = c.spec.acquisition.approach_um;
+    for ax in &ch.axes {
+        let a = ax.axis;
+        comp.check_covers(a, ax.grid.start_um, ax.grid.end_um())
+            .map_err(|e| err(e.to_string()))?;
+        let t = comp.table(a).expect("checked by check_covers");
+        for &d in &c.spec.acquisition.directions {
+            if t.served_direction(d) != d {
+                return Err(err(format!(
+                    "campaign {id} has no {} correction of axis {a}: measure the directions it has",
+                    d.as_str()
+                )));
+            }
+        }
+        let limits = |axis: AxisId| -> Result<(f64, f64), SpecError> {
+            match h.kind {
+                HardwareKind::Sim => {
+                    let l = match axis {
+                        AxisId::X => h.sim.soft_limits_x_um,
+                        AxisId::Y => h.sim.soft_limits_y_um,
+                    };
+                    Ok((l[0], l[1]))
+                }
+                HardwareKind::Real => h
+                    .controllers
+                    .get(axis.as_str())
+                    .map(|c| c.soft_limits_um)
+                    .ok_or_else(|| {
+                        err(format!(
+                            "campaign {id} measured axis {axis}: this file has no [hardware.controllers.{axis}]"
+                        ))
+                    }),
+            }
+        };
+        let (lo, hi) = limits(a)?;
+        let (s, e) = (ax.grid.start_um, ax.grid.end_um());
+        if s - pre < lo - 1e-9 || e + pre > hi + 1e-9 {
+            return Err(err(format!(
+                "axis {a} of campaign {id}, [{s}, {e}] µm with {pre} µm approach travel, leaves this file's soft limits [{lo}, {hi}] µm"
+            )));
+        }
+        let (olo, ohi) = limits(a.other())?;
+        if ax.other_at_um < olo || ax.other_at_um > ohi {
+            return Err(err(format!(
+                "axis {a} of campaign {id} waits with {} at {} µm, outside this file's soft limits [{olo}, {ohi}] µm",
+                a.other(),
+                ax.other_at_um
+            )));
+        }
+    }
+    c.spec.axes = ch.spec.axes.clone();
+    c.axes = ch.axes;
+    Ok(())
+}
+
+/// Targets a verification campaign plans (both passes); `None` for other campaigns.
+pub fn planned(c: &Campaign) -> Option<u64> {
+    c.spec.campaign.verify?;
+    let (b, a) = verify::planned(c, &options(c));
+    Some(b + a)
+}
+
+/// Commits the samples and events of a verification campaign to its store and streams them.
+struct StoreSink {
+    store: SharedStore,
+    events: broadcast::Sender<Event>,
+    id: i64,
+    on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
+}
+
+impl Sink for StoreSink {
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
+        let fresh = lock(&self.store)
+            .insert_sample(self.id, s)
+            .map_err(|e| e.to_string())?;
+        (self.on_sample)(s);
+        if fresh {
+            let _ = self.events.send(Event {
+                id: 0,
+                campaign: self.id,
+                unix_s: s.unix_s,
+                kind: "sample".into(),
+                data: json!(s),
+            });
+        }
+        Ok(fresh)
+    }
+    fn event(&mut self, kind: &str, data: &Value) {
+        emit(&self.store, &self.events, self.id, kind, data.clone());
+    }
+}
+
+/// Runs (or resumes: targets stored are not measured again) verification campaign `id`,
+/// stores its verdict and result files, and records its final state: done when it passed,
+/// failed (with the axis that did not) when the compensated residual exceeds the expected one.
+pub async fn execute(
+    store: SharedStore,
+    id: i64,
+    mut c: Campaign,
+    control: watch::Receiver<Control>,
+    events: broadcast::Sender<Event>,
+    on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
+    origin: Origin,
+) -> Result<Finished, String> {
+    let char_id = c
+        .spec
+        .campaign
+        .verify
+        .ok_or("not a verification campaign")?;
+    let t0 = std::time::Instant::now();
+    let fail = |msg: String| {
+        {
+            let s = lock(&store);
+            let _ = s.set_state(id, CampaignState::Interrupted, Some(&msg));
+        }
+        emit(
+            &store,
+            &events,
+            id,
+            "error",
+            json!({"cause": "verification", "error": msg, "resumable": true}),
+        );
+        emit(
+            &store,
+            &events,
+            id,
+            "finished",
+            json!({"state": "interrupted", "error": msg}),
+        );
+        format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
+    };
+    // Resolved again here: the characterisation may have gone since the file was loaded.
+    let resolved = {
+        let s = lock(&store);
+        resolve(&mut c, &s)
+            .map_err(|e| e.to_string())
+            .and_then(|()| {
+                let comp = Compensation::from_store(&s, char_id, &c.spec.campaign.stage)
+                    .map_err(|e| e.to_string())?;
+                let summary: Value = s
+                    .result(char_id, "summary.json")
+                    .ok()
+                    .flatten()
+                    .and_then(|(_, b)| serde_json::from_slice(&b).ok())
+                    .unwrap_or_default();
+                let measured = s.samples(char_id).map_err(|e| e.to_string())?;
+                let measured =
+                    [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&measured, ax));
+                let done: BTreeMap<u64, SampleRecord> = s
+                    .samples(id)
+                    .map_err(|e| e.to_string())?
+                    .into_iter()
+                    .map(|r| (r.target.seq, r))
+                    .collect();
+                Ok((comp, summary, measured, done))
+            })
+    };
+    let (comp, summary, measured, done) = resolved.map_err(|e| fail(format!("stopped: {e}")))?;
+    let opts = VerifyOptions {
+        measured_span_um: measured,
+        ..options(&c)
+    };
+    let (nb, na) = verify::planned(&c, &opts);
+    {
+        let s = lock(&store);
+        s.set_planned(id, nb + na).map_err(|e| e.to_string())?;
+        s.set_state(id, CampaignState::Running, None)
+            .map_err(|e| e.to_string())?;
+    }
+    emit(
+        &store,
+        &events,
+        id,
+        if done.is_empty() {
+            "started"
+        } else {
+            "resumed_from_store"
+        },
+        json!({"planned": nb + na, "stored": done.len(), "name": c.spec.campaign.name,
+               "verify": char_id, "by": origin.describe(), "origin": origin}),
+    );
+    let prior = move |axis: AxisId| -> Prior { prior_from_summary(&summary, axis) };
+    let mut sink = StoreSink {
+        store: store.clone(),
+        events: events.clone(),
+        id,
+        on_sample,
+    };
+    let r = verify::run(
+        char_id,
+        &c,
+        Arc::new(comp),
+        &prior,
+        &opts,
+        control,
+        &done,
+        &mut sink,
+    )
+    .await;
+    let outcome = |end| Outcome {
+        end,
+        stats: BTreeMap::new(),
+        wall_s: t0.elapsed().as_secs_f64(),
+    };
+    let v = match r {
+        Ok(v) => v,
+        Err(VerifyError::Halted(end)) => {
+            let (state, msg) = if end == EndState::Aborted {
+                (CampaignState::Aborted, "aborted by the operator")
+            } else {
+                (
+                    CampaignState::Interrupted,
+                    "stopped; resumes from the last stored sample",
+                )
+            };
+            let _ = lock(&store).set_state(id, state, Some(msg));
+            emit(
+                &store,
+                &events,
+                id,
+                "finished",
+                json!({"state": state.as_str(), "reason": msg}),
+            );
+            return Ok(Finished {
+                id,
+                state,
+                outcome: outcome(end),
+                summary: None,
+                table: None,
+                out_dir: None,
+            });
+        }
+        Err(e) => return Err(fail(format!("stopped: {e}"))),
+    };
+    let (state, mut errors) = if v.passed {
+        (CampaignState::Done, Vec::new())
+    } else {
+        let why: Vec<String> = v
+            .axes
+            .iter()
+            .filter(|a| !a.passed)
+            .map(|a| {
+                format!(
+                    "axis {}: max |after| {:.3} µm > expected {:.3} µm",
+                    a.axis, a.max_abs_after_um, a.expected_um
+                )
+            })
+            .collect();
+        (
+            CampaignState::Failed,
+            vec![format!("verification failed: {}", why.join("; "))],
+        )
+    };
+    let mut summary = verify::json(&v);
+    summary["id"] = json!(id);
+    summary["name"] = json!(c.spec.campaign.name);
+    summary["verify"] = json!(char_id);
+    let table = verify::table(&v);
+    let mut files = verify::files(&v);
+    files.push((
+        "summary.txt".into(),
+        "text/plain".into(),
+        table.clone().into_bytes(),
+    ));
+    files.push((
+        "report.html".into(),
+        "text/html; charset=utf-8".into(),
+        verify::report_html(&v, id, &c.spec.campaign.name, &c.text, &c.origin).into_bytes(),
+    ));
+    let store_id = lock(&store).store_id().unwrap_or_else(|_| "unknown".into());
+    {
+        let s = lock(&store);
+        for (name, ctype, bytes) in &files {
+            if let Err(e) = s.put_result(id, name, ctype, bytes) {
+                errors.push(format!("results not stored: {e}"));
+            }
+        }
+    }
+    let wanted = crate::campaign::results::out_dir(&c, id);
+    let written =
+        crate::campaign::results::claim_out_dir(&wanted, &store_id, id, &c.spec.campaign.name)
+            .and_then(|d| {
+                for (name, _, bytes) in &files {
+                    let p = d.join(name);
+                    p.parent()
+                        .map_or(Ok(()), std::fs::create_dir_all)
+                        .and_then(|()| std::fs::write(&p, bytes))
+                        .map_err(|e| format!("results not written ({name}: {})", e.kind()))?;
+                }
+                Ok(d)
+            });
+    if let Err(e) = &written {
+        errors.push(e.clone());
+    }
+    let state = if errors.is_empty() {
+        state
+    } else {
+        CampaignState::Failed
+    };
+    summary["state"] = json!(state.as_str());
+    summary["errors"] = json!(errors);
+    let json_bytes = serde_json::to_vec_pretty(&summary).unwrap_or_default();
+    let _ = lock(&store).put_result(id, "summary.json", "application/json", &json_bytes);
+    if let Ok(d) = &written {
+        let _ = std::fs::write(d.join("summary.json"), &json_bytes);
+    }
+    let message = (!errors.is_empty()).then(|| errors.join("; "));
+    lock(&store)
+        .set_state(id, state, message.as_deref())
+        .map_err(|e| e.to_string())?;
+    emit(
+        &store,
+        &events,
+        id,
+        "finished",
+        json!({"state": state.as_str(), "errors": errors, "summary": summary}),
+    );
+    Ok(Finished {
+        id,
+        state,
+        outcome: outcome(EndState::Done),
+        summary: Some(summary),
+        table: Some(table),
+        out_dir: written.ok(),
+    })
+}
