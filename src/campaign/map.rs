@@ -270,7 +270,11 @@ pub fn add_to_report(
         }
         for (name, unit, values) in &fields {
             let h = HeatMap {
-                title: format!("{name} map ({dir}, {})", r.report.method),
+                title: format!(
+                    "{} ({dir}, {})",
+                    unit.split(" / ").next().unwrap_or(name),
+                    r.report.method
+                ),
                 unit: unit.clone(),
                 grid: g,
                 values,
