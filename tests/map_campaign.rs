@@ -68,18 +68,43 @@ period_um = 600
 cos_um = [0.2]
 "#;
 
+/// The x carriage's yaw, appended to [`MODEL`] by the tests that check θ (a rotated pattern
+/// costs the simulated camera and the decoder several times the CPU of an upright one).
+const YAW: &str = r#"
+[[effect]]
+kind = "yaw_abbe"
+axis = "x"
+yaw_urad = [100, 60]
+offset_um = 1500
+"#;
+
+/// The yaw of the x carriage at x, µrad: the carriage's rotation (counterclockwise +).
+fn yaw_urad(x: f64) -> f64 {
+    100.0 + 60.0 * (2.0 * x / 9500.0 - 1.0)
+}
+
 /// The model above at (x, y), both axes approached forward (`d` = 1) or backward (-1):
 /// (e_x, e_y), µm.
-fn truth(x: f64, y: f64, d: f64) -> (f64, f64) {
+fn truth(x: f64, y: f64, d: f64, yaw: bool) -> (f64, f64) {
     let s = 2.0 * x / 9500.0 - 1.0;
     let p2 = 0.5 * (3.0 * s * s - 1.0);
-    let ex = 150e-6 * x + 0.3 * (TAU * x / 800.0).cos() + d + 40e-6 * y;
+    let abbe = if yaw {
+        -yaw_urad(x) * 1e-6 * (y - 1500.0)
+    } else {
+        0.0
+    };
+    let ex = 150e-6 * x + 0.3 * (TAU * x / 800.0).cos() + d + 40e-6 * y + abbe;
     let ey = 0.5 * p2 - 100e-6 * y + 0.2 * (TAU * y / 600.0).cos();
     (ex, ey)
 }
 
-fn campaign(dir: &Path, extra: &str, time_scale: f64) -> PathBuf {
-    std::fs::write(dir.join("model.toml"), MODEL).unwrap();
+fn campaign(dir: &Path, extra: &str, time_scale: f64, yaw: bool) -> PathBuf {
+    let model = if yaw {
+        format!("{MODEL}{YAW}")
+    } else {
+        MODEL.to_string()
+    };
+    std::fs::write(dir.join("model.toml"), model).unwrap();
     let text = format!(
         r#"[campaign]
 name = "map"
@@ -131,7 +156,7 @@ fn slope(p: &[f64], v: &[f64]) -> f64 {
 }
 
 /// Reads `map_<dir>.csv` of a results folder: every grid point, x fastest, close to the truth.
-fn check_map(out: &Path, dir: &str) -> Vec<Vec<f64>> {
+fn check_map(out: &Path, dir: &str, yaw: bool) -> Vec<Vec<f64>> {
     let d = if dir == "forward" { 1.0 } else { -1.0 };
     let csv = std::fs::read_to_string(out.join(format!("map_{dir}.csv"))).unwrap();
     let mut lines = csv.lines();
@@ -144,7 +169,7 @@ fn check_map(out: &Path, dir: &str) -> Vec<Vec<f64>> {
     for (k, r) in rows.iter().enumerate() {
         let (x, y) = (X0 + STEP * (k % NX) as f64, Y0 + STEP * (k / NX) as f64);
         assert_eq!((r[0], r[1]), (x, y), "row {k}: x fastest");
-        let (tx, ty) = truth(x, y, d);
+        let (tx, ty) = truth(x, y, d, yaw);
         for d in [r[2] - tx, r[3] - ty] {
             sum += d.abs();
             max = max.max(d.abs());
@@ -152,7 +177,23 @@ fn check_map(out: &Path, dir: &str) -> Vec<Vec<f64>> {
         }
     }
     let mean = sum / n;
-    eprintln!("map {dir} vs closed-form truth: mean {mean:.4} µm, max {max:.4} µm");
+    // θ: the carriage's yaw as the camera sees it, µrad (the decoder's angle noise is ~1 µrad).
+    let (mut t_sum, mut t_max) = (0.0f64, 0.0f64);
+    for (k, r) in rows.iter().enumerate() {
+        let want = if yaw {
+            yaw_urad(X0 + STEP * (k % NX) as f64)
+        } else {
+            0.0
+        };
+        let d = (r[4] - want).abs();
+        t_sum += d;
+        t_max = t_max.max(d);
+    }
+    let t_mean = t_sum / rows.len() as f64;
+    eprintln!(
+        "map {dir} vs closed-form truth: mean {mean:.4} µm, max {max:.4} µm; θ mean {t_mean:.2} µrad, max {t_max:.2} µrad"
+    );
+    assert!(t_mean < 2.0 && t_max < 10.0, "θ mean {t_mean} max {t_max}");
     // A point approached from the wrong side in x would be 2 µm off (the backlash).
     assert!(mean < 0.05 && max < 0.3, "mean {mean} max {max}");
     rows
@@ -166,6 +207,7 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
         dir.path(),
         "directions = [\"forward\", \"backward\"]\n",
         10000.0,
+        true,
     );
     let o = bin()
         .args(["run", "--json", "--quiet", "--db"])
@@ -190,21 +232,25 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
 
     // The map file: every grid point, x fastest, close to the truth.
     let out = dir.path().join("map-1");
-    let rows = check_map(&out, "forward");
+    let rows = check_map(&out, "forward", true);
     // Backward: every point approached from +x and +y, the x backlash the other way.
-    check_map(&out, "backward");
+    check_map(&out, "backward", true);
 
     // ISO 230-1: squareness from the reference lines' slopes, computed here from the truth.
     let xs: Vec<f64> = (0..NX).map(|i| X0 + STEP * i as f64).collect();
     let ys: Vec<f64> = (0..NY).map(|i| Y0 + STEP * i as f64).collect();
-    let a_x = slope(
-        &xs,
-        &xs.iter().map(|&x| truth(x, Y0, 1.0).1).collect::<Vec<_>>(),
-    );
-    let a_y = slope(
-        &ys,
-        &ys.iter().map(|&y| truth(X0, y, 1.0).0).collect::<Vec<_>>(),
-    );
+    // Each axis's profile is averaged over the other axis's positions (x's yaw makes e_x's
+    // slope along y depend on x).
+    let mean_over = |n: usize, f: &dyn Fn(usize) -> f64| (0..n).map(f).sum::<f64>() / n as f64;
+    let ey_of_x: Vec<f64> = xs
+        .iter()
+        .map(|&x| mean_over(NY, &|j| truth(x, ys[j], 1.0, true).1))
+        .collect();
+    let ex_of_y: Vec<f64> = ys
+        .iter()
+        .map(|&y| mean_over(NX, &|i| truth(xs[i], y, 1.0, true).0))
+        .collect();
+    let (a_x, a_y) = (slope(&xs, &ey_of_x), slope(&ys, &ex_of_y));
     let want = -(a_x + a_y) * 1e6;
     let iso = &m["runs"][0]["iso230_1"];
     let got = iso["squareness_urad"].as_f64().unwrap();
@@ -227,6 +273,7 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
         "plots/map_forward_theta.png",
         "plots/map_forward_residual_ex.svg",
         "plots/map_forward_residual_ey.png",
+        "plots/map_forward_residual_theta.png",
     ] {
         let p = out.join(f);
         assert!(p.is_file() && p.metadata().unwrap().len() > 100, "{f}");
@@ -250,7 +297,7 @@ fn a_map_campaign_runs_end_to_end_and_recovers_the_truth() {
 #[test]
 fn bad_map_sections_name_the_line_and_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let c = campaign(dir.path(), "", 10000.0);
+    let c = campaign(dir.path(), "", 10000.0, false);
     let text = std::fs::read_to_string(&c).unwrap();
     let line_of = |needle: &str| text.lines().position(|l| l.starts_with(needle)).unwrap() + 1;
     for (from, to, key) in [
@@ -298,7 +345,7 @@ fn bad_map_sections_name_the_line_and_the_key() {
 fn a_map_campaign_killed_mid_run_resumes_without_losing_or_repeating_a_point() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("c.db");
-    let c = campaign(dir.path(), "", 1000.0);
+    let c = campaign(dir.path(), "", 1000.0, false);
     let mut child = bin()
         .args(["run", "--quiet", "--db"])
         .arg(&db)
@@ -339,5 +386,5 @@ fn a_map_campaign_killed_mid_run_resumes_without_losing_or_repeating_a_point() {
         assert_eq!((a.meas_x_um, a.unix_s), (b.meas_x_um, b.unix_s));
     }
     // The points measured after the resume were approached as the first ones were.
-    check_map(&dir.path().join("map-1"), "forward");
+    check_map(&dir.path().join("map-1"), "forward", false);
 }

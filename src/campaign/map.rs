@@ -215,7 +215,7 @@ pub fn add_to_report(
         let mut j = json!({"direction": dir, "method": r.report.method, "m": r.report.m,
             "cv_error_um": r.report.cv_error_um, "solve_ms": r.report.solve_ms,
             "knot_um": r.report.knot_um, "iso230_1": iso_json(&iso)});
-        if let Some((tx, ty)) = truth.map_truth(g, r.run.direction) {
+        if let Some([tx, ty, tt]) = truth.map_truth(g, r.run.direction) {
             j["vs_truth"] =
                 json!({"ex": diff_stats(&r.map.ex, &tx), "ey": diff_stats(&r.map.ey, &ty)});
             j["truth_iso230_1"] = iso_json(&iso230_1(g, &tx, &ty));
@@ -254,10 +254,27 @@ pub fn add_to_report(
                 "e_y − truth / µm".into(),
                 res(&r.map.ey, &ty),
             ));
+            // θ: the simulated camera renders the carriage's yaw (plus its fixed angle, 0).
+            if let Some(t) = &r.map.theta {
+                j["vs_truth"]["theta_urad"] = diff_stats(t, &tt);
+                text.push_str(&format!(
+                    "map {dir} θ vs truth (mean/max |error| µrad): {}\n",
+                    mm(&j["vs_truth"]["theta_urad"])
+                ));
+                fields.push((
+                    "residual_theta".into(),
+                    "θ − truth / µrad".into(),
+                    res(t, &tt),
+                ));
+            }
         }
         for (name, unit, values) in &fields {
             let h = HeatMap {
-                title: format!("{name} map ({dir}, {})", r.report.method),
+                title: format!(
+                    "{} ({dir}, {})",
+                    unit.split(" / ").next().unwrap_or(name),
+                    r.report.method
+                ),
                 unit: unit.clone(),
                 grid: g,
                 values,

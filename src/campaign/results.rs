@@ -635,24 +635,26 @@ impl TruthSource {
         }
     }
 
-    /// Noise-free planar truth (e_x, e_y) at every point of a map grid (x fastest), both axes
-    /// approached in `direction`.
+    /// Noise-free planar truth at every point of a map grid (x fastest), both axes approached
+    /// in `direction`: e_x, e_y (µm) and the carriage's rotation θ (µrad).
     pub fn map_truth(
         &self,
         g: &crate::recon2d::Grid2,
         direction: crate::types::Direction,
-    ) -> Option<(Vec<f64>, Vec<f64>)> {
+    ) -> Option<[Vec<f64>; 3]> {
         let m = self.model.as_ref()?;
         let d = direction.sign();
-        let (mut ex, mut ey) = (Vec::with_capacity(g.len()), Vec::with_capacity(g.len()));
+        let mut t = [(); 3].map(|_| Vec::with_capacity(g.len()));
         for j in 0..g.y.n {
             for i in 0..g.x.n {
-                let v = m.deviation_2d(g.x.position(i), g.y.position(j), d, d, 0.0);
-                ex.push(v.x_um);
-                ey.push(v.y_um);
+                let (x, y) = (g.x.position(i), g.y.position(j));
+                let v = m.deviation_2d(x, y, d, d, 0.0);
+                t[0].push(v.x_um);
+                t[1].push(v.y_um);
+                t[2].push(m.rotation_urad_2d(x, y));
             }
         }
-        Some((ex, ey))
+        Some(t)
     }
 
     /// Noise-free error of a component at each (target_x, target_y).

@@ -281,9 +281,11 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
         .render_optics
         .clone()
         .unwrap_or_else(|| c.spec.hardware.optics.clone());
+    let rot_stage = stage.clone();
     let camera = SimCamera::new(pattern, optics, Box::new(source))
         .map_err(|e| e.to_string())?
-        .with_seed(s.seed);
+        .with_seed(s.seed)
+        .with_rotation(Box::new(move || rot_stage.rotation_urad() * 1e-3));
     let y = axes.pop().expect("two axes");
     let x = axes.pop().expect("two axes");
     Ok(SimParts {

@@ -118,7 +118,7 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, h: &HeatMap<'_>) -> R
         },
         body,
     ) = frame(root, &h.title)?;
-    let (plot, bar) = body.split_horizontally(w.saturating_sub(small * 9));
+    let (plot, bar) = body.split_horizontally(w.saturating_sub(small * 13));
     let (cx, cy, v) = blocks(h);
     let (lo, hi) = v
         .iter()
@@ -186,7 +186,7 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, h: &HeatMap<'_>) -> R
     let mut cb = ChartBuilder::on(&bar)
         .margin(12)
         .margin_top(small * 2)
-        .y_label_area_size(small * 5)
+        .y_label_area_size(small * 8)
         .x_label_area_size(small * 3)
         .build_cartesian_2d(0.0..1.0, lo..hi)
         .map_err(|e| err(&e))?;

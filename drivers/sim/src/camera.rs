@@ -27,6 +27,8 @@ pub struct SimCamera {
     pattern: Pattern,
     optics: Optics,
     theta_mrad: f64,
+    /// The carriage's rotation at the trigger, mrad, added to the fixed angle.
+    rotation: Option<Box<dyn FnMut() -> f64 + Send>>,
     source: Box<dyn PositionSource>,
     seed: u64,
     frames: u64,
@@ -45,6 +47,7 @@ impl SimCamera {
             pattern,
             optics,
             theta_mrad: 0.0,
+            rotation: None,
             source,
             seed: 0,
             frames: 0,
@@ -76,6 +79,17 @@ impl SimCamera {
         &self.optics
     }
 
+    /// The stage's in-plane rotation (mrad, sampled at each trigger) turns the pattern too.
+    pub fn with_rotation(mut self, rotation_mrad: Box<dyn FnMut() -> f64 + Send>) -> Self {
+        self.rotation = Some(rotation_mrad);
+        self
+    }
+
+    /// The pattern's angle under the camera now, mrad.
+    fn angle_mrad(&mut self) -> f64 {
+        self.theta_mrad + self.rotation.as_mut().map_or(0.0, |r| r())
+    }
+
     /// Frames delivered so far.
     pub fn frame_count(&self) -> u64 {
         self.frames
@@ -94,7 +108,7 @@ impl Camera for SimCamera {
             )));
         }
         let timestamp_s = start.duration_since(self.t0).as_secs_f64();
-        let pose = Pose::new(x_um, y_um, self.theta_mrad);
+        let pose = Pose::new(x_um, y_um, self.angle_mrad());
         let mut frame = render(
             &self.pattern,
             &self.optics,
@@ -119,7 +133,7 @@ impl Camera for SimCamera {
             )));
         }
         let timestamp_s = start.duration_since(self.t0).as_secs_f64();
-        let pose = Pose::new(x_um, y_um, self.theta_mrad);
+        let pose = Pose::new(x_um, y_um, self.angle_mrad());
         let (pattern, optics) = (self.pattern.clone(), self.optics.clone());
         let seed = self.seed.wrapping_add(self.frames);
         self.frames += 1;

@@ -385,6 +385,17 @@ impl SimStage {
         self.lock().planar = on;
     }
 
+    /// The carriage's in-plane rotation now, µrad: planar truth, the yaw of both axes at their
+    /// positions ([`StageModel::rotation_urad_2d`]); 0 otherwise (lines keep the camera's
+    /// fixed angle).
+    pub fn rotation_urad(&self) -> f64 {
+        if !self.lock().planar {
+            return 0.0;
+        }
+        let (x, y) = self.encoder_um();
+        self.model.rotation_urad_2d(x, y)
+    }
+
     /// Encoder positions (x, y) in µm now: what `POS?` reports.
     pub fn encoder_um(&self) -> (f64, f64) {
         let now = self.clock.now_s();

@@ -360,6 +360,23 @@ impl Effect {
         self
     }
 
+    /// The in-plane rotation of the carriage this effect implies at (x, y), µrad
+    /// (counterclockwise +): the rotation whose Abbe error is the `yaw_abbe` deviation (x's yaw
+    /// ψ moves x by −ψ·Δy: +ψ; y's moves y by −ψ·Δx: −ψ); 0 for every other kind.
+    pub fn rotation_urad(&self, model: &StageModel, x_um: f64, y_um: f64) -> f64 {
+        let EffectKind::YawAbbe { yaw_urad, .. } = &self.kind else {
+            return 0.0;
+        };
+        let a = self.axis;
+        let p = if a == AxisId::X { x_um } else { y_um };
+        let travel = self.travel_um.unwrap_or_else(|| model.travel(a));
+        let psi = yaw_urad[0] + yaw_urad[1] * map_to_unit(p, travel);
+        match a {
+            AxisId::X => psi,
+            AxisId::Y => -psi,
+        }
+    }
+
     /// Whether this effect acts on a sample whose moving axis is `moving`.
     pub fn acts_on(&self, moving: AxisId) -> bool {
         self.kind.is_global() || self.axis == moving

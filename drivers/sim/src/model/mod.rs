@@ -202,6 +202,15 @@ impl StageModel {
         total
     }
 
+    /// Planar truth of the carriage's in-plane rotation θ(x, y), µrad (counterclockwise +): the
+    /// yaw of both axes (see [`Effect::rotation_urad`]).
+    pub fn rotation_urad_2d(&self, x_um: f64, y_um: f64) -> f64 {
+        self.effects
+            .iter()
+            .map(|e| e.rotation_urad(self, x_um, y_um))
+            .sum()
+    }
+
     /// Deviation of a single effect (index into `effects`), zero if it does not act on the sample.
     pub fn effect_deviation(&self, index: usize, c: &SampleContext) -> Deviation {
         let e = &self.effects[index];
@@ -317,6 +326,31 @@ mod tests {
         assert!((d.y_um - y).abs() < 1e-12, "{} vs {y}", d.y_um);
         let f = m.deviation_2d(1000.0, 2000.0, 1.0, 1.0, 0.0);
         assert!((f.x_um - d.x_um - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_rotation_is_the_one_whose_abbe_error_the_yaw_effects_give() {
+        let m = StageModel::from_toml_str(
+            r#"
+            [[effect]]
+            kind = "yaw_abbe"
+            axis = "x"
+            yaw_urad = [50, 10]
+            [[effect]]
+            kind = "yaw_abbe"
+            axis = "y"
+            yaw_urad = [20]
+            "#,
+        )
+        .unwrap();
+        // x at mid-travel (s = 0): ψx = 50; y's yaw turns the carriage the other way: −20.
+        let th = m.rotation_urad_2d(4750.0, 1000.0) * 1e-6;
+        assert!((th - 30e-6).abs() < 1e-15, "{th}");
+        // A rotation by θ moves a point at offset (dx, dy) by (−θ·dy, θ·dx): the model's Abbe
+        // deviations, each axis's yaw with its own sign.
+        let (x, y) = (4750.0, 1000.0);
+        let d = m.deviation_2d(x, y, 1.0, 1.0, 0.0);
+        assert!((d.x_um - (-50e-6 * y)).abs() < 1e-12 && (d.y_um - (-20e-6 * x)).abs() < 1e-12);
     }
 
     #[test]
