@@ -65,19 +65,21 @@ pub trait Recorder: Send {
     fn truth(&mut self, _seq: u64, _x_um: f64, _y_um: f64) {}
 }
 
-/// Adaptive stop rule: the estimate plus one standard error of it meets the target, and the
-/// cross-validated error is within a factor [`CV_PLAUSIBLE`] of it. The second estimate guards
-/// the first where its model of error against distance does not hold (a few samples, a curve
-/// still misfitted as a whole): there it has come out 3x optimistic, while the cross-validated
-/// error overstated the error of the spread designs the adaptive order measures (1.2-1.8x).
+/// Adaptive stop rule: the estimate plus one standard error of it meets the target, and so does
+/// the cross-validated error scaled down by [`CV_PLAUSIBLE`]. The distance model alone came out
+/// up to 45 % optimistic on 2 of 6 demo seeds (a curve misfitted as a whole, where the error
+/// does not shrink towards the samples); the cross-validated error never understated a
+/// curve's error on a spread design (1.2-1.8x over it on the demo's and the bench's curves), so
+/// whichever of the two is larger decides.
 pub fn meets(e: &StopEstimate, goal_um: f64) -> bool {
-    let plausible = e.cv_error_um.is_none_or(|cv| cv <= CV_PLAUSIBLE * goal_um);
-    e.error_um.is_finite() && e.error_um + e.scatter_um.max(0.0) <= goal_um && plausible
+    let cv = e.cv_error_um.map_or(0.0, |cv| cv / CV_PLAUSIBLE);
+    e.error_um.is_finite() && (e.error_um + e.scatter_um.max(0.0)).max(cv) <= goal_um
 }
 
-/// How far the cross-validated error may overstate a curve's error: held out at random, it
-/// measures gaps about twice those an evenly spread design leaves.
-pub const CV_PLAUSIBLE: f64 = 2.0;
+/// How far the cross-validated error overstates the error of a spread design at least: held out
+/// at random, it measures gaps longer than such a design leaves (1.2-1.8x on the demo's and the
+/// bench's curves at m = 150-250).
+pub const CV_PLAUSIBLE: f64 = 1.2;
 
 /// A run's batches and the next one to measure.
 struct Sweep {
