@@ -1,8 +1,7 @@
 //! A campaign expanded into its ordered measurements: plans as data. The plan is a pure
 //! function of the campaign file, so a resumed campaign regenerates the same plan and skips the
 //! targets already stored.
-use rand::seq::SliceRandom;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::spec::{AxisPlan, Campaign};
@@ -146,8 +145,7 @@ fn cs_design(ax: &AxisPlan, kind: DesignKind, seed: u64, batch: usize) -> (Vec<u
             (idx, vec![m])
         }
         Some(_) => {
-            let mut idx = idx;
-            idx.shuffle(&mut ChaCha8Rng::seed_from_u64(seed ^ 0xADA9));
+            let idx = spread_order(&idx, n, seed ^ 0xADA9);
             let m = idx.len();
             let mut chunks = Vec::new();
             let mut left = m;
@@ -159,6 +157,46 @@ fn cs_design(ax: &AxisPlan, kind: DesignKind, seed: u64, batch: usize) -> (Vec<u
             (idx, chunks)
         }
     }
+}
+
+/// Adaptive measuring order of a design's points: farthest point first. Each next point is the
+/// one farthest from every point before it and from the grid's ends (ties broken by a seeded
+/// random key), so every prefix, and so every batch boundary where the run may stop, covers the
+/// stroke without long gaps. Between samples a curve's error grows with the distance to the
+/// nearest one: a random order leaves gaps several times the mean spacing, and stopped later for
+/// the same error. The points stay the random design's, so no prefix is a regular lattice that
+/// could alias a periodic error. Lazy greedy: a point's distance only shrinks as points are
+/// chosen, so a stale heap entry is refreshed when it comes up.
+fn spread_order(idx: &[usize], n: usize, seed: u64) -> Vec<usize> {
+    use std::collections::{BTreeSet, BinaryHeap};
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let last = n.saturating_sub(1);
+    let mut chosen: BTreeSet<usize> = BTreeSet::new();
+    let dist = |chosen: &BTreeSet<usize>, i: usize| -> usize {
+        let mut d = i.min(last - i);
+        if let Some(&b) = chosen.range(..=i).next_back() {
+            d = d.min(i - b);
+        }
+        if let Some(&a) = chosen.range(i..).next() {
+            d = d.min(a - i);
+        }
+        d
+    };
+    let mut heap: BinaryHeap<(usize, u64, usize)> = idx
+        .iter()
+        .map(|&i| (dist(&chosen, i), rng.random::<u64>(), i))
+        .collect();
+    let mut order = Vec::with_capacity(idx.len());
+    while let Some((d, key, i)) = heap.pop() {
+        let now = dist(&chosen, i);
+        if now < d {
+            heap.push((now, key, i));
+            continue;
+        }
+        chosen.insert(i);
+        order.push(i);
+    }
+    order
 }
 
 #[cfg(test)]
@@ -263,5 +301,64 @@ m = 20
         all.dedup();
         assert_eq!(all.len(), 120);
         assert!(x_fwd.iter().all(|b| b.target_error_um == Some(0.05)));
+    }
+
+    /// Every batch boundary of an adaptive run leaves the stroke evenly covered: no design point
+    /// is farther from the points measured so far (or a grid end) than those are from each other
+    /// (the farthest-point property). A random order leaves gaps several times the spacing.
+    #[test]
+    fn adaptive_batches_fill_the_largest_gaps_first() {
+        let c = campaign("[sampling]\nm = 150\nbatch = 25\ntarget_error_um = 0.05\n");
+        let p = plan(&c);
+        let n = c.axes[0].grid.n;
+        let x_fwd: Vec<&Batch> = p
+            .batches
+            .iter()
+            .filter(|b| b.run.axis == AxisId::X && b.run.direction == Direction::Forward)
+            .collect();
+        let design: Vec<usize> = x_fwd
+            .iter()
+            .flat_map(|b| b.targets.iter().map(|t| t.grid_index))
+            .collect();
+        let mut sofar: Vec<usize> = Vec::new();
+        for b in &x_fwd[..x_fwd.len() - 1] {
+            sofar.extend(b.targets.iter().map(|t| t.grid_index));
+            sofar.sort_unstable();
+            let spacing = sofar.windows(2).map(|w| w[1] - w[0]).min().unwrap();
+            let near = |i: usize| sofar.iter().map(|&s| s.abs_diff(i)).min().unwrap();
+            // A grid end counts as covered ground: a point by it is not a gap.
+            let cover = design
+                .iter()
+                .map(|&i| near(i).min(i).min(n - 1 - i))
+                .max()
+                .unwrap();
+            assert!(
+                cover <= spacing,
+                "after {} points: a gap of {cover} steps, spacing {spacing}",
+                sofar.len()
+            );
+        }
+        // The same design as without the adaptive order, and the backward run in the same order.
+        let x_bwd: Vec<usize> = p
+            .batches
+            .iter()
+            .filter(|b| b.run.axis == AxisId::X && b.run.direction == Direction::Backward)
+            .flat_map(|b| {
+                let mut v: Vec<usize> = b.targets.iter().map(|t| t.grid_index).collect();
+                v.reverse();
+                v
+            })
+            .collect();
+        assert_eq!(design, x_bwd);
+        let mut sorted = design.clone();
+        sorted.sort_unstable();
+        let fixed = plan(&campaign("[sampling]\nm = 150\n"));
+        let fixed_x: Vec<usize> = fixed
+            .batches
+            .iter()
+            .filter(|b| b.run.axis == AxisId::X && b.run.direction == Direction::Forward)
+            .flat_map(|b| b.targets.iter().map(|t| t.grid_index))
+            .collect();
+        assert_eq!(sorted, fixed_x);
     }
 }

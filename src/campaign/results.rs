@@ -28,6 +28,8 @@ pub struct Tally {
     pub repositioning_s: BTreeMap<String, f64>,
     /// Planned targets that never got a sample (rejected beyond the retries).
     pub failed_points: u64,
+    /// Adaptive runs: the last stop decision of each, by run label (the `adaptive` event).
+    pub adaptive: BTreeMap<String, Value>,
 }
 
 impl Tally {
@@ -104,6 +106,7 @@ pub fn tally(plan: &Plan, samples: &[SampleRecord], events: &[EventRow]) -> Tall
             "adaptive" => {
                 if let (Some(run), Some(b)) = (d["run"].as_str(), d["batch"].as_u64()) {
                     adaptive.insert(run.to_string(), (b, d["stop"].as_bool() == Some(true)));
+                    t.adaptive.insert(run.to_string(), d.clone());
                 }
             }
             "attempt" => {
@@ -306,6 +309,8 @@ pub fn build(
     samples: &[SampleRecord],
     truth: &TruthSource,
 ) -> Report {
+    // The plan is a pure function of the campaign: the adaptive runs' batches.
+    let plan = super::plan::plan(c);
     let mut files = Vec::new();
     let mut axes_json = Vec::new();
     let mut table = String::new();
@@ -488,10 +493,47 @@ pub fn build(
                 drive("cs_vs_truth"),
             ));
         }
-        axes_json.push(
-            json!({"axis": a.as_str(), "grid_points": ax.grid.n, "phases": phase_json,
-                              "acquisition_saved_pct": saved, "components": comps}),
-        );
+        // Adaptive runs: where each stopped, on what estimate, and how many targets that saved.
+        let mut adaptive = Vec::new();
+        for b in plan
+            .batches
+            .iter()
+            .filter(|b| b.run.axis == a && b.index == 0)
+        {
+            let Some(d) = tally.adaptive.get(&b.run.label()) else {
+                continue;
+            };
+            let planned: usize = plan.run_batches(b.run).map(|b| b.targets.len()).sum();
+            let stop = d["stop"].as_bool() == Some(true);
+            let m = if stop {
+                d["m"].as_u64()
+            } else {
+                Some(planned as u64)
+            };
+            let saved_targets = m.map(|m| planned as u64 - m.min(planned as u64));
+            table.push_str(&format!(
+                "adaptive {}: {} at m = {} of {planned} (estimate {} µm, target {} µm), {} targets saved\n",
+                b.run.label(),
+                if stop { "stopped" } else { "whole design" },
+                m.map_or("-".into(), |m| m.to_string()),
+                d["error_estimate_um"].as_f64().map_or("-".into(), |e| format!("{e:.4}")),
+                d["target_error_um"].as_f64().map_or("-".into(), |e| format!("{e}")),
+                saved_targets.map_or("-".into(), |n| n.to_string()),
+            ));
+            adaptive.push(
+                json!({"run": b.run.label(), "direction": b.run.direction.as_str(),
+                "cycle": b.run.cycle, "planned": planned, "stopped": stop, "m": m,
+                "saved_targets": saved_targets, "target_error_um": d["target_error_um"],
+                "error_estimate_um": d["error_estimate_um"], "scatter_um": d["scatter_um"],
+                "cv_error_um": d["cv_error_um"]}),
+            );
+        }
+        let mut axis_json = json!({"axis": a.as_str(), "grid_points": ax.grid.n, "phases": phase_json,
+                              "acquisition_saved_pct": saved, "components": comps});
+        if !adaptive.is_empty() {
+            axis_json["adaptive"] = Value::Array(adaptive);
+        }
+        axes_json.push(axis_json);
     }
     let total_saved =
         (tot[1][1] > 0.0 && tot[0][1] > 0.0).then(|| 100.0 * (1.0 - tot[0][1] / tot[1][1]));

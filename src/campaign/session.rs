@@ -149,6 +149,12 @@ impl Recorder for StoreRecorder {
             .filter_map(|c| c.cv_error_um)
             .next()
     }
+    fn stop_estimate(&mut self, run: RunKey) -> Option<super::worker::StopEstimate> {
+        let grid = self.campaign.axis(run.axis)?.grid;
+        let st = settings(&self.campaign);
+        tokio::task::block_in_place(|| super::worker::stop_estimate(&grid, &st, run, &self.samples))
+            .ok()
+    }
 }
 
 const STOPPED: &str = "stopped (service shutdown); resumes from the last stored sample";
