@@ -31,6 +31,8 @@ pub struct Args {
     pitch_um: Option<f64>,
     /// BP with more samples than the exact finish takes (m > 2000): stop at this certified
     /// relative duality gap (||θ||₁ - hᵀy) / ||θ||₁. Below 2000 samples BP is solved exactly.
+    /// BPDN: its active set stops at a 1e-9 gap; its ADMM fallback (m > 2000, or when the active
+    /// set fails) at this one. JSON `relative_gap` reports the gap reached.
     #[arg(long, default_value_t = 1e-3)]
     gap_tol: f64,
     /// Output CSV `position_um,error_um` at every grid point (default: stdout unless --json).

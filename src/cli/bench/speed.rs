@@ -139,6 +139,7 @@ pub(super) fn speed(
         time_method(&grid, 600, Method::Bp, Solver::Fast, repeat)?,
         time_method(&grid, 100, Method::Bp, Solver::Fast, repeat)?,
         time_method(&grid, 600, Method::Bpdn, Solver::Fast, repeat)?,
+        time_method(&grid, 300, Method::Bpdn, Solver::Fast, repeat)?,
         time_method(&grid, 600, Method::Auto, Solver::Fast, repeat)?,
         time_method(&grid, 100, Method::Auto, Solver::Fast, repeat)?,
     ];

@@ -97,7 +97,7 @@ impl Drop for Gram {
 /// The lower triangle of G (sorted frequencies s, `hg` = c²·½g) into the column-major `g`
 /// (leading dimension `ld`): G_ab = hg[s_a − s_b] + hg[s_a + s_b] for a ≥ b (frequency 0's
 /// weight is the caller's).
-fn gram_lower(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
+pub(super) fn gram_lower(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
     let m = s.len();
     assert!(s.is_sorted() && (m == 0 || (s[m - 1] as usize) * 2 < hg.len()));
     assert!(m == 0 || g.len() >= (m - 1) * ld + m);
@@ -111,26 +111,33 @@ fn gram_lower(hg: &[f64], s: &[u32], g: &mut [f64], ld: usize) {
     }
 }
 
+/// The table c_k²·½g(d), d < 2n, from which [`gram_lower`] fills any Gram block of sampled DCT
+/// columns (one DCT of the samples' indicator), and c_0 / c_k, frequency 0's relative weight.
+pub(super) fn half_gram(dct: &mut Dct, idx: &[usize]) -> (Vec<f64>, f64) {
+    let n = dct.len();
+    let (w0, wk) = (dct.basis(0, 0), (2.0 / n as f64).sqrt());
+    let mut ind = vec![0.0; n];
+    for &i in idx {
+        ind[i] = 1.0;
+    }
+    dct.forward(&mut ind);
+    // The orthonormal DCT of the indicator is c_d·g(d); g(n) = 0 and g(2n − d) = −g(d).
+    let mut half_g = vec![0.0; 2 * n];
+    half_g[0] = 0.5 * ind[0] / w0 * wk * wk;
+    for d in 1..n {
+        let v = 0.5 * ind[d] * wk;
+        half_g[d] = v;
+        half_g[2 * n - d] = -v;
+    }
+    (half_g, w0 / wk)
+}
+
 impl Gram {
     /// The Gram anchor of the sampled DCT columns `support`; `None` when G is not numerically
     /// positive definite.
     pub(super) fn factor(dct: &mut Dct, idx: &[usize], support: &[usize]) -> Option<Self> {
-        let n = dct.len();
         let m = support.len();
-        let (w0, wk) = (dct.basis(0, 0), (2.0 / n as f64).sqrt());
-        let mut ind = vec![0.0; n];
-        for &i in idx {
-            ind[i] = 1.0;
-        }
-        dct.forward(&mut ind);
-        // The orthonormal DCT of the indicator is c_d·g(d); g(n) = 0 and g(2n − d) = −g(d).
-        let mut half_g = vec![0.0; 2 * n];
-        half_g[0] = 0.5 * ind[0] / w0 * wk * wk;
-        for d in 1..n {
-            let v = 0.5 * ind[d] * wk;
-            half_g[d] = v;
-            half_g[2 * n - d] = -v;
-        }
+        let (half_g, r0) = half_gram(dct, idx);
         assert!(
             support.is_sorted(),
             "the Gram anchor's support in increasing frequency"
@@ -143,7 +150,6 @@ impl Gram {
         l_buf.clear();
         l_buf.resize(m * m, 0.0);
         gram_lower(&half_g, &s32, &mut l_buf, m);
-        let r0 = w0 / wk;
         if sorted[0] == 0 {
             // Frequency 0 has its own weight: scale its column (the lower triangle's row 0 is
             // the diagonal entry alone).

@@ -27,6 +27,7 @@
 //! the transforms (primal residual by one inverse DCT, |Aᵀy| ≤ 1 + tol by one forward DCT, and
 //! ||θ||₁ = hᵀy), so rounding can cost a failed finish but never a wrong "optimal".
 mod basis;
+pub mod denoise;
 mod gram;
 mod pricing;
 mod ratio;
