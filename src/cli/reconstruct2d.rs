@@ -17,7 +17,7 @@ pub struct Args {
     /// Y grid START:STEP:END in µm, e.g. 0:5:4200.
     #[arg(long)]
     grid_y: String,
-    /// auto | physics | linear
+    /// auto | bp | physics | linear (auto: the smallest cross-validation error)
     #[arg(long, default_value = "auto")]
     method: String,
     /// Output CSV with the samples' header at every grid point, x fastest (default: stdout
