@@ -242,10 +242,11 @@ fn rough_maps_meet_the_half_percent_targets() {
 
 #[test]
 fn bp_through_the_binary_is_feasible_with_a_certified_gap() {
-    // 1 × 0.5 mm at 5 µm (201 × 101): small enough for auto to cross-validate bp too.
-    let stage = Stage::with_travel(9, 1000.0, 500.0);
-    let g = grid("0:5:1000", "0:5:500");
-    let s = draw(&stage, &g, 0.1, 9);
+    // 0.6 × 0.3 mm at 10 µm (61 × 31): small enough for auto to cross-validate bp too, and for
+    // a debug build's DCTs.
+    let stage = Stage::with_travel(9, 600.0, 300.0);
+    let g = grid("0:10:600", "0:10:300");
+    let s = draw(&stage, &g, 0.15, 9);
     let dir = tempfile::tempdir().unwrap();
     let samples = dir.path().join("samples.csv");
     write_samples(&samples, &g, &s);
@@ -254,9 +255,9 @@ fn bp_through_the_binary_is_feasible_with_a_certified_gap() {
             .args([
                 "reconstruct2d",
                 "--grid-x",
-                "0:5:1000",
+                "0:10:600",
                 "--grid-y",
-                "0:5:500",
+                "0:10:300",
             ])
             .args(["--method", method, "--json", "--samples"])
             .arg(&samples)
