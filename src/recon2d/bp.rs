@@ -189,6 +189,11 @@ pub fn solve(
     (c, report)
 }
 
+/// The flat grid index (x fastest) of each sample.
+pub fn flat_indices(g: &Grid2, ix: &[usize], iy: &[usize]) -> Vec<usize> {
+    ix.iter().zip(iy).map(|(&i, &j)| j * g.x.n + i).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -228,9 +233,4 @@ mod tests {
             .fold(0.0f64, |a, (g, t)| a.max((g - t).abs()));
         assert!(worst < 0.02, "max error {worst}");
     }
-}
-
-/// Grid helpers for the caller: the flat index of each sample.
-pub fn flat_indices(g: &Grid2, ix: &[usize], iy: &[usize]) -> Vec<usize> {
-    ix.iter().zip(iy).map(|(&i, &j)| j * g.x.n + i).collect()
 }
