@@ -70,7 +70,8 @@ fn bad_header_grid_and_method_exit_2() {
     let (code, err, _) = run(GOOD, "0:3:50", &[]);
     assert_eq!(code, 2);
     assert!(err.contains("--grid-x"), "{err}");
-    let (code, err, _) = run(GOOD, "0:5:50", &["--method", "bp"]);
+    // (`bp` was the unknown method here until issue 39's basis pursuit made it a method.)
+    let (code, err, _) = run(GOOD, "0:5:50", &["--method", "spline"]);
     assert_eq!(code, 2);
     assert!(err.contains("--method"), "{err}");
     let (code, err, _) = run("x_um,y_um,ex_um,ey_um\n0,0,0,0\n5,5,0,0\n", "0:5:50", &[]);

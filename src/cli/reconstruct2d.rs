@@ -19,7 +19,7 @@ pub struct Args {
     // A travel may start below zero: `--grid -20:5:20` is a grid, not a flag.
     #[arg(long, allow_hyphen_values = true)]
     grid_y: String,
-    /// auto | physics | linear
+    /// auto | bp | physics | linear (auto: the smallest cross-validation error)
     #[arg(long, default_value = "auto")]
     method: String,
     /// Output CSV with the samples' header at every grid point, x fastest (default: stdout

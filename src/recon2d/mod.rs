@@ -1,9 +1,10 @@
 //! The XY workspace error map e_x(x, y), e_y(x, y) (and θ(x, y)) from scattered samples on a 2D grid.
 //!
-//! Two methods: `physics`, a structured model of a stacked XY stage (each axis's own error along its
-//! travel, the other axis's straightness, and coupling terms linear in the other coordinate), and
-//! `linear`, linear interpolation on a Delaunay triangulation of the samples (the baseline).
-//! `auto` picks the one with the smaller k-fold cross-validation error.
+//! Three methods: `physics`, a structured model of a stacked XY stage (each axis's own error along
+//! its travel with the leadscrew periods found in the samples, the other axis's straightness, and
+//! coupling terms linear in the other coordinate); `bp`, 2D DCT basis pursuit denoising with fast
+//! operators (for comparison); and `linear`, linear interpolation on a Delaunay triangulation of
+//! the samples (the baseline). `auto` picks the one with the smallest cross-validation error.
 use std::path::Path;
 use std::str::FromStr;
 use std::time::Instant;
@@ -11,7 +12,9 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::grid::Grid;
+use crate::recon::periods::Period;
 
+pub mod bp;
 pub mod linear;
 pub mod physics;
 
@@ -21,6 +24,14 @@ pub const MAX_MAP_POINTS: usize = 4_000_000;
 pub const MAX_MAP_SAMPLES_BYTES: u64 = 256 << 20;
 /// Folds of the cross-validation that picks the knot spacing and the method.
 pub const CV_FOLDS: usize = 5;
+/// Iteration cap of a basis-pursuit solve (each iteration is two 2D DCTs of the whole grid).
+pub const BP_MAX_ITER: usize = 300;
+/// Largest grid on which `auto` cross-validates basis pursuit: a held-out solve costs up to
+/// [`BP_CV_MAX_ITER`] pairs of 2D DCTs of the whole grid, far over the 10 s budget on a 1.6 M-point
+/// map, and minutes in a debug build at 64 k points.
+pub const BP_AUTO_MAX_POINTS: usize = 50_000;
+/// Iteration cap of the held-out basis-pursuit solve that `auto` compares.
+pub const BP_CV_MAX_ITER: usize = 100;
 
 /// The map grid: x fastest.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -100,6 +111,7 @@ pub enum Method2 {
     Auto,
     Physics,
     Linear,
+    Bp,
 }
 
 impl FromStr for Method2 {
@@ -109,7 +121,10 @@ impl FromStr for Method2 {
             "auto" => Ok(Self::Auto),
             "physics" => Ok(Self::Physics),
             "linear" => Ok(Self::Linear),
-            _ => Err(format!("unknown method {s:?} (auto | physics | linear)")),
+            "bp" => Ok(Self::Bp),
+            _ => Err(format!(
+                "unknown method {s:?} (auto | bp | physics | linear)"
+            )),
         }
     }
 }
@@ -120,6 +135,9 @@ pub struct Candidate {
     pub method: &'static str,
     pub knot_um: Option<f64>,
     pub cv_error_um: f64,
+    /// Folds held out in turn: [`CV_FOLDS`], or 1 for basis pursuit (one fold of the
+    /// [`CV_FOLDS`] held out: a full solve per fold is too slow).
+    pub folds: usize,
 }
 
 /// The solve figures printed by `--json`.
@@ -136,6 +154,11 @@ pub struct Report2 {
     pub knot_um: Option<f64>,
     pub folds: usize,
     pub candidates: Vec<Candidate>,
+    /// Cyclic periods found along x and along y by the physics model (fundamentals, µm).
+    pub periods_x: Vec<Period>,
+    pub periods_y: Vec<Period>,
+    /// Basis-pursuit solves of the returned map (e_x, e_y[, θ]), when bp was chosen.
+    pub bp: Option<Vec<bp::BpSolve>>,
 }
 
 /// Assigns each of m samples to one of k folds, at random but reproducibly.
@@ -164,7 +187,47 @@ pub(crate) fn rms_xy(s: &MapSamples, pred: &[Vec<f64>]) -> f64 {
     (sum / (2 * s.len()).max(1) as f64).sqrt()
 }
 
-/// Reconstructs the whole map with `method` (`auto`: the smaller cross-validation error).
+/// Basis pursuit of every component from the samples `s`: the map and the solve reports.
+/// `sigma[c]` is the noise level of component c; ε = σ·√m.
+fn bp_map(
+    g: &Grid2,
+    s: &MapSamples,
+    sigma: &[f64],
+    max_iter: usize,
+) -> (Vec<Vec<f64>>, Vec<bp::BpSolve>) {
+    let idx = bp::flat_indices(g, &s.ix, &s.iy);
+    let mut dct = bp::Dct2::new(g.x.n, g.y.n);
+    let eps_scale = (s.len() as f64).sqrt();
+    s.components()
+        .into_iter()
+        .zip(sigma)
+        .map(|(b, &sg)| bp::solve(&mut dct, &idx, b, sg * eps_scale, max_iter))
+        .unzip()
+}
+
+/// Held-out RMS over e_x and e_y of basis pursuit on one fold (trained on the others).
+fn bp_cv_error(g: &Grid2, s: &MapSamples, sigma: &[f64]) -> f64 {
+    let fold = folds(s.len(), CV_FOLDS);
+    let train: Vec<usize> = (0..s.len()).filter(|&k| fold[k] != 0).collect();
+    let test: Vec<usize> = (0..s.len()).filter(|&k| fold[k] == 0).collect();
+    let mut t = s.subset(&train);
+    t.theta = None;
+    let (maps, _) = bp_map(g, &t, &sigma[..2], BP_CV_MAX_ITER);
+    let held = s.subset(&test);
+    let pred: Vec<Vec<f64>> = maps
+        .iter()
+        .map(|m| {
+            held.ix
+                .iter()
+                .zip(&held.iy)
+                .map(|(&i, &j)| m[j * g.x.n + i])
+                .collect()
+        })
+        .collect();
+    rms_xy(&held, &pred)
+}
+
+/// Reconstructs the whole map with `method` (`auto`: the smallest cross-validation error).
 pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, Report2), String> {
     if s.len() < 3 {
         return Err(format!("need at least 3 samples, found {}", s.len()));
@@ -178,41 +241,90 @@ pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, R
             candidates.append(&mut cands);
             Some(fit)
         }
-        // Too few samples for the model: auto is left with linear.
-        Method2::Auto => physics::select(g, s).ok().map(|(fit, mut cands)| {
-            candidates.append(&mut cands);
+        // Too few samples for the model: auto is left with the others; bp only needs it for
+        // the noise level.
+        Method2::Auto | Method2::Bp => physics::select(g, s).ok().map(|(fit, mut cands)| {
+            if method == Method2::Auto {
+                candidates.append(&mut cands);
+            }
             fit
         }),
     };
-    let lin_cv = if method != Method2::Physics {
+    let lin_cv = if matches!(method, Method2::Auto | Method2::Linear)
+        || (method == Method2::Bp && phys.is_none())
+    {
         let e = linear::cv_error(g, s);
         candidates.push(Candidate {
             method: "linear",
             knot_um: None,
             cv_error_um: e,
+            folds: CV_FOLDS,
         });
         Some(e)
     } else {
         None
     };
-    let use_physics = match (&phys, lin_cv) {
-        (Some(p), Some(l)) => p.cv_error_um <= l || !l.is_finite(),
-        (Some(_), None) => true,
-        _ => false,
+    // The noise level basis pursuit's ε assumes: the physics model's in-sample residual per
+    // component (noise plus misfit), else the linear interpolation's held-out error.
+    let sigma: Vec<f64> = match &phys {
+        Some(p) => p.residual_rms(g, s),
+        None => vec![lin_cv.unwrap_or(0.0); s.components().len()],
     };
-    let (map, name, cv, knot) = if use_physics {
-        let p = phys.expect("physics fitted");
-        (p.evaluate(g), "physics", p.cv_error_um, Some(p.knot_um))
-    } else {
-        (
-            linear::interpolate(g, s),
-            "linear",
-            lin_cv.unwrap_or(f64::NAN),
-            None,
-        )
+    let bp_cv = match method {
+        Method2::Auto if g.len() <= BP_AUTO_MAX_POINTS => Some(bp_cv_error(g, s, &sigma)),
+        _ => None,
+    };
+    if let Some(e) = bp_cv {
+        candidates.push(Candidate {
+            method: "bp",
+            knot_um: None,
+            cv_error_um: e,
+            folds: 1,
+        });
+    }
+    let finite = |v: Option<f64>| v.filter(|e| e.is_finite());
+    let choice = match method {
+        Method2::Physics => "physics",
+        Method2::Linear => "linear",
+        Method2::Bp => "bp",
+        Method2::Auto => {
+            let mut best = ("linear", f64::INFINITY);
+            for (name, e) in [
+                ("physics", finite(phys.as_ref().map(|p| p.cv_error_um))),
+                ("bp", finite(bp_cv)),
+                ("linear", finite(lin_cv)),
+            ] {
+                if let Some(e) = e {
+                    if e < best.1 {
+                        best = (name, e);
+                    }
+                }
+            }
+            best.0
+        }
+    };
+    let mut bp_report = None;
+    let (map, cv, knot) = match choice {
+        "physics" => {
+            let p = phys.as_ref().expect("physics fitted");
+            (p.evaluate(g), p.cv_error_um, Some(p.knot_um))
+        }
+        "bp" => {
+            let (mut out, rep) = bp_map(g, s, &sigma, BP_MAX_ITER);
+            bp_report = Some(rep);
+            let theta = (out.len() > 2).then(|| out.pop().expect("three components"));
+            let ey = out.pop().expect("e_y");
+            let ex = out.pop().expect("e_x");
+            (Map { ex, ey, theta }, bp_cv.unwrap_or(f64::NAN), None)
+        }
+        _ => (linear::interpolate(g, s), lin_cv.unwrap_or(f64::NAN), None),
+    };
+    let (periods_x, periods_y) = match &phys {
+        Some(p) => (p.periods_x.clone(), p.periods_y.clone()),
+        None => (Vec::new(), Vec::new()),
     };
     let report = Report2 {
-        method: name,
+        method: choice,
         nx: g.x.n,
         ny: g.y.n,
         m: s.len(),
@@ -221,6 +333,9 @@ pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, R
         knot_um: knot,
         folds: CV_FOLDS,
         candidates,
+        periods_x,
+        periods_y,
+        bp: bp_report,
     };
     Ok((map, report))
 }

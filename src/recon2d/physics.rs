@@ -1,29 +1,44 @@
 //! The physics model of a stacked XY stage, fitted by penalised least squares.
 //!
 //! Each component c ∈ {e_x, e_y, θ} is modelled as
-//!     c(x, y) = F(x) + G(y) + ŷ·H(x) + x̂·K(y),
-//! F and G the errors along each axis's own travel (leadscrew periods, trends, the other axis's
-//! straightness), ŷ·H(x) and x̂·K(y) the couplings linear in the other coordinate (squareness,
-//! yaw times an Abbe offset that changes with the other axis), x̂, ŷ ∈ [-1, 1] the centred
-//! coordinates. F, G are uniform cubic B-splines at knot spacing h (chosen by cross-validation),
-//! H, K at 4h (yaw varies slowly). The unknowns are O(nx + ny): the normal matrix is assembled
-//! from the samples (16 basis values per sample) and factored once per candidate, and the map is
+//!     c(x, y) = F(x) + G(y) + ŷ·H(x) + x̂·K(y) + Σ_ω env_ω(x)·(cos, sin)(ωx) + ŷ·(…)
+//!                                              + Σ_ω env_ω(y)·(cos, sin)(ωy) + x̂·(…),
+//! F and G the errors along each axis's own travel (trends, the other axis's straightness),
+//! ŷ·H(x) and x̂·K(y) the couplings linear in the other coordinate (squareness, yaw times an Abbe
+//! offset that changes with the other axis), x̂, ŷ ∈ [-1, 1] the centred coordinates. The ω are the
+//! leadscrew periods (and their 2nd and 3rd harmonics) found in the samples themselves: the
+//! samples' mean at each x (resp. y) grid position, where the other axis's errors average out,
+//! goes through the 1D period search of `recon::periods`. Each period's sine and cosine carry a
+//! slowly varying cubic-spline envelope (the nut's cyclic amplitude drifts along the travel), and
+//! the fundamental's also appears times the other coordinate (cyclic yaw times its Abbe arm).
+//! F, G are uniform cubic B-splines at knot spacing h (chosen by cross-validation), H, K at 4h:
+//! the smooth residual. The unknowns are O(nx + ny): the normal matrix is assembled from the
+//! samples (4 basis values per family per sample) and factored once per candidate, and the map is
 //! evaluated separably, so a 1901 × 841 grid never forms an nx·ny matrix.
 use faer::linalg::solvers::SolveCore;
 use faer::{Conj, Mat, Side};
 
 use super::{folds, rms_xy, Candidate, Grid2, Map, MapSamples, CV_FOLDS};
+use crate::recon::periods::{self, Period};
 
 /// Most unknowns of one fit: a dense Cholesky of 1200 is ~0.6 GFLOP, and the cross-validation
 /// factors ~6 per candidate within the 10 s budget of a 1.6 M-point map.
 const MAX_UNKNOWNS: usize = 1200;
-/// Knot spacings cross-validated: the finest ones the samples allow.
+/// Knot spacings cross-validated: at most this many, spread over the feasible ones.
 const MAX_KNOT_CANDIDATES: usize = 8;
 /// Curvature penalty weights tried by cross-validation, relative to the mean diagonal of AᵀA.
 const PENALTIES: [f64; 2] = [1e-4, 1e-1];
 /// Ridge on every coefficient, relative to the mean diagonal: it only settles the constants and
-/// linear terms the four blocks share (F and G both hold a constant, for example).
+/// linear terms the blocks share (F and G both hold a constant, for example).
 const RIDGE: f64 = 1e-9;
+/// Distinct periods kept per axis (the strongest), each with its harmonics.
+const MAX_PERIODS_PER_AXIS: usize = 3;
+/// Harmonics modelled per period (1 = the fundamental alone).
+const HARMONICS: usize = 3;
+/// A harmonic is modelled only if its period spans at least this many grid steps.
+const MIN_STEPS_PER_PERIOD: f64 = 3.0;
+/// Intervals of a cyclic term's envelope spline over the travel (a slow amplitude drift).
+const ENV_INTERVALS: f64 = 6.0;
 
 /// Uniform cubic B-spline basis on [a, a + k·h].
 #[derive(Debug, Clone, Copy)]
@@ -59,13 +74,43 @@ impl Spline {
     }
 }
 
-/// The four blocks' bases and offsets for one knot spacing.
+/// One family of basis functions: a spline along one axis, optionally modulated by cos/sin(ω·t),
+/// optionally times the other coordinate (centred, in [-1, 1]).
 #[derive(Debug, Clone, Copy)]
+struct Family {
+    along_x: bool,
+    coupled: bool,
+    sp: Spline,
+    /// (ω rad/µm, sine?)
+    wave: Option<(f64, bool)>,
+}
+
+impl Family {
+    /// The 4 (first index, values) of the family at coordinate t along its axis, before coupling.
+    fn eval(&self, t: f64) -> (usize, [f64; 4]) {
+        let (i, mut v) = self.sp.eval(t);
+        if let Some((w, sine)) = self.wave {
+            let m = if sine { (w * t).sin() } else { (w * t).cos() };
+            for b in &mut v {
+                *b *= m;
+            }
+        }
+        (i, v)
+    }
+}
+
+/// Angular frequencies (rad/µm) of the cyclic terms along each axis, fundamentals first.
+#[derive(Debug, Clone, Default)]
+struct Waves {
+    x: Vec<(f64, bool)>,
+    y: Vec<(f64, bool)>,
+}
+
+/// The model's families and offsets for one knot spacing.
+#[derive(Debug, Clone)]
 struct Design {
-    fx: Spline,
-    gy: Spline,
-    hx: Spline,
-    ky: Spline,
+    fams: Vec<Family>,
+    offs: Vec<usize>,
     x_mid: f64,
     x_half: f64,
     y_mid: f64,
@@ -73,56 +118,71 @@ struct Design {
 }
 
 impl Design {
-    fn new(g: &Grid2, h: f64) -> Self {
+    fn new(g: &Grid2, h: f64, waves: &Waves) -> Self {
         let (x0, x1) = (g.x.start_um, g.x.end_um());
         let (y0, y1) = (g.y.start_um, g.y.end_um());
-        Self {
-            fx: Spline::new(x0, x1, h),
-            gy: Spline::new(y0, y1, h),
-            hx: Spline::new(x0, x1, 4.0 * h),
-            ky: Spline::new(y0, y1, 4.0 * h),
-            x_mid: 0.5 * (x0 + x1),
-            x_half: 0.5 * (x1 - x0),
-            y_mid: 0.5 * (y0 + y1),
-            y_half: 0.5 * (y1 - y0),
-        }
-    }
-    fn offsets(&self) -> [usize; 5] {
-        let o1 = self.fx.count();
-        let o2 = o1 + self.gy.count();
-        let o3 = o2 + self.hx.count();
-        [0, o1, o2, o3, o3 + self.ky.count()]
-    }
-    fn unknowns(&self) -> usize {
-        self.offsets()[4]
-    }
-    /// The 16 (column, value) entries of the design row at (x, y).
-    fn row(&self, x: f64, y: f64) -> [(usize, f64); 16] {
-        let o = self.offsets();
-        let xh = (x - self.x_mid) / self.x_half;
-        let yh = (y - self.y_mid) / self.y_half;
-        let mut r = [(0, 0.0); 16];
-        for (b, (sp, at, scale)) in [
-            (self.fx, x, 1.0),
-            (self.gy, y, 1.0),
-            (self.hx, x, yh),
-            (self.ky, y, xh),
-        ]
-        .into_iter()
-        .enumerate()
-        {
-            let (i, v) = sp.eval(at);
-            for q in 0..4 {
-                r[4 * b + q] = (o[b] + i + q, v[q] * scale);
+        let fam = |along_x, coupled, sp, wave| Family {
+            along_x,
+            coupled,
+            sp,
+            wave,
+        };
+        let mut fams = vec![
+            fam(true, false, Spline::new(x0, x1, h), None),
+            fam(false, false, Spline::new(y0, y1, h), None),
+            fam(true, true, Spline::new(x0, x1, 4.0 * h), None),
+            fam(false, true, Spline::new(y0, y1, 4.0 * h), None),
+        ];
+        for (along_x, ws, a, b) in [(true, &waves.x, x0, x1), (false, &waves.y, y0, y1)] {
+            let env = Spline::new(a, b, ((b - a) / ENV_INTERVALS).max(1e-9));
+            // The coupled (yaw × Abbe) term: a cubic amplitude over the travel.
+            let one = Spline::new(a, b, (b - a).max(1e-9));
+            for &(w, fundamental) in ws {
+                for sine in [false, true] {
+                    fams.push(fam(along_x, false, env, Some((w, sine))));
+                    if fundamental {
+                        fams.push(fam(along_x, true, one, Some((w, sine))));
+                    }
+                }
             }
         }
-        r
+        let mut offs = vec![0];
+        for f in &fams {
+            offs.push(offs[offs.len() - 1] + f.sp.count());
+        }
+        Self {
+            fams,
+            offs,
+            x_mid: 0.5 * (x0 + x1),
+            x_half: (0.5 * (x1 - x0)).max(1e-9),
+            y_mid: 0.5 * (y0 + y1),
+            y_half: (0.5 * (y1 - y0)).max(1e-9),
+        }
     }
-    /// Second-difference penalty DᵀD of every block (no penalty across blocks).
+    fn unknowns(&self) -> usize {
+        self.offs[self.offs.len() - 1]
+    }
+    /// Nonzeros of every design row.
+    fn nnz(&self) -> usize {
+        4 * self.fams.len()
+    }
+    /// The design row at (x, y): [`Design::nnz`] (column, value) entries written to `out`.
+    fn row(&self, x: f64, y: f64, out: &mut [(usize, f64)]) {
+        let xh = (x - self.x_mid) / self.x_half;
+        let yh = (y - self.y_mid) / self.y_half;
+        for (b, f) in self.fams.iter().enumerate() {
+            let (at, other) = if f.along_x { (x, yh) } else { (y, xh) };
+            let scale = if f.coupled { other } else { 1.0 };
+            let (i, v) = f.eval(at);
+            for q in 0..4 {
+                out[4 * b + q] = (self.offs[b] + i + q, v[q] * scale);
+            }
+        }
+    }
+    /// Second-difference penalty DᵀD of every family (no penalty across families).
     fn add_penalty(&self, n: &mut Mat<f64>, mu: f64) {
-        let o = self.offsets();
-        for b in 0..4 {
-            for s in o[b]..o[b + 1].saturating_sub(2) {
+        for b in 0..self.fams.len() {
+            for s in self.offs[b]..self.offs[b + 1].saturating_sub(2) {
                 let d = [(s, 1.0), (s + 1, -2.0), (s + 2, 1.0)];
                 for &(i, a) in &d {
                     for &(j, c) in &d {
@@ -134,45 +194,71 @@ impl Design {
     }
 }
 
-/// Normal equations AᵀA (lower triangle) and AᵀB of a set of samples.
+/// Normal equations AᵀA (lower triangle, column-major p × p) and AᵀB (p × nc) of a set of samples.
+#[derive(Clone)]
 struct Normal {
-    ata: Mat<f64>,
-    atb: Mat<f64>,
+    p: usize,
+    ata: Vec<f64>,
+    atb: Vec<f64>,
 }
 
 impl Normal {
     fn new(p: usize, nc: usize) -> Self {
         Self {
-            ata: Mat::zeros(p, p),
-            atb: Mat::zeros(p, nc),
+            p,
+            ata: vec![0.0; p * p],
+            atb: vec![0.0; p * nc],
         }
     }
-    fn add(&mut self, row: &[(usize, f64); 16], vals: &[f64]) {
-        for &(i, a) in row {
-            for &(j, b) in row {
-                if i >= j {
-                    self.ata[(i, j)] += a * b;
+    /// Adds one sample's row: 4 consecutive columns per family, so the outer product goes in
+    /// 4 × 4 blocks (the lower triangle of AᵀA holds the block (b, b') for b' ≤ b by column).
+    fn add(&mut self, row: &[(usize, f64)], vals: &[f64]) {
+        let p = self.p;
+        for (bi, bl) in row.chunks_exact(4).enumerate() {
+            let i0 = bl[0].0;
+            let a = [bl[0].1, bl[1].1, bl[2].1, bl[3].1];
+            for br in row[..4 * (bi + 1)].chunks_exact(4) {
+                let j0 = br[0].0;
+                for (q, &(_, b)) in br.iter().enumerate() {
+                    let col = &mut self.ata[(j0 + q) * p + i0..(j0 + q) * p + i0 + 4];
+                    for (t, (c, &av)) in col.iter_mut().zip(&a).enumerate() {
+                        // Within a family's own block, only the lower triangle (i ≥ j).
+                        if i0 + t >= j0 + q {
+                            *c += av * b;
+                        }
+                    }
                 }
             }
             for (c, v) in vals.iter().enumerate() {
-                self.atb[(i, c)] += a * v;
+                for (t, &av) in a.iter().enumerate() {
+                    self.atb[c * p + i0 + t] += av * v;
+                }
             }
+        }
+    }
+    fn add_all(&mut self, o: &Normal, sign: f64) {
+        for (a, b) in self.ata.iter_mut().zip(&o.ata) {
+            *a += sign * b;
+        }
+        for (a, b) in self.atb.iter_mut().zip(&o.atb) {
+            *a += sign * b;
         }
     }
 }
 
 /// Solves (AᵀA + penalty) X = AᵀB; None if the matrix is not positive definite.
-fn solve(d: &Design, ata: &Mat<f64>, atb: &Mat<f64>, mu_rel: f64) -> Option<Mat<f64>> {
-    let p = ata.nrows();
-    let mean_diag = (0..p).map(|i| ata[(i, i)]).sum::<f64>() / p as f64;
+fn solve(d: &Design, nm: &Normal, mu_rel: f64) -> Option<Mat<f64>> {
+    let p = nm.p;
+    let nc = nm.atb.len() / p.max(1);
+    let mean_diag = (0..p).map(|i| nm.ata[i * p + i]).sum::<f64>() / p as f64;
     let scale = if mean_diag > 0.0 { mean_diag } else { 1.0 };
-    let mut n = ata.clone();
+    let mut n = Mat::from_fn(p, p, |i, j| if i >= j { nm.ata[j * p + i] } else { 0.0 });
     d.add_penalty(&mut n, mu_rel * scale);
     for i in 0..p {
         n[(i, i)] += RIDGE * scale;
     }
     let llt = n.llt(Side::Lower).ok()?;
-    let mut x = atb.clone();
+    let mut x = Mat::from_fn(p, nc, |i, c| nm.atb[c * p + i]);
     llt.solve_in_place_with_conj(Conj::No, x.as_mut());
     let finite = (0..x.ncols()).all(|c| (0..x.nrows()).all(|i| x[(i, c)].is_finite()));
     finite.then_some(x)
@@ -186,27 +272,41 @@ pub struct PhysicsFit {
     pub knot_um: f64,
     pub penalty: f64,
     pub cv_error_um: f64,
+    /// The cyclic periods found along x and along y (fundamentals; their harmonics are modelled).
+    pub periods_x: Vec<Period>,
+    pub periods_y: Vec<Period>,
 }
 
 fn positions(g: &Grid2, s: &MapSamples, k: usize) -> (f64, f64) {
     (g.x.position(s.ix[k]), g.y.position(s.iy[k]))
 }
 
-/// Knot spacings tried: multiples of the coarser grid step, each with fewer unknowns than
-/// a third of the samples (and at most [`MAX_UNKNOWNS`]).
-fn knot_candidates(g: &Grid2, m: usize) -> Vec<f64> {
+/// Knot spacings tried: multiples of the coarser grid step with fewer unknowns than a third of
+/// the samples (and at most [`MAX_UNKNOWNS`]); at most [`MAX_KNOT_CANDIDATES`], the finest and
+/// the coarsest among them.
+fn knot_candidates(g: &Grid2, m: usize, waves: &Waves) -> Vec<f64> {
     let step = g.x.step_um.max(g.y.step_um);
-    [
-        1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0,
+    let feasible: Vec<f64> = [
+        1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0, 96.0, 128.0,
+        192.0, 256.0,
     ]
     .iter()
     .map(|k| k * step)
     .filter(|&h| {
-        let p = Design::new(g, h).unknowns();
+        let p = Design::new(g, h, waves).unknowns();
         3 * p <= m && p <= MAX_UNKNOWNS
     })
-    .take(MAX_KNOT_CANDIDATES)
-    .collect()
+    .collect();
+    let n = feasible.len();
+    if n <= MAX_KNOT_CANDIDATES {
+        return feasible;
+    }
+    let last = MAX_KNOT_CANDIDATES - 1;
+    let mut out: Vec<f64> = (0..MAX_KNOT_CANDIDATES)
+        .map(|k| feasible[(k * (n - 1) + last / 2) / last])
+        .collect();
+    out.dedup();
+    out
 }
 
 /// Held-out RMS error of e_x and e_y at knot spacing h and penalty mu; None if singular.
@@ -215,74 +315,185 @@ fn cv_error(
     s: &MapSamples,
     comps: &[&[f64]],
     fold: &[usize],
-    h: f64,
+    d: &Design,
     mu: f64,
 ) -> Option<f64> {
     let m = s.len();
     let nc = comps.len();
-    let d = Design::new(g, h);
     let p = d.unknowns();
+    let r = d.nnz();
     let mut parts: Vec<Normal> = (0..CV_FOLDS).map(|_| Normal::new(p, nc)).collect();
-    let rows: Vec<[(usize, f64); 16]> = (0..m)
-        .map(|k| {
-            let (x, y) = positions(g, s, k);
-            d.row(x, y)
-        })
-        .collect();
+    let mut rows = vec![(0usize, 0.0f64); m * r];
     let mut vals = vec![0.0; nc];
-    for k in 0..m {
+    for (k, row) in rows.chunks_exact_mut(r).enumerate() {
+        let (x, y) = positions(g, s, k);
+        d.row(x, y, row);
         for (c, comp) in comps.iter().enumerate() {
             vals[c] = comp[k];
         }
-        parts[fold[k]].add(&rows[k], &vals);
+        parts[fold[k]].add(row, &vals);
     }
     let mut all = Normal::new(p, nc);
     for part in &parts {
-        all.ata += &part.ata;
-        all.atb += &part.atb;
+        all.add_all(part, 1.0);
     }
     let mut pred = vec![vec![0.0; m]; 2];
     for (f, part) in parts.iter().enumerate() {
-        let ata = &all.ata - &part.ata;
-        let atb = &all.atb - &part.atb;
-        let x = solve(&d, &ata, &atb, mu)?;
+        let mut train = all.clone();
+        train.add_all(part, -1.0);
+        let x = solve(d, &train, mu)?;
         for k in (0..m).filter(|&k| fold[k] == f) {
             for (c, pc) in pred.iter_mut().enumerate() {
-                pc[k] = rows[k].iter().map(|&(i, a)| a * x[(i, c)]).sum();
+                pc[k] = rows[k * r..(k + 1) * r]
+                    .iter()
+                    .map(|&(i, a)| a * x[(i, c)])
+                    .sum();
             }
         }
     }
     Some(rms_xy(s, &pred))
 }
 
-/// Fits every knot spacing and penalty, keeps the smallest k-fold CV error, refits on all samples.
+/// `f` over `items` on up to 2 threads (the target machine's cores), results in order.
+fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .clamp(1, 2)
+        .min(items.len().max(1));
+    if threads <= 1 {
+        return items.iter().map(&f).collect();
+    }
+    let f = &f;
+    let mut out: Vec<Option<R>> = (0..items.len()).map(|_| None).collect();
+    std::thread::scope(|sc| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                sc.spawn(move || {
+                    (t..items.len())
+                        .step_by(threads)
+                        .map(|k| (k, f(&items[k])))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        for h in handles {
+            for (k, r) in h.join().expect("a cross-validation thread panicked") {
+                out[k] = Some(r);
+            }
+        }
+    });
+    out.into_iter()
+        .map(|r| r.expect("every item mapped"))
+        .collect()
+}
+
+/// The cyclic periods along one axis: per grid position along it, the mean of the samples there
+/// (the other axis's errors average out), e_x and e_y each through the 1D period search; the
+/// strongest distinct ones, at most [`MAX_PERIODS_PER_AXIS`].
+fn axis_periods(
+    n: usize,
+    pos: impl Fn(usize) -> f64,
+    step: f64,
+    idx: &[usize],
+    comps: &[&[f64]],
+) -> Vec<Period> {
+    let span = (pos(n - 1) - pos(0)).abs().max(step);
+    let mut all: Vec<Period> = Vec::new();
+    for comp in comps.iter().take(2) {
+        let mut sum = vec![0.0; n];
+        let mut cnt = vec![0u32; n];
+        for (&i, &v) in idx.iter().zip(comp.iter()) {
+            sum[i] += v;
+            cnt[i] += 1;
+        }
+        let (mut x, mut y) = (Vec::new(), Vec::new());
+        for i in (0..n).filter(|&i| cnt[i] > 0) {
+            x.push(pos(i));
+            y.push(sum[i] / cnt[i] as f64);
+        }
+        all.extend(periods::detect(&x, &y, 2.0 * step));
+    }
+    all.sort_by(|a, b| b.amplitude_um.total_cmp(&a.amplitude_um));
+    let mut kept: Vec<Period> = Vec::new();
+    for p in all {
+        // The same period seen in both components, or a harmonic of a kept one: already modelled.
+        // Within 2 resolution cells (1/span) of a kept frequency or its harmonics: the same
+        // period seen in the other component, a harmonic, or a sidelobe of the finite span
+        // (±1.4 cells) or of the envelope, which the envelope splines carry (ENV_INTERVALS = 6:
+        // 3 intervals per cycle of a 2-cell beat).
+        let dup = kept.iter().any(|k| {
+            (1..=HARMONICS).any(|h| (h as f64 / k.period_um - 1.0 / p.period_um).abs() < 2.0 / span)
+        });
+        if !dup && kept.len() < MAX_PERIODS_PER_AXIS {
+            kept.push(p);
+        }
+    }
+    kept
+}
+
+/// The angular frequencies of the periods and their harmonics that the grid resolves.
+fn frequencies(ps: &[Period], step: f64) -> Vec<(f64, bool)> {
+    let mut out = Vec::new();
+    for p in ps {
+        for k in 1..=HARMONICS {
+            if p.period_um / k as f64 >= MIN_STEPS_PER_PERIOD * step {
+                out.push((std::f64::consts::TAU * k as f64 / p.period_um, k == 1));
+            }
+        }
+    }
+    out
+}
+
+/// Finds the periods, fits every knot spacing and penalty, keeps the smallest k-fold CV error,
+/// refits on all samples.
 pub fn select(g: &Grid2, s: &MapSamples) -> Result<(PhysicsFit, Vec<Candidate>), String> {
     let m = s.len();
-    let mut knots = knot_candidates(g, m);
+    let comps = s.components();
+    let nc = comps.len();
+    let periods_x = axis_periods(g.x.n, |i| g.x.position(i), g.x.step_um, &s.ix, &comps);
+    let periods_y = axis_periods(g.y.n, |i| g.y.position(i), g.y.step_um, &s.iy, &comps);
+    let mut waves = Waves {
+        x: frequencies(&periods_x, g.x.step_um),
+        y: frequencies(&periods_y, g.y.step_um),
+    };
+    let mut knots = knot_candidates(g, m, &waves);
+    if knots.is_empty() {
+        // Too few samples for the cyclic terms: the smooth model alone.
+        waves = Waves::default();
+        knots = knot_candidates(g, m, &waves);
+    }
     if knots.is_empty() {
         // Too few samples for any spline at the grid's scale: the coarsest one (one interval per
         // axis, 4 + 4 + 4 + 4 unknowns) still needs a few times that many samples.
         let h = (g.x.end_um() - g.x.start_um).max(g.y.end_um() - g.y.start_um);
-        if 3 * Design::new(g, h).unknowns() > m {
+        let need = 3 * Design::new(g, h, &waves).unknowns();
+        if need > m {
             return Err(format!(
-                "the physics model needs at least {} samples, found {m}",
-                3 * Design::new(g, h).unknowns()
+                "the physics model needs at least {need} samples, found {m}"
             ));
         }
         knots.push(h);
     }
-    let comps = s.components();
-    let nc = comps.len();
     let fold = folds(m, CV_FOLDS);
     // Every knot spacing at the lightest penalty, then the other penalties at the best spacing.
     let mut best: Option<(f64, f64, f64)> = None; // (cv, h, mu)
     let mut candidates = Vec::new();
-    for &h in &knots {
-        let cv = cv_error(g, s, &comps, &fold, h, PENALTIES[0]);
+    let cvs = par_map(&knots, |&h| {
+        cv_error(
+            g,
+            s,
+            &comps,
+            &fold,
+            &Design::new(g, h, &waves),
+            PENALTIES[0],
+        )
+    });
+    for (&h, cv) in knots.iter().zip(cvs) {
         candidates.push(Candidate {
             method: "physics",
             knot_um: Some(h),
             cv_error_um: cv.unwrap_or(f64::NAN),
+            folds: CV_FOLDS,
         });
         if let Some(cv) = cv {
             if best.is_none_or(|b| cv < b.0) {
@@ -291,8 +502,9 @@ pub fn select(g: &Grid2, s: &MapSamples) -> Result<(PhysicsFit, Vec<Candidate>),
         }
     }
     if let Some((_, h, _)) = best {
+        let d = Design::new(g, h, &waves);
         for &mu in &PENALTIES[1..] {
-            if let Some(cv) = cv_error(g, s, &comps, &fold, h, mu) {
+            if let Some(cv) = cv_error(g, s, &comps, &fold, &d, mu) {
                 if best.is_none_or(|b| cv < b.0) {
                     best = Some((cv, h, mu));
                 }
@@ -300,18 +512,24 @@ pub fn select(g: &Grid2, s: &MapSamples) -> Result<(PhysicsFit, Vec<Candidate>),
         }
     }
     let (cv, h, mu) = best.ok_or("the physics model's normal equations are singular")?;
-    let d = Design::new(g, h);
+    let d = Design::new(g, h, &waves);
     let mut all = Normal::new(d.unknowns(), nc);
     let mut vals = vec![0.0; nc];
+    let mut row = vec![(0usize, 0.0f64); d.nnz()];
     for k in 0..m {
         let (x, y) = positions(g, s, k);
         for (c, comp) in comps.iter().enumerate() {
             vals[c] = comp[k];
         }
-        all.add(&d.row(x, y), &vals);
+        d.row(x, y, &mut row);
+        all.add(&row, &vals);
     }
-    let coef = solve(&d, &all.ata, &all.atb, mu)
-        .ok_or("the physics model's normal equations are singular")?;
+    let coef = solve(&d, &all, mu).ok_or("the physics model's normal equations are singular")?;
+    let (periods_x, periods_y) = if waves.x.is_empty() && waves.y.is_empty() {
+        (Vec::new(), Vec::new())
+    } else {
+        (periods_x, periods_y)
+    };
     Ok((
         PhysicsFit {
             design: d,
@@ -319,38 +537,72 @@ pub fn select(g: &Grid2, s: &MapSamples) -> Result<(PhysicsFit, Vec<Candidate>),
             knot_um: h,
             penalty: mu,
             cv_error_um: cv,
+            periods_x,
+            periods_y,
         },
         candidates,
     ))
 }
 
 impl PhysicsFit {
-    /// The model at every grid point, x fastest, separably: F, H on the x grid, G, K on the y grid.
+    /// RMS of the fit's residual at the samples, per component (e_x, e_y[, θ]).
+    pub fn residual_rms(&self, g: &Grid2, s: &MapSamples) -> Vec<f64> {
+        let d = &self.design;
+        let comps = s.components();
+        let mut sum = vec![0.0; comps.len()];
+        let mut row = vec![(0usize, 0.0f64); d.nnz()];
+        for k in 0..s.len() {
+            let (x, y) = positions(g, s, k);
+            d.row(x, y, &mut row);
+            for (c, comp) in comps.iter().enumerate() {
+                let fit: f64 = row.iter().map(|&(i, a)| a * self.coef[(i, c)]).sum();
+                sum[c] += (comp[k] - fit).powi(2);
+            }
+        }
+        sum.iter()
+            .map(|v| (v / s.len().max(1) as f64).sqrt())
+            .collect()
+    }
+
+    /// The model at every grid point, x fastest, separably: the x families on the x grid, the y
+    /// families on the y grid.
     pub fn evaluate(&self, g: &Grid2) -> Map {
-        let d = self.design;
-        let o = d.offsets();
-        let block = |sp: Spline, off: usize, at: f64, c: usize| -> f64 {
-            let (i, v) = sp.eval(at);
-            (0..4).map(|q| v[q] * self.coef[(off + i + q, c)]).sum()
-        };
+        let d = &self.design;
         let nc = self.coef.ncols();
         let mut out: Vec<Vec<f64>> = Vec::with_capacity(nc);
+        // (plain, coupled) sums of one axis's families at coordinate t.
+        let sums = |along_x: bool, t: f64, c: usize| -> (f64, f64) {
+            let mut acc = (0.0, 0.0);
+            for (b, f) in d
+                .fams
+                .iter()
+                .enumerate()
+                .filter(|(_, f)| f.along_x == along_x)
+            {
+                let (i, v) = f.eval(t);
+                let s: f64 = (0..4)
+                    .map(|q| v[q] * self.coef[(d.offs[b] + i + q, c)])
+                    .sum();
+                if f.coupled {
+                    acc.1 += s;
+                } else {
+                    acc.0 += s;
+                }
+            }
+            acc
+        };
         for c in 0..nc {
             let xs: Vec<(f64, f64, f64)> = (0..g.x.n)
                 .map(|i| {
                     let x = g.x.position(i);
-                    (
-                        block(d.fx, o[0], x, c),
-                        block(d.hx, o[2], x, c),
-                        (x - d.x_mid) / d.x_half,
-                    )
+                    let (f, h) = sums(true, x, c);
+                    (f, h, (x - d.x_mid) / d.x_half)
                 })
                 .collect();
             let mut v = Vec::with_capacity(g.len());
             for j in 0..g.y.n {
                 let y = g.y.position(j);
-                let gy = block(d.gy, o[1], y, c);
-                let ky = block(d.ky, o[3], y, c);
+                let (gy, ky) = sums(false, y, c);
                 let yh = (y - d.y_mid) / d.y_half;
                 v.extend(xs.iter().map(|&(f, h, xh)| f + gy + yh * h + xh * ky));
             }
