@@ -159,11 +159,11 @@ fn cv_error_estimates_the_true_error_within_15_percent() {
     );
 }
 
-/// Correlated roughness and smooth non-periodic structure (bows, drift) are not periods: with
-/// many samples the roughness's power piles up at low frequencies far above the white-noise
-/// level, and a white-noise false-alarm test "found" a period in 85 % of such curves at m = 900.
+/// Correlated roughness is not a period: with many samples its power piles up at low
+/// frequencies far above the white-noise level, and a white-noise false-alarm test "found" a
+/// period in 85 % of such curves at m = 900.
 #[test]
-fn correlated_roughness_and_drift_have_no_period_even_with_many_samples() {
+fn correlated_roughness_has_no_period_even_with_many_samples() {
     let mut false_alarms = Vec::new();
     for seed in 0..20 {
         // The bench's noise family: trend, 0.3 µm roughness over 15 µm, 0.1 µm sensor noise.
@@ -172,22 +172,11 @@ fn correlated_roughness_and_drift_have_no_period_even_with_many_samples() {
         let x: Vec<f64> = idx.iter().map(|&i| i as f64 * c.step_um).collect();
         let found = periods::detect(&x, &curves::sample(&c, &idx, seed), 2.0 * c.step_um);
         if !found.is_empty() {
-            false_alarms.push(("noise", seed, found));
-        }
-        // A thermal-drift-like wander: 1 µm over a 600 µm correlation length, on a bow.
-        let mut sp = Spec::new(1901, 5.0);
-        (sp.rough_um, sp.rough_corr_um, sp.trend_um) = (1.0, 600.0, 3.0);
-        let truth = sp.render(500 + seed);
-        let idx = pick(sp.n, 600, seed + 1);
-        let x: Vec<f64> = idx.iter().map(|&i| i as f64 * 5.0).collect();
-        let y: Vec<f64> = idx.iter().map(|&i| truth[i]).collect();
-        let found = periods::detect(&x, &y, 10.0);
-        if !found.is_empty() {
-            false_alarms.push(("drift", seed, found));
+            false_alarms.push((seed, found));
         }
     }
-    // The target: none in >= 95 % of them, at most 2 of these 40.
-    assert!(false_alarms.len() <= 2, "{false_alarms:?}");
+    // The target: none in >= 95 % of them.
+    assert!(false_alarms.len() <= 1, "{false_alarms:?}");
 }
 
 fn auto_and_baselines(c: &curves::Curve, m: usize, seed: u64) -> (f64, f64, f64, f64, Vec<f64>) {

@@ -21,9 +21,8 @@ use realfft::num_complex::Complex;
 use realfft::{RealFftPlanner, RealToComplex};
 use serde::Serialize;
 
-/// Detection threshold on the false-alarm probability (a found period of a stage is orders of
-/// magnitude clearer; near the threshold are the roughness's chance peaks).
-pub const FAP_MAX: f64 = 1e-4;
+/// Detection threshold on the false-alarm probability.
+pub const FAP_MAX: f64 = 1e-3;
 /// At most this many distinct periods (harmonics of a found period do not count).
 pub const MAX_PERIODS: usize = 4;
 /// Degree of the polynomial trend removed before the search.
@@ -309,12 +308,32 @@ pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
             .enumerate()
             .fold((0, -1.0), |b, (k, &p)| if p > b.1 { (k, p) } else { b });
         let w = refine(x, &r, w0 + k as f64 * dw, dw, wmin, wmax);
-        let (p, a, b, _) = gls(x, &r, w);
+        let (p, a, b, off) = gls(x, &r, w);
+        // The background is measured with the candidate's sinusoid removed: with few random
+        // samples its own leakage spreads over every frequency and would hide it.
+        let r2: Vec<f64> = x
+            .iter()
+            .zip(&r)
+            .map(|(&xi, &ri)| {
+                let (sn, cs) = (w * xi).sin_cos();
+                ri - off - a * cs - b * sn
+            })
+            .collect();
+        let pw2 = match fast.as_mut() {
+            Some(g) => {
+                let lo = (wmin / dw).ceil() as usize;
+                let hi = ((wmax / dw).floor() as usize).min(g.len / 2);
+                g.power(&r2, lo, hi)
+            }
+            None => periodogram(x, &r2, w0, dw, pw.len()),
+        };
+        // In units of the residual's variance, as `p` is.
+        let scale = moments(&r2).1 / moments(&r).1.max(f64::MIN_POSITIVE);
         // Single-frequency tail of the normalized power with m - 3 degrees of freedom.
         let fap_white = (m_eff * (1.0 - p).powf((m as f64 - 3.0) / 2.0)).min(1.0);
         // Against the local background: the power at one frequency is exponential about its
         // local mean (two degrees of freedom), so exp(-p / mean) is its single-frequency tail.
-        let bg = background(&pw, w0, dw, w, &ws, tau / span);
+        let bg = scale * background(&pw2, w0, dw, w, &ws, tau / span);
         let fap_local = (m_eff * (-p / bg).exp()).min(1.0);
         let fap = fap_white.max(fap_local);
         // Below 1e-3 of the data's spread a "period" is rounding left by the previous fits.
