@@ -149,7 +149,8 @@ pub struct Reconstruction {
     pub cv_error_um: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub params: Option<PhysicsParams>,
-    /// Periods found in the samples (physics and auto only).
+    /// Periods found in the samples and kept by the cross-validated physics model (physics and
+    /// auto only).
     pub periods_um: Vec<periods::Period>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub candidates: Vec<CvScore>,
@@ -202,7 +203,33 @@ pub fn reconstruct(
             out.periods_um = periods::detect(&xs, &samples.values, 2.0 * grid.step_um);
             let cv = CrossValidation::new(grid, samples, s);
             let found: Vec<f64> = out.periods_um.iter().map(|p| p.period_um).collect();
-            let (best_params, best_err, mut scores) = cv.search_physics(&found);
+            // The dominant period as a chirp, in the model's frame (phase about the grid's
+            // centre): a candidate next to the plain one.
+            let chirped = out
+                .periods_um
+                .first()
+                .filter(|p| p.chirp_rad_um2 != 0.0)
+                .map(|p| {
+                    let centre = grid.start_um + grid.step_um * (n - 1) as f64 / 2.0;
+                    let c = p.chirp_rad_um2;
+                    let w = std::f64::consts::TAU / p.chirp_period_um
+                        + 2.0 * c * (centre - p.chirp_centre_um);
+                    (std::f64::consts::TAU / w, c)
+                });
+            let (best_params, best_err, mut scores) = cv.search_physics(&found, chirped);
+            // A period the cross-validated model left out (or kept without a harmonic) does not
+            // improve prediction of held-out samples: rough or drifting structure that the
+            // periodogram could not tell from a cycle. It is not reported as found.
+            // (The dominant period modelled as a chirp counts as kept.)
+            let as_chirp = chirped.is_some_and(|(p, _)| {
+                !best_params.chirps.is_empty() && best_params.periods_um.first() == Some(&p)
+            });
+            let mut k = 0;
+            out.periods_um.retain(|p| {
+                k += 1;
+                best_params.harmonics > 0
+                    && (best_params.periods_um.contains(&p.period_um) || (k == 1 && as_chirp))
+            });
             let mut chosen = (Method::Physics, best_err);
             if s.method == Method::Auto {
                 // bpdn is not a candidate yet: its solver takes ~0.5 s per solve at m = 100.
@@ -319,6 +346,16 @@ fn interpolate(method: Method, grid: &Grid, idx: &[usize], y: &[f64]) -> Vec<f64
     }
 }
 
+/// Design rows of the samples with their normal equations AᵀA and Aᵀy.
+struct NormalEq {
+    rows: nalgebra::DMatrix<f64>,
+    ata: nalgebra::DMatrix<f64>,
+    aty: nalgebra::DVector<f64>,
+}
+
+/// Physics structure: trend_k, harmonics, envelope degree, periods (bits).
+type StructureKey = (usize, usize, usize, Vec<u64>);
+
 /// K-fold cross-validation on the samples (folds are seeded, every sample held out once).
 struct CrossValidation<'a> {
     grid: &'a Grid,
@@ -326,6 +363,7 @@ struct CrossValidation<'a> {
     s: &'a ReconSettings,
     /// Per fold: (training positions in the sample list, held-out positions).
     folds: Vec<(Vec<usize>, Vec<usize>)>,
+    normal_cache: std::cell::RefCell<Vec<(StructureKey, std::rc::Rc<NormalEq>)>>,
 }
 
 impl<'a> CrossValidation<'a> {
@@ -353,6 +391,7 @@ impl<'a> CrossValidation<'a> {
             samples,
             s,
             folds,
+            normal_cache: Default::default(),
         }
     }
 
@@ -384,19 +423,48 @@ impl<'a> CrossValidation<'a> {
         sum / cnt as f64
     }
 
-    fn score_physics(&self, p: &PhysicsParams) -> f64 {
-        let n = self.grid.n;
+    /// The samples' design rows and normal equations for the structure of `p`, cached: the
+    /// search's candidates that change only the correlation length or the ridge share them (at
+    /// n = 65,536 forming them was most of the search's time).
+    fn normal_equations(&self, p: &PhysicsParams) -> std::rc::Rc<NormalEq> {
+        let key = (
+            p.trend_k,
+            p.harmonics,
+            p.envelope_deg,
+            p.periods_um
+                .iter()
+                .chain(&p.chirps)
+                .map(|v| v.to_bits())
+                .collect::<Vec<u64>>(),
+        );
+        let mut cache = self.normal_cache.borrow_mut();
+        if let Some((_, ne)) = cache.iter().find(|(k, _)| *k == key) {
+            return ne.clone();
+        }
         let rows = physics::design(
             p,
-            n,
+            self.grid.n,
             self.grid.start_um,
             self.grid.step_um,
             &self.samples.idx,
         );
+        let yv = nalgebra::DVector::from_column_slice(&self.samples.values);
+        let (ata, aty) = (rows.transpose() * &rows, rows.transpose() * &yv);
+        let ne = std::rc::Rc::new(NormalEq { rows, ata, aty });
+        // A few structures are enough: the search moves one axis at a time from the best.
+        if cache.len() >= 4 {
+            cache.remove(0);
+        }
+        cache.push((key, ne.clone()));
+        ne
+    }
+
+    fn score_physics(&self, p: &PhysicsParams) -> f64 {
+        let n = self.grid.n;
         // Each fold's normal equations are the whole set's minus its held-out rows' (a fifth of
         // the work of forming them from the training rows).
-        let yv = nalgebra::DVector::from_column_slice(&self.samples.values);
-        let (full_ata, full_aty) = (rows.transpose() * &rows, rows.transpose() * &yv);
+        let ne = self.normal_equations(p);
+        let (rows, full_ata, full_aty) = (&ne.rows, &ne.ata, &ne.aty);
         let (mut sum, mut cnt) = (0.0, 0usize);
         for (train, test) in &self.folds {
             let (ti, ty) = self.subset(train);
@@ -410,6 +478,8 @@ impl<'a> CrossValidation<'a> {
             );
             let ata = full_ata.view((0, 0), (cols, cols)) - at.transpose() * at;
             let aty = full_aty.rows(0, cols) - at.transpose() * yt;
+            // Held-out grid indices, ascending as the samples are.
+            let held: Vec<usize> = test.iter().map(|&r| self.samples.idx[r]).collect();
             let fitted = |beta: &nalgebra::DVector<f64>| {
                 let all = a * beta;
                 train.iter().map(|&r| all[r]).collect::<Vec<f64>>()
@@ -424,10 +494,10 @@ impl<'a> CrossValidation<'a> {
                 &ti,
                 &ty,
                 self.s.noise_um,
+                Some(&held),
             ) else {
                 return f64::INFINITY;
             };
-            let held: Vec<usize> = test.iter().map(|&r| self.samples.idx[r]).collect();
             for (pred, &r) in fit.predict(&test_rows, &held).iter().zip(test) {
                 sum += (pred - self.samples.values[r]).abs();
                 cnt += 1;
@@ -473,21 +543,41 @@ impl<'a> CrossValidation<'a> {
     /// Coordinate search over the physics model's structure and hyper-parameters, starting from
     /// the best of the candidate period sets: the first k found periods (k = 0 included: no
     /// periodic term), and with a configured pitch that pitch alone and with the found ones.
-    fn search_physics(&self, found: &[f64]) -> (PhysicsParams, f64, Vec<CvScore>) {
+    fn search_physics(
+        &self,
+        found: &[f64],
+        chirped: Option<(f64, f64)>,
+    ) -> (PhysicsParams, f64, Vec<CvScore>) {
         let m = self.samples.len();
-        let mut sets: Vec<Vec<f64>> = (0..=found.len()).map(|k| found[..k].to_vec()).collect();
+        let mut sets: Vec<PhysicsParams> = (0..=found.len())
+            .map(|k| PhysicsParams::with_periods(found[..k].to_vec()))
+            .collect();
+        // The dominant period as a chirp (a period drifting along the travel), alone and with
+        // the others.
+        if let Some((p, c)) = chirped {
+            for k in [1, found.len()] {
+                let mut cand = PhysicsParams::with_periods(found[..k].to_vec());
+                cand.periods_um[0] = p;
+                cand.pitch_um = p;
+                cand.chirps = vec![c];
+                if !sets.contains(&cand) {
+                    sets.push(cand);
+                }
+            }
+        }
         if let Some(h) = self.s.pitch_um {
             let others = found
                 .iter()
                 .copied()
                 .filter(|&f| (f / h - 1.0).abs() > 0.02);
-            sets.push(vec![h]);
-            sets.push(std::iter::once(h).chain(others).collect());
+            sets.push(PhysicsParams::with_periods(vec![h]));
+            sets.push(PhysicsParams::with_periods(
+                std::iter::once(h).chain(others).collect(),
+            ));
         }
         let mut scores = Vec::new();
         let mut best: Option<(PhysicsParams, f64)> = None;
-        for set in sets {
-            let cand = PhysicsParams::with_periods(set);
+        for cand in sets {
             if cand.columns() + 2 > m && !cand.periods_um.is_empty() {
                 continue;
             }

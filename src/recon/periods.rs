@@ -2,13 +2,17 @@
 //!
 //! Generalized Lomb–Scargle periodogram (sinusoid plus floating mean, Zechmeister & Kürster 2009)
 //! on the residual of a low-order polynomial trend, evaluated on a frequency grid oversampled at
-//! least 5x against the span, from the longest period we trust (half the span) down to the grid's
+//! least 5x against the span, from the longest period we trust (a quarter of the span: fewer
+//! cycles are a bow or a drift, not a period) down to the grid's
 //! Nyquist period. Random sampling resolves periods far below twice the mean sample spacing, which
 //! is why the search goes down to the grid's Nyquist. Samples on a uniform grid (x = x0 + k·Δ) make
 //! every sum of the periodogram one real FFT of the zero-filled, zero-padded sample sequence
 //! (exact, O(N' log N') for all frequencies at once); off-grid positions fall back to the direct
 //! sums. A peak counts when its false-alarm probability, a Bonferroni bound over the effective
-//! number of independent frequencies, is below `FAP_MAX`; its frequency is then refined off the
+//! number of independent frequencies, is below `FAP_MAX` twice over: against white noise, and
+//! against the local spectral background of the residual (median powers in log-spaced bands,
+//! interpolated in log-log), so that correlated roughness and drift, whose power piles up at low
+//! frequencies, do not pass for a period. Its frequency is then refined off the
 //! grid by golden-section search on the power, the fitted sinusoid is subtracted (prewhitening)
 //! and the search repeats.
 use std::sync::Arc;
@@ -24,6 +28,15 @@ pub const MAX_PERIODS: usize = 4;
 /// Degree of the polynomial trend removed before the search.
 const TREND_DEG: usize = 4;
 const OVERSAMPLE: f64 = 5.0;
+/// Fewest cycles over the span for a period (the longest is span / MIN_CYCLES): fewer are
+/// what a bow or a drift leaves after the trend is removed, and the model's trend carries them.
+const MIN_CYCLES: f64 = 4.0;
+/// Bins of the background's level: at least `BG_BIN_CELLS` resolution cells and `BG_BIN_REL` of
+/// their frequency wide; the peak's own `BG_GAP` cells (and those of every frequency already
+/// removed) are left out.
+const BG_BIN_CELLS: f64 = 8.0;
+const BG_BIN_REL: f64 = 0.25;
+const BG_GAP: f64 = 3.0;
 
 /// One detected period.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -33,6 +46,16 @@ pub struct Period {
     pub amplitude_um: f64,
     /// False-alarm probability of the detection (Bonferroni bound).
     pub fap: f64,
+    /// Quadratic phase rate about the span's centre, rad/µm², that best fits the dominant
+    /// period (0 for the others): a period drifting along the travel (chirp).
+    pub chirp_rad_um2: f64,
+    /// The drift it means: local period at the end of the travel over that at its start, - 1.
+    pub drift: f64,
+    /// With the chirp: the local period at `chirp_centre_um` (the samples' centre), µm.
+    #[serde(skip)]
+    pub chirp_period_um: f64,
+    #[serde(skip)]
+    pub chirp_centre_um: f64,
 }
 
 /// Mean and variance of `y`.
@@ -248,7 +271,7 @@ pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
         return Vec::new();
     }
     let span = x[m - 1] - x[0];
-    let max_period = span / 2.0;
+    let max_period = span / MIN_CYCLES;
     if !(span > 0.0 && min_period_um > 0.0 && max_period > min_period_um) {
         return Vec::new();
     }
@@ -285,9 +308,34 @@ pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
             .enumerate()
             .fold((0, -1.0), |b, (k, &p)| if p > b.1 { (k, p) } else { b });
         let w = refine(x, &r, w0 + k as f64 * dw, dw, wmin, wmax);
-        let (p, a, b, _) = gls(x, &r, w);
+        let (p, a, b, off) = gls(x, &r, w);
+        // The background is measured with the candidate's sinusoid removed: with few random
+        // samples its own leakage spreads over every frequency and would hide it.
+        let r2: Vec<f64> = x
+            .iter()
+            .zip(&r)
+            .map(|(&xi, &ri)| {
+                let (sn, cs) = (w * xi).sin_cos();
+                ri - off - a * cs - b * sn
+            })
+            .collect();
+        let pw2 = match fast.as_mut() {
+            Some(g) => {
+                let lo = (wmin / dw).ceil() as usize;
+                let hi = ((wmax / dw).floor() as usize).min(g.len / 2);
+                g.power(&r2, lo, hi)
+            }
+            None => periodogram(x, &r2, w0, dw, pw.len()),
+        };
+        // In units of the residual's variance, as `p` is.
+        let scale = moments(&r2).1 / moments(&r).1.max(f64::MIN_POSITIVE);
         // Single-frequency tail of the normalized power with m - 3 degrees of freedom.
-        let fap = (m_eff * (1.0 - p).powf((m as f64 - 3.0) / 2.0)).min(1.0);
+        let fap_white = (m_eff * (1.0 - p).powf((m as f64 - 3.0) / 2.0)).min(1.0);
+        // Against the local background: the power at one frequency is exponential about its
+        // local mean (two degrees of freedom), so exp(-p / mean) is its single-frequency tail.
+        let bg = scale * background(&pw2, w0, dw, w, &ws, tau / span);
+        let fap_local = (m_eff * (-p / bg).exp()).min(1.0);
+        let fap = fap_white.max(fap_local);
         // Below 1e-3 of the data's spread a "period" is rounding left by the previous fits.
         if fap.is_nan() || fap >= FAP_MAX || a.hypot(b) < 1e-3 * rms {
             break;
@@ -321,12 +369,137 @@ pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
             period_um: period,
             amplitude_um: a.hypot(b),
             fap,
+            chirp_rad_um2: 0.0,
+            drift: 0.0,
+            chirp_period_um: period,
+            chirp_centre_um: (x[0] + x[m - 1]) / 2.0,
         });
         if found.len() == MAX_PERIODS {
             break;
         }
     }
+    if let Some(f) = found.first_mut() {
+        let r0 = detrend(x, y, TREND_DEG);
+        let (w, c) = chirp_rate(x, &r0, tau / f.period_um, span);
+        f.chirp_rad_um2 = c;
+        f.chirp_period_um = tau / w;
+        f.drift = (w - c * span) / (w + c * span) - 1.0;
+    }
     found
+}
+
+/// Largest relative drift of a period over the travel that [`chirp_rate`] looks for.
+const MAX_DRIFT: f64 = 0.08;
+
+/// Quadratic phase rate c (rad/µm²) for which w·x + c·(x - centre)² best fits `y` (the GLS power
+/// of that chirp, its frequency re-fitted within two resolution cells of `w`), with that
+/// frequency: (w, 0) when no drift fits clearly better. The local angular frequency is
+/// w + 2c·(x - centre), centre the samples' middle.
+fn chirp_rate(x: &[f64], y: &[f64], w: f64, span: f64) -> (f64, f64) {
+    let xm = (x[0] + x[x.len() - 1]) / 2.0;
+    let power = |w: f64, c: f64| gls_phase(x, y, |xi| w * xi + c * (xi - xm) * (xi - xm));
+    let cell = std::f64::consts::TAU / span;
+    // Drift d over the travel: c = d·w / (2·span).
+    let cmax = MAX_DRIFT * w / (2.0 * span);
+    let best_w = |c: f64| {
+        (-8..=8)
+            .map(|j| w + j as f64 * cell / 4.0)
+            .map(|v| (v, power(v, c)))
+            .fold((w, -1.0), |b, t| if t.1 > b.1 { t } else { b })
+    };
+    let base = power(w, 0.0);
+    let (mut best, mut bp) = ((w, 0.0), base);
+    for j in -16..=16 {
+        let c = cmax * j as f64 / 16.0;
+        let (v, p) = best_w(c);
+        if p > bp {
+            (best, bp) = ((v, c), p);
+        }
+    }
+    // Only a clear gain: a chirp fitted to noise would just bend the model.
+    if bp > base + 0.02 * (1.0 - base) {
+        best
+    } else {
+        (w, 0.0)
+    }
+}
+
+/// Normalized GLS power of a sinusoid in the phase `phase(x)` (plus a mean) fitted to `y`.
+fn gls_phase(x: &[f64], y: &[f64], phase: impl Fn(f64) -> f64) -> f64 {
+    let mut acc = [0.0f64; 7];
+    for (&xi, &yi) in x.iter().zip(y) {
+        let (s, c) = phase(xi).sin_cos();
+        accumulate(&mut acc, yi, c, s);
+    }
+    let (ym, yy) = moments(y);
+    power(&acc, ym, yy, y.len()).0
+}
+
+/// Mean power of the background at angular frequency `w`, from the periodogram `pw` on the grid
+/// w0 + k·dw. The band is cut into log-spaced bins (at least `BG_BIN_CELLS` resolution cells of
+/// `cell` and `BG_BIN_REL` of their frequency wide); each bin's median power (over ln 2, the
+/// median of an exponential over its mean), leaving out `w` and every frequency in `removed`, is
+/// its level, and the background at `w` is interpolated between bin centres in log-log. Below
+/// the first centre it is extrapolated along the first two bins' slope when that rises toward
+/// low frequencies: the power of correlated roughness and drift grows there like a power law,
+/// and a flat estimate made a peak there look far stronger than it is. Never below the median
+/// over the whole band.
+fn background(pw: &[f64], w0: f64, dw: f64, w: f64, removed: &[f64], cell: f64) -> f64 {
+    let at = |k: usize| w0 + k as f64 * dw;
+    let clear = |v: f64| {
+        (v - w).abs() >= BG_GAP * cell && removed.iter().all(|&r| (v - r).abs() >= BG_GAP * cell)
+    };
+    let median = |v: &mut Vec<f64>| {
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    // (ln of the bin's centre frequency, ln of its median power)
+    let mut levels: Vec<(f64, f64)> = Vec::new();
+    let mut all: Vec<f64> = Vec::with_capacity(pw.len());
+    let mut k = 0;
+    while k < pw.len() {
+        let (k0, start) = (k, at(k));
+        let end = start + (BG_BIN_CELLS * cell).max(BG_BIN_REL * start);
+        let mut vals = Vec::new();
+        while k < pw.len() && at(k) < end {
+            if clear(at(k)) {
+                vals.push(pw[k]);
+            }
+            k += 1;
+        }
+        all.extend_from_slice(&vals);
+        if vals.len() >= 8 {
+            let centre = (at(k0).max(f64::MIN_POSITIVE) * at(k - 1)).sqrt();
+            levels.push((centre.ln(), median(&mut vals).max(f64::MIN_POSITIVE).ln()));
+        }
+    }
+    if all.is_empty() {
+        return f64::MIN_POSITIVE;
+    }
+    let global = median(&mut all);
+    let lw = w.max(f64::MIN_POSITIVE).ln();
+    let local = match levels.len() {
+        0 => global,
+        1 => levels[0].1.exp(),
+        len => {
+            let j = levels.partition_point(|c| c.0 < lw);
+            let (i0, i1) = match j {
+                0 => (0, 1),
+                j if j >= len => (len - 2, len - 1),
+                j => (j - 1, j),
+            };
+            let ((x0, y0), (x1, y1)) = (levels[i0], levels[i1]);
+            let v = y0 + (lw - x0) / (x1 - x0) * (y1 - y0);
+            // Beyond the ends only a level that rises outward is extrapolated.
+            match j {
+                0 => v.max(y0),
+                j if j >= len => y1,
+                _ => v,
+            }
+            .exp()
+        }
+    };
+    (local.max(global) / std::f64::consts::LN_2).max(f64::MIN_POSITIVE)
 }
 
 /// Residual of the joint least-squares fit of the polynomial trend and sinusoids at `ws`: a

@@ -39,6 +39,10 @@ pub struct PhysicsParams {
     pub pitch_um: f64,
     /// Periods of the cyclic terms, µm.
     pub periods_um: Vec<f64>,
+    /// Quadratic phase rate of each period about the travel's centre, rad/µm² (a period that
+    /// drifts along the travel); missing entries are 0.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub chirps: Vec<f64>,
     /// OU correlation length of the residual, µm.
     pub corr_um: f64,
     /// Ridge weight (relative to the sample count) on all but the constant column.
@@ -58,6 +62,7 @@ impl PhysicsParams {
             envelope_deg: 2,
             pitch_um: periods_um.first().copied().unwrap_or(0.0),
             periods_um,
+            chirps: Vec::new(),
             corr_um: 12.0,
             ridge: 1e-4,
         }
@@ -92,8 +97,10 @@ pub fn design(
             a[(r, c)] = (std::f64::consts::PI * k as f64 * (i as f64 + 0.5) / nf).cos();
             c += 1;
         }
-        for &period in &p.periods_um {
-            let w = 2.0 * std::f64::consts::PI * x / period;
+        let u = x - start_um - span / 2.0;
+        for (k, &period) in p.periods_um.iter().enumerate() {
+            let chirp = p.chirps.get(k).copied().unwrap_or(0.0);
+            let w = 2.0 * std::f64::consts::PI * x / period + chirp * u * u;
             for h in 1..=p.harmonics {
                 let (sn, cs) = (h as f64 * w).sin_cos();
                 for d in 0..=p.envelope_deg {
@@ -148,20 +155,98 @@ pub fn ou_smooth(
     ms
 }
 
-/// A fitted model: trend coefficients and the kriged residual on the whole grid.
+/// [`ou_smooth`] at the grid indices `at` only (ascending): the OU process is Markov, so the
+/// filter steps from one index of interest (observed or asked) to the next with that gap's
+/// transition, O(m + |at|) instead of O(n). Cross-validation asks for the held-out points alone.
+pub fn ou_smooth_at(
+    step: f64,
+    obs_idx: &[usize],
+    obs: &[f64],
+    at: &[usize],
+    sigma2: f64,
+    ell: f64,
+    noise2: f64,
+) -> Vec<f64> {
+    // The union of observed and asked indices, ascending.
+    let mut pts: Vec<usize> = Vec::with_capacity(obs_idx.len() + at.len());
+    let (mut a, mut b) = (0, 0);
+    while a < obs_idx.len() || b < at.len() {
+        let next = match (obs_idx.get(a), at.get(b)) {
+            (Some(&o), Some(&q)) => o.min(q),
+            (Some(&o), None) => o,
+            (None, Some(&q)) => q,
+            (None, None) => break,
+        };
+        while obs_idx.get(a) == Some(&next) {
+            a += 1;
+        }
+        while at.get(b) == Some(&next) {
+            b += 1;
+        }
+        pts.push(next);
+    }
+    let np = pts.len();
+    let (mut mf, mut pf, mut phis) = (vec![0.0; np], vec![0.0; np], vec![0.0; np]);
+    let (mut m, mut p) = (0.0, sigma2);
+    let mut k = 0;
+    for j in 0..np {
+        if j > 0 {
+            let phi = (-((pts[j] - pts[j - 1]) as f64) * step / ell).exp();
+            phis[j] = phi;
+            m *= phi;
+            p = phi * phi * p + sigma2 * (1.0 - phi * phi);
+        }
+        while k < obs_idx.len() && obs_idx[k] == pts[j] {
+            let g = p / (p + noise2);
+            m += g * (obs[k] - m);
+            p *= 1.0 - g;
+            k += 1;
+        }
+        mf[j] = m;
+        pf[j] = p;
+    }
+    let mut ms = mf.clone();
+    for j in (0..np.saturating_sub(1)).rev() {
+        let phi = phis[j + 1];
+        let pp = phi * phi * pf[j] + sigma2 * (1.0 - phi * phi);
+        let g = pf[j] * phi / pp;
+        ms[j] = mf[j] + g * (ms[j + 1] - phi * mf[j]);
+    }
+    let mut out = Vec::with_capacity(at.len());
+    let mut j = 0;
+    for &q in at {
+        while pts[j] < q {
+            j += 1;
+        }
+        out.push(ms[j]);
+    }
+    out
+}
+
+/// A fitted model: trend coefficients and the kriged residual at the grid indices asked for.
 pub struct Fitted {
     beta: DVector<f64>,
+    /// Ascending grid indices of `rough` (every index when empty).
+    rough_at: Vec<usize>,
     rough: Vec<f64>,
 }
 
 impl Fitted {
-    /// Predictions at grid indices `at`, whose design rows are `rows` (same order).
+    /// Predictions at grid indices `at`, whose design rows are `rows` (same order); every index
+    /// must be one the roughness was kriged at.
     pub fn predict(&self, rows: &DMatrix<f64>, at: &[usize]) -> Vec<f64> {
         let cols = self.beta.len();
         let trend = rows.columns(0, cols) * &self.beta;
         at.iter()
             .enumerate()
-            .map(|(r, &i)| trend[r] + self.rough[i])
+            .map(|(r, &i)| {
+                let k = if self.rough_at.is_empty() {
+                    i
+                } else {
+                    self.rough_at.binary_search(&i).unwrap_or(0)
+                };
+                trend[r] + self.rough.get(k).copied().unwrap_or(0.0)
+            })
             .collect()
     }
 }
@@ -184,12 +269,13 @@ pub fn fit(
     let ata = a.transpose() * a;
     let aty = a.transpose() * &yv;
     let fitted = |beta: &DVector<f64>| (a * beta).iter().copied().collect::<Vec<f64>>();
-    fit_normal(p, ata, aty, fitted, n, step_um, idx, y, noise_um)
+    fit_normal(p, ata, aty, fitted, n, step_um, idx, y, noise_um, None)
 }
 
 /// [`fit`] from the normal equations of the samples (AᵀA and Aᵀy over their first `cols`
 /// columns, `cols` as [`fit`] chooses it) and a function giving the fitted values A·β at them:
 /// cross-validation forms each fold's equations as the whole set's minus the held-out rows'.
+/// `at`: the ascending grid indices the model will be asked about (None: all n).
 #[allow(clippy::too_many_arguments)]
 pub fn fit_normal(
     p: &PhysicsParams,
@@ -201,6 +287,7 @@ pub fn fit_normal(
     idx: &[usize],
     y: &[f64],
     noise_um: f64,
+    at: Option<&[usize]>,
 ) -> Option<Fitted> {
     let m = idx.len();
     let cols = ata.ncols();
@@ -215,8 +302,21 @@ pub fn fit_normal(
     let var = resid.iter().map(|v| v * v).sum::<f64>() / m as f64;
     let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
     let sigma2 = (var - noise2).max(noise2);
-    let rough = ou_smooth(n, step_um, idx, &resid, sigma2, p.corr_um, noise2);
-    Some(Fitted { beta, rough })
+    let (rough_at, rough) = match at {
+        Some(at) => (
+            at.to_vec(),
+            ou_smooth_at(step_um, idx, &resid, at, sigma2, p.corr_um, noise2),
+        ),
+        None => (
+            Vec::new(),
+            ou_smooth(n, step_um, idx, &resid, sigma2, p.corr_um, noise2),
+        ),
+    };
+    Some(Fitted {
+        beta,
+        rough_at,
+        rough,
+    })
 }
 
 #[cfg(test)]
@@ -246,6 +346,25 @@ mod tests {
         assert!(v[51] > 1.0 && v[51] < 1.2);
         assert!(v[100].abs() < 1e-3);
         assert!(v[0].abs() < 1e-3);
+    }
+
+    /// The sparse smoother is the dense one at the indices asked (exact: the same recursion).
+    #[test]
+    fn sparse_ou_smoother_equals_the_dense_one() {
+        let n = 500;
+        let idx = [3usize, 4, 40, 41, 200, 333, 499];
+        let obs = [0.5, 0.7, -1.0, -0.8, 2.0, 0.1, -0.3];
+        let dense = ou_smooth(n, 2.5, &idx, &obs, 1.3, 30.0, 0.01);
+        let at = [0usize, 4, 20, 41, 100, 333, 400, 499];
+        let sparse = ou_smooth_at(2.5, &idx, &obs, &at, 1.3, 30.0, 0.01);
+        for (k, &i) in at.iter().enumerate() {
+            assert!(
+                (sparse[k] - dense[i]).abs() < 1e-12,
+                "{i}: {} vs {}",
+                sparse[k],
+                dense[i]
+            );
+        }
     }
 
     #[test]
