@@ -499,6 +499,13 @@ impl<'a> Engine<'a> {
         // The other axis stands still during a run: put it in place first.
         phys += self.move_axis(other, other_at, None).await?;
         phys += self.move_axis(run.axis, start, None).await?;
+        self.book_approach(run, first, phys, positioning);
+        Ok(())
+    }
+
+    /// Books `phys` s of approach to `first`: as positioning (a `positioned` event) or as the
+    /// acquisition time of the target it leads to.
+    fn book_approach(&mut self, run: RunKey, first: &Target, phys: f64, positioning: bool) {
         if positioning {
             self.stat(run).positioning_s += phys;
             self.tick(phys);
@@ -514,7 +521,6 @@ impl<'a> Engine<'a> {
             self.advance(run, phys);
             *self.extra_s.entry(first.seq).or_default() += phys;
         }
-        Ok(())
     }
 
     async fn trigger(&mut self, frames: u32) -> Result<Vec<PendingFrame>, EngineError> {

@@ -77,6 +77,29 @@ struct StoreRecorder {
     truth_log: Option<std::fs::File>,
 }
 
+/// Commits sample `s` of campaign `id` and, when it is new (a resumed run may measure a stored
+/// target again), streams it as a live `sample` event (id 0: samples are not in the event log).
+pub(crate) fn store_sample(
+    store: &SharedStore,
+    events: &broadcast::Sender<Event>,
+    id: i64,
+    s: &SampleRecord,
+) -> Result<bool, String> {
+    let fresh = lock(store)
+        .insert_sample(id, s)
+        .map_err(|e| e.to_string())?;
+    if fresh {
+        let _ = events.send(Event {
+            id: 0,
+            campaign: id,
+            unix_s: s.unix_s,
+            kind: "sample".into(),
+            data: json!(s),
+        });
+    }
+    Ok(fresh)
+}
+
 pub(crate) fn emit(
     store: &SharedStore,
     events: &broadcast::Sender<Event>,
@@ -114,21 +137,10 @@ impl Recorder for StoreRecorder {
         }
     }
     fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
-        let fresh = lock(&self.store)
-            .insert_sample(self.id, s)
-            .map_err(|e| e.to_string())?;
+        let fresh = store_sample(&self.store, &self.events, self.id, s)?;
         self.samples.push(*s);
         self.worker.sample(s);
         (self.on_sample)(s);
-        if fresh {
-            let _ = self.events.send(Event {
-                id: 0,
-                campaign: self.id,
-                unix_s: s.unix_s,
-                kind: "sample".into(),
-                data: json!(s),
-            });
-        }
         Ok(fresh)
     }
     fn event(&mut self, kind: &str, data: Value) {

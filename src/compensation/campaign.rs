@@ -13,7 +13,7 @@ use tokio::sync::{broadcast, watch};
 use super::verify::{self, prior_from_summary, Prior, Sink, VerifyError, VerifyOptions};
 use super::Compensation;
 use crate::campaign::engine::{Control, EndState, Outcome};
-use crate::campaign::session::{emit, lock, Event, Finished, SharedStore};
+use crate::campaign::session::{emit, lock, store_sample, Event, Finished, SharedStore};
 use crate::campaign::spec::{Campaign, CampaignSpec, HardwareKind, SpecError};
 use crate::store::Store;
 use crate::tomlpos::{line_of, span_of};
@@ -197,19 +197,8 @@ struct StoreSink {
 
 impl Sink for StoreSink {
     fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
-        let fresh = lock(&self.store)
-            .insert_sample(self.id, s)
-            .map_err(|e| e.to_string())?;
+        let fresh = store_sample(&self.store, &self.events, self.id, s)?;
         (self.on_sample)(s);
-        if fresh {
-            let _ = self.events.send(Event {
-                id: 0,
-                campaign: self.id,
-                unix_s: s.unix_s,
-                kind: "sample".into(),
-                data: json!(s),
-            });
-        }
         Ok(fresh)
     }
     fn event(&mut self, kind: &str, data: &Value) {

@@ -3,7 +3,6 @@
 //! point is known. Where the path goes the other way on an axis (a band's start in x, y stepping
 //! back inside a band), that axis first goes to the overshoot pre-position `target − sign ·
 //! approach_um`. Moves are sequential (y, then x); their time is the sum.
-use serde_json::json;
 
 use super::{Engine, EngineError};
 use crate::types::{AxisId, RunKey, Target};
@@ -58,19 +57,7 @@ impl Engine<'_> {
             let (lo, hi) = self.rig.axis(axis).soft_limits_um();
             phys += self.move_axis(axis, (p - pre).clamp(lo, hi), None).await?;
         }
-        if positioning {
-            self.stat(run).positioning_s += phys;
-            self.tick(phys);
-            let run_start = !self.done.values().any(|s| s.target.run == run);
-            self.recorder.event(
-                "positioned",
-                json!({"run": run.label(), "phase": run.phase.as_str(), "axis": run.axis.as_str(),
-                       "physical_s": phys, "run_start": run_start}),
-            );
-        } else {
-            self.advance(run, phys);
-            *self.extra_s.entry(first.seq).or_default() += phys;
-        }
+        self.book_approach(run, first, phys, positioning);
         Ok(())
     }
 }
