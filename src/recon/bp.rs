@@ -147,6 +147,19 @@ struct Finish {
 }
 
 impl BpSolution {
+    /// Stopped at a certified gap: objective `p` ≥ optimum ≥ dual bound `d`.
+    fn solved(theta: Vec<f64>, iterations: usize, p: f64, d: f64, t0: Instant) -> Self {
+        BpSolution {
+            theta,
+            status: SolveStatus::Solved,
+            iterations,
+            objective: p,
+            dual_objective: d,
+            solve_ms: t0.elapsed().as_secs_f64() * 1e3,
+            signal: None,
+        }
+    }
+
     /// A certified optimum: ||θ||₁ = hᵀy = `f.dual`, after `iterations` ADMM iterations.
     fn optimal(f: Finish, iterations: usize, t0: Instant) -> Self {
         let Finish {
@@ -439,15 +452,7 @@ pub fn solve_fast(
             if it % GAP_EVERY == 0 {
                 let (theta, p, d) = certified_gap(dct, idx, h, &z, &u, rho);
                 if p - d <= s.gap_tol * p.max(1e-300) {
-                    return BpSolution {
-                        theta,
-                        status: SolveStatus::Solved,
-                        iterations: it,
-                        objective: p,
-                        dual_objective: d,
-                        solve_ms: t0.elapsed().as_secs_f64() * 1e3,
-                        signal: None,
-                    };
+                    return BpSolution::solved(theta, it, p, d, t0);
                 }
             }
         } else if bp {
@@ -470,15 +475,7 @@ pub fn solve_fast(
         } else if let (Problem::Denoising { epsilon }, 0) = (problem, it % GAP_EVERY) {
             let (theta, p, d) = denoise_gap(dct, idx, h, epsilon, &z);
             if p - d <= s.gap_tol * p.max(1e-300) {
-                return BpSolution {
-                    theta,
-                    status: SolveStatus::Solved,
-                    iterations: it,
-                    objective: p,
-                    dual_objective: d,
-                    solve_ms: t0.elapsed().as_secs_f64() * 1e3,
-                    signal: None,
-                };
+                return BpSolution::solved(theta, it, p, d, t0);
             }
         }
         if !bp && it % 10 == 0 {
