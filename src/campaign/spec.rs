@@ -256,8 +256,10 @@ pub struct Reconstruction {
     pub solver: String,
     /// Sensor noise σ, µm.
     pub noise_um: f64,
-    /// Leadscrew pitch, µm.
-    pub pitch_um: f64,
+    /// Leadscrew pitch, µm, if known: a hint the physics model weighs against the periods it
+    /// finds in the samples (none by default: nothing assumes the simulator's 400 µm).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pitch_um: Option<f64>,
 }
 
 impl Default for Reconstruction {
@@ -266,7 +268,7 @@ impl Default for Reconstruction {
             method: "auto".into(),
             solver: "fast".into(),
             noise_um: 0.01,
-            pitch_um: 400.0,
+            pitch_um: None,
         }
     }
 }
@@ -793,7 +795,7 @@ fn validate(
     if !nonneg(r.noise_um) {
         return Err(fail("reconstruction.noise_um", "must be ≥ 0 µm".into()));
     }
-    if !pos(r.pitch_um) {
+    if r.pitch_um.is_some_and(|p| !pos(p)) {
         return Err(fail("reconstruction.pitch_um", "must be > 0 µm".into()));
     }
     if spec.outputs.dir.trim().is_empty() {

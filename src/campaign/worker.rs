@@ -273,7 +273,7 @@ pub fn settings(c: &Campaign) -> ReconSettings {
         method: c.method,
         solver: c.solver,
         noise_um: r.noise_um,
-        pitch_um: Some(r.pitch_um),
+        pitch_um: r.pitch_um,
         ..ReconSettings::default()
     }
 }

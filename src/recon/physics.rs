@@ -68,6 +68,25 @@ impl PhysicsParams {
         }
     }
 
+    /// Shrinks the structure (envelope degree, then harmonics, then trend frequencies) until
+    /// its columns leave room in a cross-validation training set of m samples' (four fifths of
+    /// them, two spare); false when even the smallest periodic model does not fit.
+    pub fn shrink_to(&mut self, m: usize) -> bool {
+        let fits = |p: &Self| p.columns() + 2 <= m * 4 / 5;
+        while !fits(self) {
+            if self.envelope_deg > 0 {
+                self.envelope_deg -= 1;
+            } else if self.harmonics > 1 {
+                self.harmonics = if self.harmonics > 2 { 2 } else { 1 };
+            } else if self.trend_k > 4 {
+                self.trend_k = (self.trend_k / 2).max(4);
+            } else {
+                return false;
+            }
+        }
+        true
+    }
+
     pub fn columns(&self) -> usize {
         self.trend_k + 1 + 2 * self.harmonics * (self.envelope_deg + 1) * self.periods_um.len()
     }

@@ -34,6 +34,20 @@ fn a_minimal_campaign_resolves_grid_and_defaults() {
     assert_eq!(c.method, Method::Auto);
 }
 
+/// The issue-40 rule: nothing assumes the simulator's 400 µm pitch; a configured one is a hint
+/// handed to the reconstruction, and must be a length.
+#[test]
+fn the_pitch_is_a_hint_only_when_configured() {
+    let c = parse(GOOD).unwrap();
+    assert_eq!(crate::campaign::worker::settings(&c).pitch_um, None);
+    let t = format!("{GOOD}\n[reconstruction]\npitch_um = 250.0\n");
+    let c = parse(&t).unwrap();
+    assert_eq!(crate::campaign::worker::settings(&c).pitch_um, Some(250.0));
+    let t = format!("{GOOD}\n[reconstruction]\npitch_um = -1.0\n");
+    let e = parse(&t).unwrap_err().to_string();
+    assert!(e.contains("reconstruction.pitch_um"), "{e}");
+}
+
 #[test]
 fn unknown_key_names_file_line_and_key() {
     let t = GOOD.replace("step_um = 5.0", "step_um = 5.0\nstpe = 3");
