@@ -280,3 +280,47 @@ fn a_period_is_kept_with_four_samples_per_cycle() {
         );
     }
 }
+
+/// A long drifting period seen by few samples can miss the false-alarm test (bench `chirp`
+/// family, seed 13, m = 100: FAP 0.006 for a 1,661 µm period over 5.7 cycles). The near miss is
+/// still a candidate of the cross-validation, which keeps it: `auto` had 3.5× the error of
+/// `physics` told the period (it fell back to pchip). It is not reported as a found period.
+#[test]
+fn a_near_miss_of_the_false_alarm_test_still_enters_the_model() {
+    let c = curves::family("chirp", 13).unwrap();
+    let grid = Grid::new(0.0, c.step_um, c.step_um * (c.n - 1) as f64).unwrap();
+    let m = 100;
+    let idx = pick(c.n, m, 7919 * 13 + m as u64);
+    let samples = GridSamples {
+        values: curves::sample(&c, &idx, 13 ^ m as u64),
+        idx,
+    };
+    let run = |method, pitch| {
+        let s = ReconSettings {
+            method,
+            pitch_um: pitch,
+            noise_um: c.noise_um,
+            ..Default::default()
+        };
+        reconstruct(&grid, &samples, &s).unwrap()
+    };
+    let err = |r: &csmetro::recon::Reconstruction| {
+        r.values
+            .iter()
+            .zip(&c.truth)
+            .map(|(a, b)| (a - b).abs())
+            .sum::<f64>()
+            / c.n as f64
+    };
+    let auto = run(Method::Auto, None);
+    let told = run(Method::Physics, Some(c.periods[0]));
+    assert!(
+        err(&auto) <= 1.1 * err(&told),
+        "auto ({}) {} vs physics told {} µm {}",
+        auto.method,
+        err(&auto),
+        c.periods[0],
+        err(&told)
+    );
+    assert!(auto.periods_um.is_empty(), "{:?}", auto.periods_um);
+}

@@ -23,6 +23,9 @@ use serde::Serialize;
 
 /// Detection threshold on the false-alarm probability.
 pub const FAP_MAX: f64 = 1e-3;
+/// With none below [`FAP_MAX`], the strongest peak below this one is a candidate for the
+/// cross-validation (reported only if the cross-validated model keeps it).
+pub const FAP_CANDIDATE: f64 = 0.05;
 /// At most this many distinct periods (harmonics of a found period do not count).
 pub const MAX_PERIODS: usize = 4;
 /// Degree of the polynomial trend removed before the search.
@@ -266,6 +269,11 @@ pub fn detrend(x: &[f64], y: &[f64], deg: usize) -> Vec<f64> {
 /// Finds the periods in samples `y` at ascending positions `x` (µm). `min_period_um` is the
 /// shortest period the data can carry (twice the grid step).
 pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
+    detect_below(x, y, min_period_um, FAP_MAX)
+}
+
+/// [`detect`] with another false-alarm threshold.
+pub fn detect_below(x: &[f64], y: &[f64], min_period_um: f64, fap_max: f64) -> Vec<Period> {
     let m = x.len();
     if m < 12 || x.len() != y.len() {
         return Vec::new();
@@ -337,7 +345,7 @@ pub fn detect(x: &[f64], y: &[f64], min_period_um: f64) -> Vec<Period> {
         let fap_local = (m_eff * (-p / bg).exp()).min(1.0);
         let fap = fap_white.max(fap_local);
         // Below 1e-3 of the data's spread a "period" is rounding left by the previous fits.
-        if fap.is_nan() || fap >= FAP_MAX || a.hypot(b) < 1e-3 * rms {
+        if fap.is_nan() || fap >= fap_max || a.hypot(b) < 1e-3 * rms {
             break;
         }
         let period = tau / w;
