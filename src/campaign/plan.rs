@@ -70,12 +70,15 @@ pub fn plan(c: &Campaign) -> Plan {
     for ax in &c.axes {
         let n = ax.grid.n;
         for &phase in &phases {
-            let (idx, chunks): (Vec<usize>, Vec<usize>) = match phase {
-                Phase::Full => ((0..n).collect(), vec![n]),
-                Phase::Cs | Phase::Map => cs_design(ax, s.design, s.seed, s.batch),
+            let (designs, chunks): (Vec<Vec<usize>>, Vec<usize>) = match phase {
+                Phase::Full => (vec![(0..n).collect()], vec![n]),
+                Phase::Cs | Phase::Map => {
+                    cs_design(ax, s.design, s.seed, s.batch, a.directions.len())
+                }
             };
             for cycle in 0..a.cycles {
-                for &direction in &a.directions {
+                for (di, &direction) in a.directions.iter().enumerate() {
+                    let idx = &designs[di % designs.len()];
                     let run = RunKey {
                         phase,
                         axis: ax.axis,
@@ -131,22 +134,41 @@ pub fn plan(c: &Campaign) -> Plan {
     Plan { batches }
 }
 
-/// CS targets of an axis in measuring order and the batch sizes: one batch of m, or for
-/// adaptive runs the design's points in a seeded random order cut into batches.
-fn cs_design(ax: &AxisPlan, kind: DesignKind, seed: u64, batch: usize) -> (Vec<usize>, Vec<usize>) {
+/// CS targets of an axis in measuring order (one list for every direction, or one per
+/// direction) and the batch sizes: one batch of m, or for adaptive runs the design's points in
+/// the farthest-point order cut into batches. An adaptive axis measured in `dirs` > 1 directions
+/// draws dirs·m points when the grid has room and deals the order out in turn, so each direction
+/// measures other positions and every prefix of the union still covers the stroke evenly: the
+/// curves pool the other direction's samples (`recon::joint`), which the same positions would
+/// not add to.
+fn cs_design(
+    ax: &AxisPlan,
+    kind: DesignKind,
+    seed: u64,
+    batch: usize,
+    dirs: usize,
+) -> (Vec<Vec<usize>>, Vec<usize>) {
     let n = ax.grid.n;
     let seed = axis_seed(seed, ax.axis);
-    let idx = Design::new(kind, ax.m, seed)
+    let deal = ax.target_error_um.is_some() && dirs > 1 && dirs * ax.m <= n;
+    let idx = Design::new(kind, if deal { dirs * ax.m } else { ax.m }, seed)
         .indices(n)
         .expect("m validated against the grid");
     match ax.target_error_um {
         None => {
             let m = idx.len();
-            (idx, vec![m])
+            (vec![idx], vec![m])
         }
         Some(_) => {
-            let idx = spread_order(&idx, n, seed ^ 0xADA9);
-            let m = idx.len();
+            let order = spread_order(&idx, n, seed ^ 0xADA9);
+            let designs: Vec<Vec<usize>> = if deal {
+                (0..dirs)
+                    .map(|d| order.iter().copied().skip(d).step_by(dirs).collect())
+                    .collect()
+            } else {
+                vec![order]
+            };
+            let m = designs[0].len();
             let mut chunks = Vec::new();
             let mut left = m;
             while left > 0 {
@@ -154,7 +176,7 @@ fn cs_design(ax: &AxisPlan, kind: DesignKind, seed: u64, batch: usize) -> (Vec<u
                 chunks.push(take);
                 left -= take;
             }
-            (idx, chunks)
+            (designs, chunks)
         }
     }
 }
@@ -306,6 +328,45 @@ m = 20
     /// Every batch boundary of an adaptive run leaves the stroke evenly covered: no design point
     /// is farther from the points measured so far (or a grid end) than those are from each other
     /// (the farthest-point property). A random order leaves gaps several times the spacing.
+    #[test]
+    fn adaptive_directions_measure_other_positions_that_together_cover_the_stroke() {
+        // 2 × 60 points fit the 201-point grid: each direction gets its own, dealt in turn.
+        let c = campaign("[sampling]\nm = 60\nbatch = 20\ntarget_error_um = 0.05\n");
+        let p = plan(&c);
+        let n = c.axes[0].grid.n;
+        let run = |d: Direction| -> Vec<Vec<usize>> {
+            p.batches
+                .iter()
+                .filter(|b| b.run.axis == AxisId::X && b.run.direction == d)
+                .map(|b| b.targets.iter().map(|t| t.grid_index).collect())
+                .collect()
+        };
+        let (fwd, bwd) = (run(Direction::Forward), run(Direction::Backward));
+        assert_eq!((fwd.len(), bwd.len()), (3, 3));
+        let all_f: Vec<usize> = fwd.concat();
+        assert!(bwd.concat().iter().all(|i| !all_f.contains(i)));
+        // After k batches of each, the union has the farthest-point property over the whole
+        // design: no design point farther from it than its closest spacing.
+        let design: Vec<usize> = [fwd.concat(), bwd.concat()].concat();
+        let mut sofar: Vec<usize> = Vec::new();
+        for k in 0..2 {
+            sofar.extend(&fwd[k]);
+            sofar.extend(&bwd[k]);
+            sofar.sort_unstable();
+            let spacing = sofar.windows(2).map(|w| w[1] - w[0]).min().unwrap();
+            let near = |i: usize| sofar.iter().map(|&s| s.abs_diff(i)).min().unwrap();
+            let cover = design
+                .iter()
+                .map(|&i| near(i).min(i).min(n - 1 - i))
+                .max()
+                .unwrap();
+            assert!(
+                cover <= spacing,
+                "after batch {k}: gap {cover}, spacing {spacing}"
+            );
+        }
+    }
+
     #[test]
     fn adaptive_batches_fill_the_largest_gaps_first() {
         let c = campaign("[sampling]\nm = 150\nbatch = 25\ntarget_error_um = 0.05\n");

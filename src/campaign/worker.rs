@@ -12,6 +12,7 @@ use serde::Serialize;
 
 use super::spec::Campaign;
 use crate::grid::Grid;
+use crate::recon::joint::reconstruct_joint;
 use crate::recon::{reconstruct, Method, ReconSettings};
 use crate::samples::GridSamples;
 use crate::types::{Component, Phase, RunKey, SampleRecord};
@@ -45,6 +46,47 @@ enum Msg {
     RunDone(RunKey),
 }
 
+/// The run of the same phase, axis and cycle in the other direction.
+fn opposite(run: RunKey) -> RunKey {
+    use csmetro_hal::Direction;
+    RunKey {
+        direction: match run.direction {
+            Direction::Forward => Direction::Backward,
+            Direction::Backward => Direction::Forward,
+        },
+        ..run
+    }
+}
+
+/// The samples of `run` along `component` (one per grid index, the last measured kept).
+fn run_samples(samples: &[SampleRecord], run: RunKey, component: Component) -> GridSamples {
+    let mut by_idx: BTreeMap<usize, &SampleRecord> = BTreeMap::new();
+    for s in samples.iter().filter(|s| s.target.run == run) {
+        by_idx.insert(s.target.grid_index, s);
+    }
+    GridSamples {
+        idx: by_idx.keys().copied().collect(),
+        values: by_idx
+            .values()
+            .map(|s| s.error_um(component.measured))
+            .collect(),
+    }
+}
+
+/// A CS run's curve from its samples and, when that cross-validates better, the opposite
+/// direction's at other positions ([`reconstruct_joint`]).
+fn reconstruct_cs(
+    grid: &Grid,
+    settings: &ReconSettings,
+    run: RunKey,
+    component: Component,
+    own: &GridSamples,
+    samples: &[SampleRecord],
+) -> Result<crate::recon::Reconstruction, String> {
+    let other = run_samples(samples, opposite(run), component);
+    reconstruct_joint(grid, own, &other, settings)
+}
+
 /// Reconstructs the components of `run` from its samples.
 pub fn reconstruct_run(
     grid: &Grid,
@@ -71,8 +113,12 @@ pub fn reconstruct_run(
                 // The full scan is the curve; failed points (if any) are bridged linearly.
                 st.method = Method::Linear;
             }
-            let r = reconstruct(grid, &gs, &st)
-                .map_err(|e| format!("{} of {}: {e}", component.name(), run.label()))?;
+            let r = if run.phase == Phase::Cs {
+                reconstruct_cs(grid, &st, run, component, &gs, samples)
+            } else {
+                reconstruct(grid, &gs, &st)
+            }
+            .map_err(|e| format!("{} of {}: {e}", component.name(), run.label()))?;
             Ok(Curve {
                 run,
                 component,
@@ -128,24 +174,27 @@ pub fn stop_estimate(
     run: RunKey,
     samples: &[SampleRecord],
 ) -> Result<StopEstimate, String> {
-    let mut by_idx: BTreeMap<usize, &SampleRecord> = BTreeMap::new();
-    for s in samples.iter().filter(|s| s.target.run == run) {
-        by_idx.insert(s.target.grid_index, s);
-    }
     let component = run
         .components()
         .into_iter()
         .find(|c| c.measured == run.axis)
         .ok_or("no component along the moving axis")?;
-    let gs = GridSamples {
-        idx: by_idx.keys().copied().collect(),
-        values: by_idx
-            .values()
-            .map(|s| s.error_um(component.measured))
-            .collect(),
-    };
+    let gs = run_samples(samples, run, component);
     let m = gs.len();
-    let whole = reconstruct(grid, &gs, settings)?;
+    // The opposite direction's samples, when the curve pools them: the folds pool them too
+    // (held out are only this run's), and they count as samples in every distance.
+    let other = run_samples(samples, opposite(run), component);
+    let whole = reconstruct_cs(grid, settings, run, component, &gs, samples)?;
+    let pooled = whole.pooled_with.is_some();
+    let with_other = |idx: &[usize]| -> Vec<usize> {
+        let mut all = idx.to_vec();
+        if pooled {
+            all.extend(&other.idx);
+            all.sort_unstable();
+            all.dedup();
+        }
+        all
+    };
     // The folds refit the method the whole set chose: the estimate is that curve's error.
     let mut st = settings.clone();
     st.method = whole.method.parse().unwrap_or(settings.method);
@@ -176,10 +225,19 @@ pub fn stop_estimate(
                 .map(|j| gs.values[j])
                 .collect(),
         };
-        let r = reconstruct(grid, &train, &st)?;
+        let r = if pooled {
+            reconstruct_joint(grid, &train, &other, &st)?
+        } else {
+            reconstruct(grid, &train, &st)?
+        };
+        let near = if r.pooled_with.is_some() {
+            with_other(&train.idx)
+        } else {
+            train.idx.clone()
+        };
         for j in (0..m).filter(|&j| fold[j] == f) {
             let i = gs.idx[j];
-            let d = nearest_steps(&train.idx, i) as f64 * step;
+            let d = nearest_steps(&near, i) as f64 * step;
             held.push((d, (r.values[i] - gs.values[j]).abs()));
         }
     }
@@ -209,8 +267,9 @@ pub fn stop_estimate(
     let log_c = my - beta * mx;
     let e_of = |d: f64| (log_c + beta * d.max(step).ln()).exp();
     let (mut sum, mut log_d, mut gaps) = (0.0, 0.0, 0usize);
+    let near = with_other(&gs.idx);
     for i in 0..grid.n {
-        let d = nearest_steps(&gs.idx, i);
+        let d = nearest_steps(&near, i);
         sum += if d == 0 {
             noise_mae.min(e_of(step))
         } else {

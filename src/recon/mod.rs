@@ -7,6 +7,7 @@
 pub mod bp;
 pub mod dct;
 pub mod interp;
+pub mod joint;
 pub mod limits;
 pub mod periods;
 pub mod physics;
@@ -148,6 +149,9 @@ pub struct Reconstruction {
     pub status: Option<SolveStatus>,
     /// Cross-validated mean absolute error estimate, µm.
     pub cv_error_um: Option<f64>,
+    /// Samples of the opposite direction pooled into this curve ([`joint`]), if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pooled_with: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub params: Option<PhysicsParams>,
     /// Periods found in the samples and kept by the cross-validated physics model (physics and
@@ -189,6 +193,7 @@ pub fn reconstruct(
         relative_gap: None,
         status: None,
         cv_error_um: None,
+        pooled_with: None,
         params: None,
         periods_um: Vec::new(),
         candidates: Vec::new(),

@@ -1,0 +1,210 @@
+//! One direction's curve from its own samples and the opposite direction's.
+//!
+//! The position-dependent errors of a stage (the screw's cyclic error, trend, roughness of the
+//! guide) are the same whichever way it moves; what differs is backlash and hysteresis, which
+//! vary slowly along the travel. When the other direction measured other positions, its
+//! samples, shifted by a smooth difference (a cubic in the position, fitted to them), fill this
+//! direction's gaps. The pooled curve is kept only when it cross-validates better than the
+//! direction alone: a difference that is not smooth (a cyclic error that shifts with the
+//! backlash) leaves the pooled samples inconsistent and their held-out error higher.
+use super::physics::legendre;
+use super::{reconstruct, ReconSettings, Reconstruction};
+use crate::grid::Grid;
+use crate::samples::GridSamples;
+use nalgebra::{DMatrix, DVector};
+
+/// Degree of the direction difference (Legendre polynomial of the position).
+const DIFF_DEG: usize = 3;
+
+/// `own`'s curve, with `other` (the opposite direction's samples) pooled in when that
+/// cross-validates better. `pooled_with` of the result counts the other direction's samples used.
+pub fn reconstruct_joint(
+    grid: &Grid,
+    own: &GridSamples,
+    other: &GridSamples,
+    s: &ReconSettings,
+) -> Result<Reconstruction, String> {
+    let alone = reconstruct(grid, own, s)?;
+    let new_positions = other
+        .idx
+        .iter()
+        .filter(|i| own.idx.binary_search(i).is_err())
+        .count();
+    // Nothing to gain without new positions, and the difference needs a few to be fitted.
+    if new_positions < 4 * (DIFF_DEG + 1) || other.len() < 2 {
+        return Ok(alone);
+    }
+    let mut base = alone.values.clone();
+    let mut pooled = None;
+    // Two alternations: the difference against the direction alone, then against the pooled curve.
+    for _ in 0..2 {
+        let diff =
+            fit_difference(grid, other, &base).ok_or("direction difference: singular fit")?;
+        let merged = merge(grid, own, other, &diff);
+        let r = reconstruct(grid, &merged, s)?;
+        base = r.values.clone();
+        pooled = Some((r, merged));
+    }
+    let (mut r, _) = pooled.expect("two rounds ran");
+    let better = match (r.cv_error_um, alone.cv_error_um) {
+        (Some(p), Some(a)) => p < a,
+        _ => false,
+    };
+    if better {
+        r.pooled_with = Some(other.len());
+        r.m = own.len();
+        Ok(r)
+    } else {
+        Ok(alone)
+    }
+}
+
+/// Coefficients of the smooth difference other − curve at the other direction's positions.
+fn fit_difference(grid: &Grid, other: &GridSamples, curve: &[f64]) -> Option<Vec<f64>> {
+    let m = other.len();
+    let a = DMatrix::from_fn(m, DIFF_DEG + 1, |r, k| {
+        legendre(k, unit(grid, other.idx[r]))
+    });
+    let y = DVector::from_iterator(m, (0..m).map(|r| other.values[r] - curve[other.idx[r]]));
+    let beta = (a.transpose() * &a).cholesky()?.solve(&(a.transpose() * y));
+    Some(beta.iter().copied().collect())
+}
+
+/// Position of grid index i on [-1, 1].
+fn unit(grid: &Grid, i: usize) -> f64 {
+    if grid.n < 2 {
+        0.0
+    } else {
+        2.0 * i as f64 / (grid.n - 1) as f64 - 1.0
+    }
+}
+
+fn difference_at(grid: &Grid, diff: &[f64], i: usize) -> f64 {
+    let s = unit(grid, i);
+    diff.iter()
+        .enumerate()
+        .map(|(k, c)| c * legendre(k, s))
+        .sum()
+}
+
+/// `own` with `other` minus the difference at the positions `own` lacks (ascending).
+fn merge(grid: &Grid, own: &GridSamples, other: &GridSamples, diff: &[f64]) -> GridSamples {
+    let mut all: Vec<(usize, f64)> = own
+        .idx
+        .iter()
+        .copied()
+        .zip(own.values.iter().copied())
+        .collect();
+    for (&i, &v) in other.idx.iter().zip(&other.values) {
+        if own.idx.binary_search(&i).is_err() {
+            all.push((i, v - difference_at(grid, diff, i)));
+        }
+    }
+    all.sort_by_key(|p| p.0);
+    GridSamples {
+        idx: all.iter().map(|p| p.0).collect(),
+        values: all.iter().map(|p| p.1).collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recon::Method;
+
+    /// A stage curve written here (not the simulator's): two cyclic terms, a bow and a rough part
+    /// drawn per position, the same in both directions; backward = forward + a sloped backlash.
+    fn curves(n: usize) -> (Vec<f64>, Vec<f64>) {
+        let mut state = 0x1234_5678_9abc_def0u64;
+        let mut rough = 0.0;
+        let mut f = Vec::with_capacity(n);
+        for i in 0..n {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            rough = 0.7 * rough + 0.03 * u;
+            let x = i as f64 * 5.0;
+            let s = x / 4750.0 - 1.0;
+            f.push(
+                1.3 * (1.0 + 0.3 * s)
+                    * (std::f64::consts::TAU * x / 350.0 + 0.4 + 0.6 * s * s).sin()
+                    + 0.3 * (2.0 * std::f64::consts::TAU * x / 350.0 + 1.1 * s).cos()
+                    + 0.4 * (std::f64::consts::TAU * x / 1230.0).cos()
+                    + 0.8 * s * s
+                    + rough,
+            );
+        }
+        let b = f
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v - 1.7 + 0.3 * (i as f64 / n as f64))
+            .collect();
+        (f, b)
+    }
+
+    fn mean_abs(g: &[f64], t: &[f64]) -> f64 {
+        g.iter().zip(t).map(|(a, b)| (a - b).abs()).sum::<f64>() / t.len() as f64
+    }
+
+    #[test]
+    fn the_other_directions_samples_at_other_positions_sharpen_the_curve() {
+        let grid = Grid::new(0.0, 5.0, 9500.0).unwrap();
+        let (f, b) = curves(grid.n);
+        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 200, 3)
+            .indices(grid.n)
+            .unwrap();
+        // Interleaved: forward takes every other design point, backward the rest.
+        let take = |par: usize, t: &[f64]| GridSamples {
+            idx: idx.iter().copied().skip(par).step_by(2).collect(),
+            values: idx.iter().skip(par).step_by(2).map(|&i| t[i]).collect(),
+        };
+        let (fw, bw) = (take(0, &f), take(1, &b));
+        let s = ReconSettings {
+            method: Method::Auto,
+            ..Default::default()
+        };
+        let alone = reconstruct(&grid, &fw, &s).unwrap();
+        let joint = reconstruct_joint(&grid, &fw, &bw, &s).unwrap();
+        assert_eq!(joint.pooled_with, Some(bw.len()));
+        let (ea, ej) = (mean_abs(&alone.values, &f), mean_abs(&joint.values, &f));
+        assert!(ej < 0.9 * ea, "joint {ej} vs alone {ea}");
+    }
+
+    #[test]
+    fn samples_at_the_same_positions_or_an_unrelated_curve_leave_the_direction_alone() {
+        let grid = Grid::new(0.0, 5.0, 9500.0).unwrap();
+        let (f, _) = curves(grid.n);
+        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 120, 4)
+            .indices(grid.n)
+            .unwrap();
+        let fw = GridSamples {
+            idx: idx.clone(),
+            values: idx.iter().map(|&i| f[i]).collect(),
+        };
+        let s = ReconSettings::default();
+        let same = GridSamples {
+            idx: idx.clone(),
+            values: idx.iter().map(|&i| f[i] - 2.0).collect(),
+        };
+        assert_eq!(
+            reconstruct_joint(&grid, &fw, &same, &s)
+                .unwrap()
+                .pooled_with,
+            None
+        );
+        // The other direction sees a different cyclic error: pooling would corrupt the curve.
+        let other_idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 120, 5)
+            .indices(grid.n)
+            .unwrap();
+        let unrelated = GridSamples {
+            values: other_idx
+                .iter()
+                .map(|&i| 1.5 * (i as f64 * 5.0 / 97.0).sin())
+                .collect(),
+            idx: other_idx,
+        };
+        let r = reconstruct_joint(&grid, &fw, &unrelated, &s).unwrap();
+        assert_eq!(r.pooled_with, None);
+    }
+}
