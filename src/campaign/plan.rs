@@ -328,6 +328,20 @@ m = 20
     /// Every batch boundary of an adaptive run leaves the stroke evenly covered: no design point
     /// is farther from the points measured so far (or a grid end) than those are from each other
     /// (the farthest-point property). A random order leaves gaps several times the spacing.
+    /// The farthest design point from the points so far (sorted here) and their closest spacing,
+    /// in grid steps. A grid end counts as covered ground: a point by it is not a gap.
+    fn cover_and_spacing(sofar: &mut [usize], design: &[usize], n: usize) -> (usize, usize) {
+        sofar.sort_unstable();
+        let spacing = sofar.windows(2).map(|w| w[1] - w[0]).min().unwrap();
+        let near = |i: usize| sofar.iter().map(|&s| s.abs_diff(i)).min().unwrap();
+        let cover = design
+            .iter()
+            .map(|&i| near(i).min(i).min(n - 1 - i))
+            .max()
+            .unwrap();
+        (cover, spacing)
+    }
+
     #[test]
     fn adaptive_directions_measure_other_positions_that_together_cover_the_stroke() {
         // 2 × 60 points fit the 201-point grid: each direction gets its own, dealt in turn.
@@ -352,14 +366,7 @@ m = 20
         for k in 0..2 {
             sofar.extend(&fwd[k]);
             sofar.extend(&bwd[k]);
-            sofar.sort_unstable();
-            let spacing = sofar.windows(2).map(|w| w[1] - w[0]).min().unwrap();
-            let near = |i: usize| sofar.iter().map(|&s| s.abs_diff(i)).min().unwrap();
-            let cover = design
-                .iter()
-                .map(|&i| near(i).min(i).min(n - 1 - i))
-                .max()
-                .unwrap();
+            let (cover, spacing) = cover_and_spacing(&mut sofar, &design, n);
             assert!(
                 cover <= spacing,
                 "after batch {k}: gap {cover}, spacing {spacing}"
@@ -384,15 +391,7 @@ m = 20
         let mut sofar: Vec<usize> = Vec::new();
         for b in &x_fwd[..x_fwd.len() - 1] {
             sofar.extend(b.targets.iter().map(|t| t.grid_index));
-            sofar.sort_unstable();
-            let spacing = sofar.windows(2).map(|w| w[1] - w[0]).min().unwrap();
-            let near = |i: usize| sofar.iter().map(|&s| s.abs_diff(i)).min().unwrap();
-            // A grid end counts as covered ground: a point by it is not a gap.
-            let cover = design
-                .iter()
-                .map(|&i| near(i).min(i).min(n - 1 - i))
-                .max()
-                .unwrap();
+            let (cover, spacing) = cover_and_spacing(&mut sofar, &design, n);
             assert!(
                 cover <= spacing,
                 "after {} points: a gap of {cover} steps, spacing {spacing}",
