@@ -73,20 +73,6 @@ fn run_samples(samples: &[SampleRecord], run: RunKey, component: Component) -> G
     }
 }
 
-/// A CS run's curve from its samples and, when that cross-validates better, the opposite
-/// direction's at other positions ([`reconstruct_joint`]).
-fn reconstruct_cs(
-    grid: &Grid,
-    settings: &ReconSettings,
-    run: RunKey,
-    component: Component,
-    own: &GridSamples,
-    samples: &[SampleRecord],
-) -> Result<crate::recon::Reconstruction, String> {
-    let other = run_samples(samples, opposite(run), component);
-    reconstruct_joint(grid, own, &other, settings)
-}
-
 /// Reconstructs the components of `run` from its samples.
 pub fn reconstruct_run(
     grid: &Grid,
@@ -94,27 +80,20 @@ pub fn reconstruct_run(
     run: RunKey,
     samples: &[SampleRecord],
 ) -> Vec<Result<Curve, String>> {
-    let mut by_idx: BTreeMap<usize, &SampleRecord> = BTreeMap::new();
-    for s in samples.iter().filter(|s| s.target.run == run) {
-        by_idx.insert(s.target.grid_index, s);
-    }
     run.components()
         .into_iter()
         .map(|component| {
-            let gs = GridSamples {
-                idx: by_idx.keys().copied().collect(),
-                values: by_idx
-                    .values()
-                    .map(|s| s.error_um(component.measured))
-                    .collect(),
-            };
+            let gs = run_samples(samples, run, component);
             let mut st = settings.clone();
             if run.phase == Phase::Full {
                 // The full scan is the curve; failed points (if any) are bridged linearly.
                 st.method = Method::Linear;
             }
             let r = if run.phase == Phase::Cs {
-                reconstruct_cs(grid, &st, run, component, &gs, samples)
+                // CS curves pool the opposite direction's samples at other positions when
+                // that cross-validates better (`reconstruct_joint`).
+                let other = run_samples(samples, opposite(run), component);
+                reconstruct_joint(grid, &gs, &other, &st)
             } else {
                 reconstruct(grid, &gs, &st)
             }
@@ -184,7 +163,7 @@ pub fn stop_estimate(
     // The opposite direction's samples, when the curve pools them: the folds pool them too
     // (held out are only this run's), and they count as samples in every distance.
     let other = run_samples(samples, opposite(run), component);
-    let whole = reconstruct_cs(grid, settings, run, component, &gs, samples)?;
+    let whole = reconstruct_joint(grid, &gs, &other, settings)?;
     let pooled = whole.pooled_with.is_some();
     let with_other = |idx: &[usize]| -> Vec<usize> {
         let mut all = idx.to_vec();
