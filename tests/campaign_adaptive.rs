@@ -167,6 +167,38 @@ fn an_adaptive_sweep_stops_at_the_first_batch_whose_estimate_meets_the_target() 
             "{order:?}"
         );
     }
+    // A decision waits for the sweep's next turn, so it sees the other direction's batch
+    // measured in between: a pooled estimate holds all the other run had measured by then
+    // (forward's decision k follows backward's batch k; backward's follows forward's k + 1).
+    let batches_of = |run: &str| -> u64 {
+        let last = events
+            .iter()
+            .rev()
+            .find(|e| e.kind == "adaptive" && e.data["run"] == run)
+            .map(|e| &e.data);
+        match last {
+            Some(d) if d["stop"] == true => d["batch"].as_u64().unwrap() + 1,
+            _ => BUDGET / BATCH,
+        }
+    };
+    let (nf, nb) = (batches_of("cs-x-forward-0"), batches_of("cs-x-backward-0"));
+    let mut pooled = 0;
+    for d in events
+        .iter()
+        .filter(|e| e.kind == "adaptive")
+        .map(|e| &e.data)
+    {
+        let k = d["batch"].as_u64().unwrap();
+        let other = if d["run"] == "cs-x-forward-0" {
+            BATCH * (k + 1).min(nb)
+        } else {
+            BATCH * (k + 2).min(nf)
+        };
+        let p = d["pooled_m"].as_u64().unwrap();
+        assert!(p == 0 || p == other, "expected {other} pooled: {d}");
+        pooled += usize::from(p > 0);
+    }
+    assert!(pooled > 0, "no decision pooled the other direction");
     // The summary says where each sweep stopped and what that saved.
     let runs = x["adaptive"].as_array().expect("summary: adaptive");
     assert_eq!(runs.len(), 2, "{runs:?}");

@@ -60,6 +60,7 @@ pub trait Recorder: Send {
             distance_exponent: 0.0,
             method: String::new(),
             m: 0,
+            pooled_m: 0,
         })
     }
     /// Simulation: the true stage position (mean over the frames) of the sample about to be
@@ -388,11 +389,34 @@ impl<'a> Engine<'a> {
         Ok(EndState::Done)
     }
 
-    /// Measures the next batch of a sweep (announcing the run before its first), then decides
-    /// whether the sweep goes on; a stopped or finished sweep is done. `Some` when halted.
+    /// Decides whether an adaptive sweep goes on (after its first batch), then measures its next
+    /// batch (announcing the run before the first); a stopped or finished sweep is done. The
+    /// decision waits until the sweep's turn comes again: when two directions take turns, the
+    /// other direction's batch measured in between is in the estimate (a pooled curve uses it).
+    /// `Some` when halted.
     async fn sweep_batch(&mut self, w: &mut Sweep) -> Result<Option<Control>, EngineError> {
         let run = w.run;
         let bi = w.next;
+        if let Some(goal) = bi.checked_sub(1).and_then(|p| w.batches[p].target_error_um) {
+            let est = self.recorder.stop_estimate(run);
+            let stop = est.as_ref().is_some_and(|e| meets(e, goal));
+            let cv = est.as_ref().and_then(|e| e.cv_error_um);
+            self.recorder.event(
+                "adaptive",
+                json!({"run": run.label(), "batch": bi - 1, "cv_error_um": cv, "target_error_um": goal, "stop": stop,
+                       "error_estimate_um": est.as_ref().map(|e| e.error_um),
+                       "scatter_um": est.as_ref().map(|e| e.scatter_um),
+                       "m": est.as_ref().map(|e| e.m), "pooled_m": est.as_ref().map(|e| e.pooled_m), "method": est.as_ref().map(|e| e.method.clone())}),
+            );
+            if stop {
+                let n: usize = w.batches[bi..].iter().map(|b| b.targets.len()).sum();
+                self.stat(run).saved_by_adaptive += n as u64;
+                w.next = w.batches.len();
+                self.recorder.run_done(run);
+                self.recorder.event("run_done", json!({"run": run.label()}));
+                return Ok(None);
+            }
+        }
         if bi == 0 {
             let todo = w
                 .batches
@@ -411,23 +435,6 @@ impl<'a> Engine<'a> {
             return Ok(Some(c));
         }
         w.next += 1;
-        if let (Some(goal), true) = (b.target_error_um, w.next < w.batches.len()) {
-            let est = self.recorder.stop_estimate(run);
-            let stop = est.as_ref().is_some_and(|e| meets(e, goal));
-            let cv = est.as_ref().and_then(|e| e.cv_error_um);
-            self.recorder.event(
-                "adaptive",
-                json!({"run": run.label(), "batch": bi, "cv_error_um": cv, "target_error_um": goal, "stop": stop,
-                       "error_estimate_um": est.as_ref().map(|e| e.error_um),
-                       "scatter_um": est.as_ref().map(|e| e.scatter_um),
-                       "m": est.as_ref().map(|e| e.m), "method": est.as_ref().map(|e| e.method.clone())}),
-            );
-            if stop {
-                let n: usize = w.batches[w.next..].iter().map(|b| b.targets.len()).sum();
-                self.stat(run).saved_by_adaptive += n as u64;
-                w.next = w.batches.len();
-            }
-        }
         if w.next == w.batches.len() {
             self.recorder.run_done(run);
             self.recorder.event("run_done", json!({"run": run.label()}));

@@ -133,6 +133,8 @@ pub struct StopEstimate {
     pub distance_exponent: f64,
     pub method: String,
     pub m: usize,
+    /// The opposite direction's samples the curve pooled (0 when it stands alone).
+    pub pooled_m: usize,
 }
 
 /// Error of the curve against the distance to its nearest sample, from held-out samples, then
@@ -286,6 +288,7 @@ pub fn stop_estimate(
         distance_exponent: beta,
         method: whole.method,
         m,
+        pooled_m: if pooled { other.idx.len() } else { 0 },
     })
 }
 
