@@ -247,3 +247,24 @@ fn bench_families_bad_arguments_give_one_line_exit_2() {
         assert!(o.stdout.is_empty(), "{args:?}");
     }
 }
+
+#[test]
+fn a_reader_that_closes_the_pipe_early_ends_the_output_not_in_a_panic() {
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let (_, samples) = generate(dir.path(), 100);
+    // `csmetro reconstruct ... | head -c 0`: the curve goes to stdout, whose reader is gone
+    // before the first line is written.
+    let mut child = bin()
+        .args(["reconstruct", "--grid", "0:5:9500", "--samples"])
+        .arg(&samples)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(o.status.success(), "{:?}: {err}", o.status);
+}

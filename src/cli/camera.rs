@@ -83,12 +83,12 @@ fn run_list() -> CliResult {
                     CameraBackend::Aravis => "no GigE Vision / USB3 Vision camera found",
                     CameraBackend::Firewire => "no IIDC camera found",
                 };
-                println!("{backend}: {what}");
+                outln!("{backend}: {what}");
             }
             Ok(cams) => {
                 for c in cams {
                     found += 1;
-                    println!(
+                    outln!(
                         "{backend}: {}  [hardware.camera] backend = \"{backend}\", id = {}",
                         c.description,
                         id_toml(&c.id)
@@ -96,12 +96,12 @@ fn run_list() -> CliResult {
                 }
             }
             Err(_) if !backend.compiled() => {
-                println!("{backend}: not in this build (rebuild with --features {backend})")
+                outln!("{backend}: not in this build (rebuild with --features {backend})")
             }
-            Err(e) => println!("{backend}: {}", e.to_string().replace('\n', " ")),
+            Err(e) => outln!("{backend}: {}", e.to_string().replace('\n', " ")),
         }
     }
-    println!(
+    outln!(
         "sim: the simulated camera of kind = \"sim\" campaigns (`csmetro camera snap --id sim`)"
     );
     if found == 0 {
@@ -230,9 +230,10 @@ fn run_snap(a: SnapArgs) -> CliResult {
                 return Err(CliError::input("--sim-x-um and --sim-y-um must be finite"));
             }
             let pattern = ppp.pattern().map_err(|e| CliError::input(e.to_string()))?;
-            println!(
+            outln!(
                 "camera: simulated ({}x{}, stage at x {x} µm, y {y} µm)",
-                ppp.optics.width, ppp.optics.height
+                ppp.optics.width,
+                ppp.optics.height
             );
             render(&pattern, &ppp.optics, Pose::new(x, y, 0.0), 1)
         }
@@ -263,7 +264,7 @@ fn run_snap(a: SnapArgs) -> CliResult {
     print_frame(&frame);
     if let Some(out) = &a.out {
         write_png(out, &frame).map_err(|e| CliError::input(e.to_string()))?;
-        println!("wrote {}", out.display());
+        outln!("wrote {}", out.display());
     }
     if !a.decode {
         return Ok(ExitCode::SUCCESS);
@@ -271,13 +272,17 @@ fn run_snap(a: SnapArgs) -> CliResult {
     let decoder = ppp.decoder().map_err(|e| CliError::input(e.to_string()))?;
     let r = decoder.decode(&frame);
     if r.ok {
-        println!(
+        outln!(
             "x_um {:.4} y_um {:.4} theta_mrad {:.4} period_px {:.5} decode_ms {:.2}",
-            r.x_um, r.y_um, r.theta_mrad, r.period_px, r.decode_ms
+            r.x_um,
+            r.y_um,
+            r.theta_mrad,
+            r.period_px,
+            r.decode_ms
         );
         Ok(ExitCode::SUCCESS)
     } else {
-        println!("rejected: {}", r.reason.as_deref().unwrap_or("unknown"));
+        outln!("rejected: {}", r.reason.as_deref().unwrap_or("unknown"));
         Ok(ExitCode::from(EXIT_REJECTED))
     }
 }
@@ -305,7 +310,7 @@ fn grab_real(
     }
     let timeout = cfg.frame_timeout();
     let mut cam = open_camera(cfg).map_err(|e| CliError::failure(e.to_string()))?;
-    println!("camera: {}", cam.describe());
+    outln!("camera: {}", cam.describe());
     cam.grab(timeout.max(Duration::from_millis(1)))
         .map_err(|e| CliError::failure(e.to_string()))
 }
@@ -322,7 +327,7 @@ fn print_frame(f: &Frame) {
         Pixels::Mono8(_) => "Mono8",
         Pixels::Mono16(_) => "Mono16",
     };
-    println!(
+    outln!(
         "frame: {}x{} {kind} bit_depth {} timestamp_s {:.6} min {} max {} mean {:.2}",
         f.width,
         f.height,

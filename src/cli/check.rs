@@ -56,9 +56,9 @@ pub fn run(a: Args) -> CliResult {
         }
     }
     if a.json {
-        println!("{}", report.json());
+        outln!("{}", report.json());
     } else {
-        print!("{}", report.table());
+        out!("{}", report.table());
     }
     let code = report.exit_code();
     if code != 0 {

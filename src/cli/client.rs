@@ -219,7 +219,7 @@ fn json_of<T: serde::de::DeserializeOwned>(r: &Reply) -> Result<T, CliError> {
 }
 
 fn print_json(v: &impl serde::Serialize) {
-    println!("{}", serde_json::to_string(v).unwrap_or_default());
+    outln!("{}", serde_json::to_string(v).unwrap_or_default());
 }
 
 fn line(s: &CampaignStatus) -> String {
@@ -265,7 +265,7 @@ pub fn submit(a: SubmitArgs) -> CliResult {
         return follow(&c, st.id, false, a.conn.json, DEFAULT_PROGRESS_S);
     }
     if !a.conn.json {
-        println!("{}", st.id);
+        outln!("{}", st.id);
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -278,7 +278,7 @@ pub fn status(a: StatusArgs) -> CliResult {
             if a.conn.json {
                 print_json(&st);
             } else {
-                println!("{}", line(&st));
+                outln!("{}", line(&st));
             }
         }
         None => {
@@ -286,12 +286,17 @@ pub fn status(a: StatusArgs) -> CliResult {
             if a.conn.json {
                 print_json(&all);
             } else {
-                println!(
+                outln!(
                     "{:>5}  {:<11}  {:>15}  {:>6}  {:<12}  {:>8}  name",
-                    "id", "state", "stored/planned", "%", "stage", "ETA"
+                    "id",
+                    "state",
+                    "stored/planned",
+                    "%",
+                    "stage",
+                    "ETA"
                 );
                 for s in &all {
-                    println!(
+                    outln!(
                         "{:>5}  {:<11}  {:>15}  {:>6.1}  {:<12}  {:>8}  {}",
                         s.id,
                         s.state.as_str(),
@@ -504,7 +509,7 @@ fn control(a: IdArgs, action: &str) -> CliResult {
     if a.conn.json {
         print_json(&st);
     } else {
-        println!("{}", line(&st));
+        outln!("{}", line(&st));
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -531,7 +536,7 @@ pub fn abort(a: AbortArgs) -> CliResult {
     if a.conn.json {
         print_json(&st);
     } else {
-        println!("{}", line(&st));
+        outln!("{}", line(&st));
     }
     if a.wait_s > 0.0 && !st.state.is_final() {
         return Err(CliError::failure(format!(
@@ -585,7 +590,7 @@ pub fn report(a: ReportArgs) -> CliResult {
         print_json(&json!({"id": a.id, "state": st.state.as_str(), "dir": dir, "files": written}));
     } else {
         for w in &written {
-            println!("{}", w["path"].as_str().unwrap_or(""));
+            outln!("{}", w["path"].as_str().unwrap_or(""));
         }
         eprintln!(
             "{} result(s) of campaign {} ({}) in {}",

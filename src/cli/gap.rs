@@ -172,7 +172,7 @@ pub fn run(args: Args) -> CliResult {
             n.push(json!(note));
         }
         if !args.json {
-            println!("note: {note}");
+            outln!("note: {note}");
         }
     }
     j["iso230"] = json!(iso
@@ -183,15 +183,15 @@ pub fn run(args: Args) -> CliResult {
     std::fs::write(&json_out, format!("{j:#}\n"))
         .map_err(|e| CliError::failure(format!("{}: {e}", json_out.display())))?;
     if args.json {
-        println!("{j}");
+        outln!("{j}");
     } else {
         if matches!(format, data::Format::Iso230 { .. }) {
             for (a, st, f) in &iso {
-                println!("{}", gap::describe_iso230(*a, *st, f));
+                outln!("{}", gap::describe_iso230(*a, *st, f));
             }
         }
-        print!("{}", d.summary());
-        println!("updated model: {}", model_out.display());
+        out!("{}", d.summary());
+        outln!("updated model: {}", model_out.display());
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -208,9 +208,9 @@ fn run_selftest(a: SelftestArgs) -> CliResult {
     };
     let report = selftest::run(&o);
     if a.json {
-        println!("{report}");
+        outln!("{report}");
     } else {
-        println!("{report:#}");
+        outln!("{report:#}");
     }
     let met = report["all_targets_met"] == json!(true);
     Ok(if a.strict && !met {

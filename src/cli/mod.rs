@@ -1,5 +1,25 @@
 //! Command-line front ends. Each subcommand module exposes `Args` and `run`.
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// `println!` for command output that never panics: when the reader goes away
+/// (`csmetro reconstruct | head`) the output ends, not the command; a campaign must still stop
+/// its motion and store its results, and nothing else needs a backtrace.
+macro_rules! outln {
+    () => {
+        $crate::cli::write_out(format_args!("\n"))
+    };
+    ($($t:tt)*) => {
+        $crate::cli::write_out(format_args!("{}\n", format_args!($($t)*)))
+    };
+}
+
+/// `print!` counterpart of [`outln!`].
+macro_rules! out {
+    ($($t:tt)*) => {
+        $crate::cli::write_out(format_args!($($t)*))
+    };
+}
 
 pub mod bench;
 pub mod camera;
@@ -17,6 +37,23 @@ pub mod serve;
 pub mod sim;
 pub mod soak;
 pub mod verify;
+
+static STDOUT_CLOSED: AtomicBool = AtomicBool::new(false);
+
+/// Writes command output to stdout; after the first failed write the rest is dropped (a closed
+/// pipe silently, anything else with one warning on stderr).
+pub fn write_out(args: std::fmt::Arguments<'_>) {
+    use std::io::Write;
+    if STDOUT_CLOSED.load(Ordering::Relaxed) {
+        return;
+    }
+    if let Err(e) = std::io::stdout().lock().write_fmt(args) {
+        STDOUT_CLOSED.store(true, Ordering::Relaxed);
+        if e.kind() != std::io::ErrorKind::BrokenPipe {
+            eprintln!("warning: standard output: {e}; further output dropped");
+        }
+    }
+}
 
 /// An error that ends a command: a one-line message and the process exit code.
 #[derive(Debug)]

@@ -170,11 +170,11 @@ pub fn run(a: Args) -> CliResult {
     out["stage"] = json!(a.stage);
     out["hardware"] = json!(hw);
     if a.json {
-        println!("{out}");
+        outln!("{out}");
     } else {
-        println!("stage {} ({hw})", a.stage);
+        outln!("stage {} ({hw})", a.stage);
         for p in out["axes"].as_array().into_iter().flatten() {
-            println!(
+            outln!(
                 "{}: wanted {:.4} µm, commanded {:.4} µm (correction {:+.4} µm, approach {}, {:.1} µs)",
                 p["axis"].as_str().unwrap_or(""),
                 p["wanted_um"].as_f64().unwrap_or(f64::NAN),
@@ -185,9 +185,9 @@ pub fn run(a: Args) -> CliResult {
             );
         }
         if let (Some(x), Some(y)) = (out["measured_x_um"].as_f64(), out["measured_y_um"].as_f64()) {
-            println!("measured: x {x:.4} µm, y {y:.4} µm");
+            outln!("measured: x {x:.4} µm, y {y:.4} µm");
         } else if let Some(e) = out["measure_error"].as_str() {
-            println!("measured: no position ({e})");
+            outln!("measured: no position ({e})");
         }
     }
     Ok(ExitCode::SUCCESS)

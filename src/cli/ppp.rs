@@ -184,14 +184,18 @@ fn run_decode(a: DecodeArgs) -> CliResult {
         let mut v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;
         // Which frame this is about, for a rejection read among many.
         v["frame"] = json!(a.frame.display().to_string());
-        println!("{v}");
+        outln!("{v}");
     } else if r.ok {
-        println!(
+        outln!(
             "x_um {:.4} y_um {:.4} theta_mrad {:.4} period_px {:.5} decode_ms {:.2}",
-            r.x_um, r.y_um, r.theta_mrad, r.period_px, r.decode_ms
+            r.x_um,
+            r.y_um,
+            r.theta_mrad,
+            r.period_px,
+            r.decode_ms
         );
     } else {
-        println!(
+        outln!(
             "rejected: {}: {}",
             a.frame.display(),
             r.reason.as_deref().unwrap_or("unknown")
@@ -247,6 +251,6 @@ fn run_bench(a: BenchArgs) -> CliResult {
         "random_poses_nominal": poses,
         "degraded_sweep": degraded,
     });
-    println!("{out}");
+    outln!("{out}");
     Ok(ExitCode::SUCCESS)
 }

@@ -94,16 +94,16 @@ pub fn run(a: Args) -> CliResult {
         Some(path) => samples::write_curve_csv(path, &positions, &r.values)
             .map_err(|e| CliError::failure(format!("{}: cannot write: {e}", path.display())))?,
         None if !a.json => {
-            println!("position_um,error_um");
+            outln!("position_um,error_um");
             for (p, v) in positions.iter().zip(&r.values) {
-                println!("{p},{v}");
+                outln!("{p},{v}");
             }
         }
         None => {}
     }
     if a.json {
         let v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;
-        println!("{v}");
+        outln!("{v}");
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -55,14 +55,19 @@ pub fn run(a: Args) -> CliResult {
         None if !a.json => {
             let stdout = std::io::stdout();
             let mut w = std::io::BufWriter::new(stdout.lock());
+            // A reader that stopped early (`| head`) got what it wanted.
             recon2d::write_map(&mut w, &g, &map)
+                .or_else(|e| match e.kind() {
+                    std::io::ErrorKind::BrokenPipe => Ok(()),
+                    _ => Err(e),
+                })
                 .map_err(|e| CliError::failure(format!("stdout: {e}")))?;
         }
         None => {}
     }
     if a.json {
         let v = serde_json::to_value(&report).map_err(|e| CliError::failure(e.to_string()))?;
-        println!("{v}");
+        outln!("{v}");
     }
     Ok(ExitCode::SUCCESS)
 }

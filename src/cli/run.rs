@@ -232,7 +232,7 @@ fn foreground(
         bar.finish_and_clear();
         let fin = r.map_err(CliError::failure)?;
         if json {
-            println!(
+            outln!(
                 "{}",
                 serde_json::to_string(&fin.summary.clone().unwrap_or(serde_json::json!({
                     "id": id, "state": fin.state.as_str()
@@ -240,7 +240,7 @@ fn foreground(
                 .unwrap_or_default()
             );
         } else if let Some(t) = &fin.table {
-            println!("{t}");
+            outln!("{t}");
         }
         if let Some(d) = &fin.out_dir {
             eprintln!(

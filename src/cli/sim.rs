@@ -216,7 +216,7 @@ async fn soak(
         "unchecked": r.unchecked,
         "wall_s": r.wall_s,
     });
-    println!(
+    outln!(
         "{}",
         serde_json::to_string_pretty(&out).map_err(|e| CliError::failure(e.to_string()))?
     );
@@ -298,7 +298,7 @@ async fn controller(a: ControllerArgs) -> CliResult {
         (None, false) => return Err(CliError::input("give --tcp ADDR or --pty")),
     }
     .map_err(|e| CliError::failure(format!("cannot serve: {e}")))?;
-    println!("{}", sim.endpoint());
+    outln!("{}", sim.endpoint());
     eprintln!(
         "simulated C-863.11 (axis {axis}, time scale {scale}) serving at {}",
         sim.endpoint()
@@ -455,7 +455,7 @@ async fn bench_gcs(
             "simulator": if sim.is_some() { "in-process" } else { "external" },
         }
     });
-    println!(
+    outln!(
         "{}",
         serde_json::to_string_pretty(&out).map_err(|e| CliError::failure(e.to_string()))?
     );

@@ -486,7 +486,7 @@ pub fn run(a: Args) -> CliResult {
         && tot.summary_mismatches == 0
         && tot.problems.is_empty();
     tot.problems.truncate(20);
-    println!(
+    outln!(
         "{}",
         json!({"soak": tot, "seed": a.seed, "faults": !a.no_faults, "ok": ok,
                "wall_s": t0.elapsed().as_secs_f64(), "time_tolerance": TIME_TOL})

@@ -170,9 +170,9 @@ pub fn run(a: Args) -> CliResult {
         written &= ok.is_ok();
     }
     if a.json {
-        println!("{}", verify::json(&v));
+        outln!("{}", verify::json(&v));
     } else {
-        print!("{}", verify::table(&v));
+        out!("{}", verify::table(&v));
     }
     if written && !a.quiet {
         eprintln!(

@@ -199,7 +199,7 @@ pub fn run(a: Args) -> CliResult {
                 .iter()
                 .map(|&(m, mean, max, std)| json!({"m": m, "mean_abs_um": mean, "max_abs_um": max, "std_um": std}))
                 .collect();
-            println!(
+            outln!(
                 "{}",
                 json!({"benchmark": "accuracy", "n": 1901, "noise_um": 0.01, "rows": rows, "paper_table_ii": paper})
             );
@@ -222,12 +222,12 @@ pub fn run(a: Args) -> CliResult {
                 )));
             }
             let rows = families::run(seeds, &ms, &fams).map_err(CliError::failure)?;
-            println!(
+            outln!(
                 "{}",
                 json!({"benchmark": "families", "n": 1901, "rows": rows})
             );
         }
-        What::Dct { repeat } => println!("{}", dct_pairs(repeat.max(1))),
+        What::Dct { repeat } => outln!("{}", dct_pairs(repeat.max(1))),
         What::Chol { repeat, m, rhs } => {
             let ms: Vec<usize> = parse_list(&m, "m")?;
             if rhs == 0 || !rhs.is_multiple_of(8) {
@@ -235,7 +235,7 @@ pub fn run(a: Args) -> CliResult {
                     "--rhs {rhs}: a positive multiple of 8"
                 )));
             }
-            println!("{}", chol(&ms, repeat.max(1), rhs));
+            outln!("{}", chol(&ms, repeat.max(1), rhs));
         }
         What::Speed {
             repeat,
@@ -248,7 +248,7 @@ pub fn run(a: Args) -> CliResult {
                 )));
             }
             let out = speed(repeat, clarabel_m, sustain_s).map_err(CliError::failure)?;
-            println!("{out}");
+            outln!("{out}");
         }
     }
     Ok(ExitCode::SUCCESS)

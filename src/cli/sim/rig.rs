@@ -196,10 +196,10 @@ pub(super) async fn rig(a: RigArgs) -> CliResult {
             csmetro_sim::Endpoint::Tcp(a) => format!("tcp {a}"),
             csmetro_sim::Endpoint::Pty(p) => format!("pty {}", p.display()),
         };
-        println!("{axis}: {at}");
+        outln!("{axis}: {at}");
     }
-    println!("camera: {}", camera.line);
-    println!("ready");
+    outln!("camera: {}", camera.line);
+    outln!("ready");
     eprintln!(
         "simulated rig: 2 x C-863.11 (time scale {}), camera {}; SIGINT or SIGTERM stops it",
         file.time_scale, camera.line
