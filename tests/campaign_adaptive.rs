@@ -90,6 +90,8 @@ fn an_adaptive_sweep_stops_at_the_first_batch_whose_estimate_meets_the_target() 
     // The decisions as stored: each one follows the rule, and a sweep ends at its first stop.
     let events = Store::open(&db).unwrap().events_after(1, 0).unwrap();
     let mut total = 0;
+    let mut pooled_curves = Vec::new();
+    let mut ms = std::collections::HashMap::new();
     for run in ["cs-x-forward-0", "cs-x-backward-0"] {
         let decisions: Vec<&serde_json::Value> = events
             .iter()
@@ -104,7 +106,13 @@ fn an_adaptive_sweep_stops_at_the_first_batch_whose_estimate_meets_the_target() 
             let scatter = d["scatter_um"].as_f64().unwrap();
             let cv = d["cv_error_um"].as_f64().unwrap();
             assert!(est > 0.0 && scatter >= 0.0 && cv > 0.0, "{d}");
-            let meets = (est + scatter).max(cv / CV_PLAUSIBLE) <= goal;
+            // A pooled curve's cross-validated error is taken as it is.
+            let plausible = if d["pooled_m"].as_u64() > Some(0) {
+                1.0
+            } else {
+                CV_PLAUSIBLE
+            };
+            let meets = (est + scatter).max(cv / plausible) <= goal;
             assert_eq!(d["stop"].as_bool(), Some(meets), "{d}");
             // Only the last decision of a sweep may stop it.
             assert_eq!(meets, k + 1 == decisions.len(), "{run}: {d}");
@@ -116,6 +124,7 @@ fn an_adaptive_sweep_stops_at_the_first_batch_whose_estimate_meets_the_target() 
             BUDGET
         };
         total += m_run;
+        ms.insert(run, m_run);
         // The curve of a stopped sweep honours the target against the simulator's truth.
         let comp = if run.contains("forward") {
             "ef_xx"
@@ -129,6 +138,15 @@ fn an_adaptive_sweep_stops_at_the_first_batch_whose_estimate_meets_the_target() 
             .find(|c| c["component"] == comp)
             .unwrap();
         assert_eq!(c["cs"]["m"].as_u64(), Some(m_run), "{c}");
+        // The directions measured other positions: a curve that pools the other's samples
+        // says how many, and the degree of the difference the cross-validation chose.
+        if let Some(p) = c["cs"]["pooled_with"].as_u64() {
+            pooled_curves.push((run, p));
+            assert!(
+                [0, 1, 3].contains(&c["cs"]["difference_degree"].as_u64().unwrap()),
+                "{c}"
+            );
+        }
         let truth = c["cs_vs_truth"]["mean_abs_um"].as_f64().unwrap();
         if last["stop"] == true {
             assert!(
@@ -138,6 +156,11 @@ fn an_adaptive_sweep_stops_at_the_first_batch_whose_estimate_meets_the_target() 
         }
     }
     assert_eq!(total, measured);
+    // Each pooled curve holds all the other direction measured.
+    assert!(!pooled_curves.is_empty(), "no curve pooled");
+    for (run, p) in &pooled_curves {
+        assert_eq!(p + ms[run], total, "{run}: {pooled_curves:?}");
+    }
     // The two sweeps take turns batch by batch (no trip back across the stroke between two
     // batches of one direction): forward k, backward k, forward k + 1, ...
     let order: Vec<(String, u64)> = events

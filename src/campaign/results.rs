@@ -350,7 +350,8 @@ pub fn build(
             let t = truth.curve(main, ax.other_at_um);
             let mut j = json!({"component": comp.name()});
             if let Some(k) = cs {
-                j["cs"] = json!({"method": k.method, "m": k.samples.len(), "cv_error_um": k.cv_error_um, "solve_ms": k.solve_ms});
+                j["cs"] = json!({"method": k.method, "m": k.samples.len(), "cv_error_um": k.cv_error_um, "solve_ms": k.solve_ms,
+                                "pooled_with": k.pooled_with, "difference_degree": k.difference_degree});
                 if let Some(f) = full {
                     j["cs_vs_full"] = diff_stats(&k.values_um, &f.values_um);
                 }

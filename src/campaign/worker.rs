@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use super::spec::Campaign;
 use crate::grid::Grid;
-use crate::recon::joint::reconstruct_joint;
+use crate::recon::joint::{reconstruct_joint, reconstruct_joint_among};
 use crate::recon::{reconstruct, Method, ReconSettings};
 use crate::samples::GridSamples;
 use crate::types::{Component, Phase, RunKey, SampleRecord};
@@ -26,6 +26,10 @@ pub struct Curve {
     pub values_um: Vec<f64>,
     pub method: String,
     pub cv_error_um: Option<f64>,
+    /// Opposite-direction samples pooled in, and the degree of the difference they were
+    /// shifted by (`recon::joint`).
+    pub pooled_with: Option<usize>,
+    pub difference_degree: Option<usize>,
     pub solve_ms: f64,
     /// The measured samples (position, error), µm.
     pub samples: Vec<(f64, f64)>,
@@ -105,6 +109,8 @@ pub fn reconstruct_run(
                 values_um: r.values,
                 method: r.method,
                 cv_error_um: r.cv_error_um,
+                pooled_with: r.pooled_with,
+                difference_degree: r.difference_degree,
                 solve_ms: r.solve_ms,
                 samples: gs
                     .idx
@@ -207,7 +213,9 @@ pub fn stop_estimate(
                 .collect(),
         };
         let r = if pooled {
-            reconstruct_joint(grid, &train, &other, &st)?
+            // The folds refit the difference's degree the whole set chose, as its method.
+            let deg: Vec<usize> = whole.difference_degree.into_iter().collect();
+            reconstruct_joint_among(grid, &train, &other, &st, &deg)?
         } else {
             reconstruct(grid, &train, &st)?
         };

@@ -152,6 +152,9 @@ pub struct Reconstruction {
     /// Samples of the opposite direction pooled into this curve ([`joint`]), if any.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pooled_with: Option<usize>,
+    /// Degree of the direction difference of a pooled curve ([`joint::DIFF_DEGREES`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub difference_degree: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub params: Option<PhysicsParams>,
     /// Periods found in the samples and kept by the cross-validated physics model (physics and
@@ -194,6 +197,7 @@ pub fn reconstruct(
         status: None,
         cv_error_um: None,
         pooled_with: None,
+        difference_degree: None,
         params: None,
         periods_um: Vec::new(),
         candidates: Vec::new(),
