@@ -19,6 +19,14 @@ impl GridSamples {
     }
 }
 
+/// Grid steps from `i` to the nearest of the ascending indices `idx` (`usize::MAX` when empty).
+pub fn nearest_steps(idx: &[usize], i: usize) -> usize {
+    let j = idx.partition_point(|&x| x < i);
+    let above = idx.get(j).map(|&x| x - i);
+    let below = j.checked_sub(1).map(|j| i - idx[j]);
+    above.into_iter().chain(below).min().unwrap_or(usize::MAX)
+}
+
 /// Largest samples file read: a full grid of [`crate::grid::MAX_GRID_POINTS`] rows of ~40
 /// bytes fits.
 pub const MAX_SAMPLES_BYTES: u64 = 64 << 20;

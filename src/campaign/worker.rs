@@ -14,7 +14,7 @@ use super::spec::Campaign;
 use crate::grid::Grid;
 use crate::recon::joint::{reconstruct_joint, reconstruct_joint_among};
 use crate::recon::{reconstruct, Method, ReconSettings};
-use crate::samples::GridSamples;
+use crate::samples::{nearest_steps, GridSamples};
 use crate::types::{Component, Phase, RunKey, SampleRecord};
 
 /// A reconstructed (CS) or measured (full scan) curve of one component of one run.
@@ -306,14 +306,6 @@ fn mean_xy(p: &[(f64, f64)]) -> (f64, f64) {
         p.iter().map(|q| q.0).sum::<f64>() / n,
         p.iter().map(|q| q.1).sum::<f64>() / n,
     )
-}
-
-/// Grid steps from `i` to the nearest of the ascending indices `idx` (non-empty).
-fn nearest_steps(idx: &[usize], i: usize) -> usize {
-    let j = idx.partition_point(|&x| x < i);
-    let above = idx.get(j).map(|&x| x - i);
-    let below = j.checked_sub(1).map(|j| i - idx[j]);
-    above.into_iter().chain(below).min().unwrap_or(usize::MAX)
 }
 
 pub fn settings(c: &Campaign) -> ReconSettings {

@@ -10,7 +10,7 @@
 use super::physics::legendre;
 use super::{reconstruct, ReconSettings, Reconstruction};
 use crate::grid::Grid;
-use crate::samples::GridSamples;
+use crate::samples::{nearest_steps, GridSamples};
 use nalgebra::{DMatrix, DVector};
 
 /// Degrees of the direction difference the cross-validation chooses among: a constant
@@ -49,14 +49,16 @@ pub fn reconstruct_joint_among(
     let near = backed_by(own, other);
     let mut best: Option<Reconstruction> = None;
     // Nothing to gain without new positions, and the difference needs a few to be fitted.
-    for &deg in degrees.iter().filter(|&&d| new_positions >= 4 * (d + 1)) {
+    'degree: for &deg in degrees.iter().filter(|&&d| new_positions >= 4 * (d + 1)) {
         let mut base = alone.values.clone();
         let mut pooled = None;
         // Two alternations: the first against the direction alone, where that curve is
         // backed by its own samples, the second against the pooled curve, everywhere.
         for fit_on in [&near, other] {
-            let diff = fit_difference(grid, fit_on, &base, deg)
-                .ok_or("direction difference: singular fit")?;
+            // A singular fit (positions bunched together) leaves this degree out.
+            let Some(diff) = fit_difference(grid, fit_on, &base, deg) else {
+                continue 'degree;
+            };
             let r = reconstruct(grid, &merge(grid, own, other, &diff), s)?;
             base = r.values.clone();
             pooled = Some(r);
@@ -94,16 +96,7 @@ fn backed_by(own: &GridSamples, other: &GridSamples) -> GridSamples {
     let keep: Vec<usize> = (0..other.len())
         .filter(|&r| {
             let i = other.idx[r];
-            let j = own.idx.partition_point(|&x| x < i);
-            let d = [
-                j.checked_sub(1).map(|j| i - own.idx[j]),
-                own.idx.get(j).map(|&x| x - i),
-            ]
-            .into_iter()
-            .flatten()
-            .min()
-            .unwrap_or(usize::MAX);
-            (lo..=hi).contains(&i) && d <= reach
+            (lo..=hi).contains(&i) && nearest_steps(&own.idx, i) <= reach
         })
         .collect();
     if keep.len() < 4 * (DIFF_DEGREES[DIFF_DEGREES.len() - 1] + 1) {
