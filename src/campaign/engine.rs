@@ -402,49 +402,58 @@ impl<'a> Engine<'a> {
     async fn sweep_batch(&mut self, w: &mut Sweep) -> Result<Option<Control>, EngineError> {
         let run = w.run;
         let bi = w.next;
-        if let Some(goal) = bi.checked_sub(1).and_then(|p| w.batches[p].target_error_um) {
-            let est = self.recorder.stop_estimate(run);
-            let stop = est.as_ref().is_some_and(|e| meets(e, goal));
-            let cv = est.as_ref().and_then(|e| e.cv_error_um);
-            self.recorder.event(
-                "adaptive",
-                json!({"run": run.label(), "batch": bi - 1, "cv_error_um": cv, "target_error_um": goal, "stop": stop,
-                       "error_estimate_um": est.as_ref().map(|e| e.error_um),
-                       "scatter_um": est.as_ref().map(|e| e.scatter_um),
-                       "m": est.as_ref().map(|e| e.m), "pooled_m": est.as_ref().map(|e| e.pooled_m), "method": est.as_ref().map(|e| e.method.clone())}),
-            );
-            if stop {
-                let n: usize = w.batches[bi..].iter().map(|b| b.targets.len()).sum();
-                self.stat(run).saved_by_adaptive += n as u64;
-                w.next = w.batches.len();
-                self.recorder.run_done(run);
-                self.recorder.event("run_done", json!({"run": run.label()}));
-                return Ok(None);
+        if self.stops(w) {
+            let n: usize = w.batches[bi..].iter().map(|b| b.targets.len()).sum();
+            self.stat(run).saved_by_adaptive += n as u64;
+            w.next = w.batches.len();
+        } else {
+            if bi == 0 {
+                let todo = w
+                    .batches
+                    .iter()
+                    .flat_map(|b| &b.targets)
+                    .filter(|t| !self.done.contains_key(&t.seq))
+                    .count();
+                self.recorder.event(
+                    "run_start",
+                    json!({"run": run.label(), "targets": w.batches.iter().map(|b| b.targets.len()).sum::<usize>(), "to_measure": todo}),
+                );
             }
+            let c = self.batch(&w.batches[bi]).await?;
+            if c.halts() {
+                return Ok(Some(c));
+            }
+            w.next += 1;
         }
-        if bi == 0 {
-            let todo = w
-                .batches
-                .iter()
-                .flat_map(|b| &b.targets)
-                .filter(|t| !self.done.contains_key(&t.seq))
-                .count();
-            self.recorder.event(
-                "run_start",
-                json!({"run": run.label(), "targets": w.batches.iter().map(|b| b.targets.len()).sum::<usize>(), "to_measure": todo}),
-            );
-        }
-        let b = &w.batches[bi];
-        let c = self.batch(b).await?;
-        if c.halts() {
-            return Ok(Some(c));
-        }
-        w.next += 1;
         if w.next == w.batches.len() {
             self.recorder.run_done(run);
             self.recorder.event("run_done", json!({"run": run.label()}));
         }
         Ok(None)
+    }
+
+    /// The adaptive decision before a sweep's next batch (none before its first, or when the
+    /// batch measured last has no target): whether the estimate from everything measured so
+    /// far meets the target. Recorded as an `adaptive` event either way.
+    fn stops(&mut self, w: &Sweep) -> bool {
+        let Some(last) = w.next.checked_sub(1) else {
+            return false;
+        };
+        let Some(goal) = w.batches[last].target_error_um else {
+            return false;
+        };
+        let run = w.run;
+        let est = self.recorder.stop_estimate(run);
+        let stop = est.as_ref().is_some_and(|e| meets(e, goal));
+        let cv = est.as_ref().and_then(|e| e.cv_error_um);
+        self.recorder.event(
+            "adaptive",
+            json!({"run": run.label(), "batch": last, "cv_error_um": cv, "target_error_um": goal, "stop": stop,
+                   "error_estimate_um": est.as_ref().map(|e| e.error_um),
+                   "scatter_um": est.as_ref().map(|e| e.scatter_um),
+                   "m": est.as_ref().map(|e| e.m), "pooled_m": est.as_ref().map(|e| e.pooled_m), "method": est.as_ref().map(|e| e.method.clone())}),
+        );
+        stop
     }
 
     /// Waits while paused; returns Run, Abort or Stop.

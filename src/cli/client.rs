@@ -4,7 +4,7 @@
 //!
 //! Exit codes: 0 fine; 1 failure (service unreachable, campaign not done, 409); 2 bad input
 //! (campaign file, unknown id, missing or wrong token); `watch` exits 130 for an aborted campaign.
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader};
 use std::path::{Component, Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -426,7 +426,6 @@ fn follow(c: &Client, id: i64, samples: bool, json: bool, progress_s: f64) -> Cl
     let progress = !samples && !json;
     let mut last_progress = Instant::now();
     let mut down_since: Option<Instant> = None;
-    let out = std::io::stdout();
     loop {
         let url = c.url(&format!("/campaigns/{id}/events?after={after}"));
         let r = c
@@ -442,21 +441,18 @@ fn follow(c: &Client, id: i64, samples: bool, json: bool, progress_s: f64) -> Cl
                             last_progress = Instant::now();
                             // A missed line is no reason to stop following.
                             if let Ok(st) = c.status(id) {
-                                let mut o = out.lock();
-                                let _ = writeln!(o, "{}", progress_line(&st));
-                                let _ = o.flush();
+                                outln!("{}", progress_line(&st));
                             }
                         }
                         return;
                     }
-                    let mut o = out.lock();
+                    // stdout is line-buffered: each event reaches a pipe as it comes.
                     if json {
-                        let _ = writeln!(o, "{}", e.data);
+                        outln!("{}", e.data);
                     } else {
                         let v: Value = serde_json::from_str(&e.data).unwrap_or(Value::Null);
-                        let _ = writeln!(o, "{}", describe(&v));
+                        outln!("{}", describe(&v));
                     }
-                    let _ = o.flush();
                 });
                 if let Some(l) = last {
                     after = after.max(l);

@@ -202,19 +202,36 @@ mod tests {
         g.iter().zip(t).map(|(a, b)| (a - b).abs()).sum::<f64>() / t.len() as f64
     }
 
+    fn design(m: usize, seed: u64, n: usize) -> Vec<usize> {
+        crate::sampling::Design::new(crate::sampling::DesignKind::Random, m, seed)
+            .indices(n)
+            .unwrap()
+    }
+
+    /// Every other point of `idx` from `first` (dealt as the adaptive plan deals two
+    /// directions), those below `end`, valued from curve `t`.
+    fn every_other(idx: &[usize], first: usize, t: &[f64], end: usize) -> GridSamples {
+        let idx: Vec<usize> = idx
+            .iter()
+            .copied()
+            .skip(first)
+            .step_by(2)
+            .filter(|&i| i < end)
+            .collect();
+        let values = idx.iter().map(|&i| t[i]).collect();
+        GridSamples { idx, values }
+    }
+
     #[test]
     fn the_other_directions_samples_at_other_positions_sharpen_the_curve() {
         let grid = Grid::new(0.0, 5.0, 9500.0).unwrap();
         let (f, b) = curves(grid.n);
-        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 200, 3)
-            .indices(grid.n)
-            .unwrap();
+        let idx = design(200, 3, grid.n);
         // Interleaved: forward takes every other design point, backward the rest.
-        let take = |par: usize, t: &[f64]| GridSamples {
-            idx: idx.iter().copied().skip(par).step_by(2).collect(),
-            values: idx.iter().skip(par).step_by(2).map(|&i| t[i]).collect(),
-        };
-        let (fw, bw) = (take(0, &f), take(1, &b));
+        let (fw, bw) = (
+            every_other(&idx, 0, &f, grid.n),
+            every_other(&idx, 1, &b, grid.n),
+        );
         let s = ReconSettings {
             method: Method::Auto,
             ..Default::default()
@@ -230,9 +247,7 @@ mod tests {
     fn samples_at_the_same_positions_or_an_unrelated_curve_leave_the_direction_alone() {
         let grid = Grid::new(0.0, 5.0, 9500.0).unwrap();
         let (f, _) = curves(grid.n);
-        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 120, 4)
-            .indices(grid.n)
-            .unwrap();
+        let idx = design(120, 4, grid.n);
         let fw = GridSamples {
             idx: idx.clone(),
             values: idx.iter().map(|&i| f[i]).collect(),
@@ -249,9 +264,7 @@ mod tests {
             None
         );
         // The other direction sees a different cyclic error: pooling would corrupt the curve.
-        let other_idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 120, 5)
-            .indices(grid.n)
-            .unwrap();
+        let other_idx = design(120, 5, grid.n);
         let unrelated = GridSamples {
             values: other_idx
                 .iter()
@@ -275,21 +288,11 @@ mod tests {
         let s = ReconSettings::default();
         // Designs on which a cubic difference fitted everywhere did not pool at all.
         for seed in [1, 2] {
-            let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 300, seed)
-                .indices(grid.n)
-                .unwrap();
-            let take = |par: usize, t: &[f64], end: usize| {
-                let idx: Vec<usize> = idx
-                    .iter()
-                    .copied()
-                    .skip(par)
-                    .step_by(2)
-                    .filter(|&i| i < end)
-                    .collect();
-                let values = idx.iter().map(|&i| t[i]).collect();
-                GridSamples { idx, values }
-            };
-            let (fw, bw) = (take(0, &f, cut), take(1, &b, grid.n));
+            let idx = design(300, seed, grid.n);
+            let (fw, bw) = (
+                every_other(&idx, 0, &f, cut),
+                every_other(&idx, 1, &b, grid.n),
+            );
             let alone = reconstruct(&grid, &fw, &s).unwrap();
             let joint = reconstruct_joint(&grid, &fw, &bw, &s).unwrap();
             assert_eq!(joint.pooled_with, Some(bw.len()), "seed {seed}");
