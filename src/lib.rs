@@ -3,6 +3,7 @@ pub mod api;
 pub mod campaign;
 pub mod cli;
 pub mod compensation;
+pub mod export;
 pub mod gap;
 pub mod grid;
 pub mod iso230;

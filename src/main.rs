@@ -63,6 +63,8 @@ enum Command {
     Verify(cli::verify::Args),
     /// Cameras: list those this build reaches, grab and decode one frame.
     Camera(cli::camera::Args),
+    /// Write a stored campaign in a facility's format (NeXus/HDF5).
+    Export(cli::export::Args),
 }
 
 fn main() -> ExitCode {
@@ -91,6 +93,7 @@ fn main() -> ExitCode {
         Command::Move(a) => cli::move_cmd::run(a),
         Command::Verify(a) => cli::verify::run(a),
         Command::Camera(a) => cli::camera::run(a),
+        Command::Export(a) => cli::export::run(a),
     };
     cli::finish(result)
 }

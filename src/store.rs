@@ -38,7 +38,7 @@ mod schema;
 use schema::MIGRATIONS;
 
 /// The schema this build writes. Bump it and append to `schema::MIGRATIONS` to change the schema.
-pub const SCHEMA_VERSION: i32 = 3;
+pub const SCHEMA_VERSION: i32 = 4;
 
 /// `PRAGMA application_id` of a csmetro store ("CSMT"), so `file(1)`-like tools and
 /// [`Store::open`] can tell a csmetro database from another SQLite file.
@@ -119,6 +119,16 @@ pub struct EventRow {
     /// Grows with every event of every campaign: clients resume a stream with `after_id`.
     pub id: i64,
     pub campaign: i64,
+    pub unix_s: f64,
+    pub kind: String,
+    pub data: serde_json::Value,
+}
+
+/// One entry of a stage's log (moves over the API, with their origin).
+#[derive(Debug, Clone, Serialize)]
+pub struct StageEventRow {
+    pub id: i64,
+    pub stage: String,
     pub unix_s: f64,
     pub kind: String,
     pub data: serde_json::Value,
@@ -787,6 +797,98 @@ impl Store {
             .and_then(|mut st| st.execute(params![campaign, now_unix_s(), kind, text]))
             .map_err(|e| self.write_err(OP, campaign, e))?;
         Ok(self.conn.last_insert_rowid())
+    }
+
+    /// Keeps the stage model text campaign `id` was validated with.
+    pub fn set_model_snapshot(&self, id: i64, model_toml: &str) -> Result<(), StoreError> {
+        const OP: &str = "store the stage model";
+        let n = self
+            .conn
+            .prepare_cached("UPDATE campaigns SET model_toml = ?2 WHERE id = ?1")
+            .and_then(|mut st| st.execute(params![id, model_toml]))
+            .map_err(|e| self.write_err(OP, id, e))?;
+        if n == 0 {
+            return Err(self.unknown(OP, id));
+        }
+        Ok(())
+    }
+
+    /// The stage model text campaign `id` was validated with (None: it has none, or the store
+    /// recorded it before snapshots).
+    pub fn model_snapshot(&self, id: i64) -> Result<Option<String>, StoreError> {
+        const OP: &str = "read the stage model";
+        self.conn
+            .query_row(
+                "SELECT model_toml FROM campaigns WHERE id = ?1",
+                [id],
+                |r| r.get::<_, Option<String>>(0),
+            )
+            .optional()
+            .map_err(|e| self.err(OP, e))?
+            .ok_or_else(|| self.unknown(OP, id))
+    }
+
+    /// Appends an event to a stage's log (what happened to it outside campaigns: moves);
+    /// returns its id.
+    pub fn add_stage_event(
+        &self,
+        stage: &str,
+        kind: &str,
+        data: &serde_json::Value,
+    ) -> Result<i64, StoreError> {
+        const OP: &str = "add stage event";
+        let text = data.to_string();
+        self.conn
+            .prepare_cached(
+                "INSERT INTO stage_events (stage, unix_s, kind, data) VALUES (?1, ?2, ?3, ?4)",
+            )
+            .and_then(|mut st| st.execute(params![stage, now_unix_s(), kind, text]))
+            .map_err(|e| self.err(OP, e))?;
+        Ok(self.conn.last_insert_rowid())
+    }
+
+    /// A stage's events with id > `after_id`, oldest first, at most `limit`: (id, unix_s,
+    /// kind, data).
+    pub fn stage_events_after(
+        &self,
+        stage: &str,
+        after_id: i64,
+        limit: usize,
+    ) -> Result<Vec<StageEventRow>, StoreError> {
+        const OP: &str = "read stage events";
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let mut st = self
+            .conn
+            .prepare_cached(
+                "SELECT id, unix_s, kind, data FROM stage_events \
+                 WHERE stage = ?1 AND id > ?2 ORDER BY id LIMIT ?3",
+            )
+            .map_err(|e| self.err(OP, e))?;
+        let rows = st
+            .query_map(params![stage, after_id, limit], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, f64>(1)?,
+                    r.get::<_, String>(2)?,
+                    r.get::<_, String>(3)?,
+                ))
+            })
+            .and_then(|rows| rows.collect::<rusqlite::Result<Vec<_>>>())
+            .map_err(|e| self.err(OP, e))?;
+        rows.into_iter()
+            .map(|(id, unix_s, kind, data)| {
+                let data = serde_json::from_str(&data).map_err(|e| {
+                    self.corrupt(OP, format!("stage event {id}: data is not JSON: {e}"))
+                })?;
+                Ok(StageEventRow {
+                    id,
+                    stage: stage.to_string(),
+                    unix_s,
+                    kind,
+                    data,
+                })
+            })
+            .collect()
     }
 
     /// A campaign's events with id > `after_id`, oldest first (`after_id = 0`: all of them).

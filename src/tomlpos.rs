@@ -9,7 +9,7 @@ use std::path::Path;
 /// Campaign files ([`crate::campaign::spec::SpecError`]) and the service configuration
 /// ([`crate::api::ConfigError`]) both report with it.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{origin}:{line}: {key}: {message}")]
+#[error("{origin}:{line}: {key}: {}", crate::types::shorten_numbers(message))]
 pub struct TomlError {
     pub origin: String,
     pub line: usize,
@@ -20,7 +20,15 @@ pub struct TomlError {
 impl TomlError {
     /// The error of `toml::from_str` on `text`: its line and the key it sits on.
     pub(crate) fn from_toml(text: &str, origin: &str, e: &toml::de::Error) -> TomlError {
-        let span = e.span();
+        // The parser's recursion limit comes without a place: the most deeply nested spot is
+        // where it tripped.
+        let span = e.span().or_else(|| {
+            e.message()
+                .contains("recursion")
+                .then(|| deepest_nesting(text))
+                .flatten()
+                .map(|at| at..at + 1)
+        });
         TomlError {
             origin: origin.into(),
             line: span.clone().map(|s| line_of(text, s.start)).unwrap_or(0),
@@ -30,6 +38,33 @@ impl TomlError {
             message: e.message().trim().to_string(),
         }
     }
+}
+
+/// Byte offset of the first place where `[`/`{` nesting is deepest (outside strings and
+/// comments); None when nothing nests.
+fn deepest_nesting(text: &str) -> Option<usize> {
+    let (mut depth, mut best, mut at) = (0usize, 0usize, None);
+    let mut quote: Option<char> = None;
+    let mut comment = false;
+    for (i, c) in text.char_indices() {
+        match (quote, c) {
+            _ if comment => comment = c != '\n',
+            (Some(q), c) if c == q => quote = None,
+            (Some(_), _) => {}
+            (None, '"' | '\'') => quote = Some(c),
+            (None, '#') => comment = true,
+            (None, '[' | '{') => {
+                depth += 1;
+                if depth > best {
+                    best = depth;
+                    at = Some(i);
+                }
+            }
+            (None, ']' | '}') => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
+    at
 }
 
 /// Largest TOML file read (campaigns, stage models, the service configuration).

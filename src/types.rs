@@ -299,3 +299,60 @@ pub fn check_operator(name: &str) -> Result<Option<String>, String> {
     }
     Ok(Some(n.to_string()))
 }
+
+/// A message with every number written with more than 17 digits shortened to scientific
+/// notation (`1e308`, not 309 digits): errors quote values a user gave, and a value like `1e308`
+/// would otherwise fill a terminal or an HTTP answer.
+pub fn shorten_numbers(msg: &str) -> std::borrow::Cow<'_, str> {
+    let b = msg.as_bytes();
+    let digits = |r: &[u8]| r.iter().filter(|c| c.is_ascii_digit()).count();
+    let mut out = String::new();
+    let (mut last, mut i) = (0, 0);
+    while i < b.len() {
+        if !b[i].is_ascii_digit() {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        while i < b.len() && (b[i].is_ascii_digit() || b[i] == b'.') {
+            i += 1;
+        }
+        let run = &msg[start..i];
+        let run = run.trim_end_matches('.');
+        if digits(run.as_bytes()) > 17 {
+            if let Ok(v) = run.parse::<f64>() {
+                out.push_str(&msg[last..start]);
+                out.push_str(&format!("{v:e}"));
+                last = start + run.len();
+            }
+        }
+    }
+    if last == 0 {
+        return std::borrow::Cow::Borrowed(msg);
+    }
+    out.push_str(&msg[last..]);
+    std::borrow::Cow::Owned(out)
+}
+
+#[cfg(test)]
+mod shorten_tests {
+    use super::shorten_numbers;
+
+    #[test]
+    fn long_numbers_are_written_short_and_the_rest_is_kept() {
+        let long = format!("{}", 1e308);
+        assert_eq!(
+            shorten_numbers(&format!("grid 0:5:{long} has more than 1000000 points")),
+            "grid 0:5:1e308 has more than 1000000 points"
+        );
+        assert_eq!(
+            shorten_numbers(&format!("floating point `{long}.0`, expected")),
+            "floating point `1e308`, expected"
+        );
+        assert_eq!(shorten_numbers("9500 µm at 1.25 s"), "9500 µm at 1.25 s");
+        assert_eq!(
+            shorten_numbers("seed 12345678901234567"),
+            "seed 12345678901234567"
+        );
+    }
+}

@@ -148,7 +148,7 @@ fn invalid_campaigns_are_refused_with_file_line_and_key() {
     let bad = quick("bad", "s1").replace("step_um = 25.0", "step_um = 25.0\nstpe = 3");
     let line = bad.lines().position(|l| l.contains("stpe")).unwrap() + 1;
 
-    let (s, v) = srv.post("/campaigns", Some(("text/plain", &bad)));
+    let (s, v) = srv.post("/campaigns", Some(("application/toml", &bad)));
     assert_eq!(s, 400, "{v}");
     let msg = v["error"].as_str().unwrap();
     assert!(

@@ -397,15 +397,37 @@ fn run_and_the_service_refuse_a_campaign_whose_rig_fails_the_preflight() {
     // The service: refused before it is recorded, 503 (the rig) or 409 (the file or build).
     let sdir = dir.path().join("svc");
     std::fs::create_dir_all(&sdir).unwrap();
+    // The service lets submitted campaigns connect only where its configuration says.
+    let cfg = common::write_config(&sdir, "127.0.0.1:0", None);
+    let mut t = std::fs::read_to_string(&cfg).unwrap();
+    t.push_str(&format!("\n[hardware]\ntcp_endpoints = [\"{closed}\"]\n"));
+    std::fs::write(&cfg, t).unwrap();
     let server = common::Server::start(&sdir, None);
     let text = std::fs::read_to_string(&c)
         .unwrap()
         .replace(&format!("dir = \"{}/", dir.path().display()), "dir = \"");
+    // An endpoint the configuration does not list: refused at validation, not tried.
+    let unlisted = text.replace(&closed, "127.0.0.1:1");
+    let (status, body) = server.post("/campaigns", Some(("application/toml", &unlisted)));
+    assert_eq!(status, 400, "{body}");
+    let msg = body["error"].as_str().unwrap_or_default();
+    assert!(
+        msg.contains(".transport:") && !msg.contains("127.0.0.1:1"),
+        "{msg}"
+    );
+
     let (status, body) = server.post("/campaigns", Some(("application/toml", &text)));
     let msg = body["error"].as_str().unwrap_or_default();
     if want == 1 {
         assert_eq!(status, 503, "{body}");
         assert!(msg.starts_with("pre-flight check `"), "{msg}");
+        // One generic answer for an unreachable device: no "connection refused" oracle.
+        assert!(
+            msg.contains("unreachable or did not answer")
+                && !msg.to_lowercase().contains("refused")
+                && !msg.contains(&closed),
+            "{msg}"
+        );
     } else {
         assert_eq!(status, 400, "{body}");
         assert!(msg.contains("--features aravis"), "{msg}");

@@ -171,3 +171,36 @@ fn a_stage_lock_io_error_interrupts_instead_of_waiting_forever() {
     );
     std::fs::remove_dir(&lock).unwrap();
 }
+
+/// What was validated is what runs: the stage model is read once, at submission, and stored
+/// with the campaign. A file swapped in while the campaign waits (here: a link to a secret
+/// outside the allowed directories) is never read; the campaign runs the model it was
+/// validated with. It used to be read again at start by a loader without the confinement.
+#[test]
+fn a_model_swapped_after_submission_is_not_what_runs() {
+    std::env::set_var("CSMETRO_LOCK_DIR", common::test_lock_dir());
+    let dir = tempfile::tempdir().unwrap();
+    let srv = service(dir.path());
+    let camp = dir.path().join("campaigns");
+    std::fs::copy(camp.join("ideal.toml"), camp.join("mine.toml")).unwrap();
+    // Another process drives the stage: the campaign waits in the queue after validation.
+    let lock = csmetro::campaign::stagelock::try_lock(&srv.db(), "s1").unwrap();
+    let id = srv.submit(&with_model("mine.toml"));
+    std::fs::remove_file(camp.join("mine.toml")).unwrap();
+    std::os::unix::fs::symlink(dir.path().join("secret.toml"), camp.join("mine.toml")).unwrap();
+    drop(lock);
+    let st = srv.wait_for(id, 60.0, |s| {
+        matches!(s["state"].as_str(), Some("done" | "interrupted" | "failed"))
+    });
+    assert_eq!(st["state"], "done", "{st}\n{}", srv.log());
+    let stored = csmetro::store::Store::open(&srv.db())
+        .unwrap()
+        .model_snapshot(id)
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        stored,
+        std::fs::read_to_string(repo("config/sim/ideal.toml")).unwrap()
+    );
+    assert!(!srv.log().contains(SECRET));
+}

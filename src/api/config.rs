@@ -5,15 +5,23 @@
 //! bind = "127.0.0.1:8463"       # a non-loopback address needs token or token_file
 //! # token = "..."               # clients send `Authorization: Bearer <token>`
 //! # token_file = "token"        # first line of the file (keeps the secret out of the config)
+//! # allowed_hosts = ["lab-pc.example"]  # names browsers may reach it by besides its address and
+//!                               # localhost (`name` on the bound port, or `name:port`)
 //!
 //! [storage]
 //! db = "../var/csmetro.db"       # SQLite store: campaigns, samples, events, results
 //! results_dir = "../var/results" # relative `[outputs] dir` of campaigns resolve from here
+//! # max_store_mb = 4096          # submissions get 507 while the store is larger
 //!
 //! [campaigns]
 //! base_dir = "campaigns"         # relative paths in submitted campaigns (stage models) resolve here
 //! models_dir = "sim"             # optional: relative paths of submitted campaigns may also
 //!                                # lead here (`../sim/demo_xy.toml`)
+//! # max_queued = 100             # campaigns waiting per stage; one more gets 409
+//!
+//! [hardware]                     # what submitted real-rig campaigns may open (none by default)
+//! serial_ports = ["/dev/serial/by-id/usb-PI_C-863_0115500001-if00-port0"]
+//! tcp_endpoints = ["127.0.0.1:50863"]   # terminal servers, the simulated rig
 //!
 //! [log]
 //! filter = "info"                # tracing filter; RUST_LOG overrides it
@@ -49,12 +57,21 @@ pub struct ServiceConfig {
     pub bind: SocketAddr,
     /// Bearer token every request must carry; None = no authentication (loopback only).
     pub token: Option<String>,
+    /// Host names the service answers to besides its address and `localhost` (`[server]
+    /// allowed_hosts`, lower case; `name` or `name:port`).
+    pub allowed_hosts: Vec<String>,
     pub db: PathBuf,
     pub results_dir: PathBuf,
     /// Where relative paths in submitted campaign files resolve.
     pub campaigns_dir: PathBuf,
     /// Where else relative paths of submitted campaigns may lead (stage models).
     pub models_dir: Option<PathBuf>,
+    /// What clients may fill (`[storage] max_store_mb`, `[campaigns] max_queued`).
+    pub limits: super::Limits,
+    /// Serial devices submitted real-rig campaigns may open (`[hardware] serial_ports`).
+    pub serial_ports: Vec<String>,
+    /// `host:port` submitted real-rig campaigns may connect to (`[hardware] tcp_endpoints`).
+    pub tcp_endpoints: Vec<String>,
     /// `target=level` directives, comma separated (tracing-subscriber `Targets`), e.g. `info,csmetro=debug`.
     pub log_filter: String,
 }
@@ -64,6 +81,8 @@ pub struct ServiceConfig {
 struct Raw {
     #[serde(default)]
     server: RawServer,
+    #[serde(default)]
+    hardware: RawHardware,
     storage: RawStorage,
     #[serde(default)]
     campaigns: RawCampaigns,
@@ -77,6 +96,18 @@ struct RawServer {
     bind: Option<String>,
     token: Option<String>,
     token_file: Option<String>,
+    #[serde(default)]
+    allowed_hosts: Vec<String>,
+}
+
+/// What real-rig campaigns submitted to the service may open.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawHardware {
+    #[serde(default)]
+    serial_ports: Vec<String>,
+    #[serde(default)]
+    tcp_endpoints: Vec<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -84,6 +115,7 @@ struct RawServer {
 struct RawStorage {
     db: String,
     results_dir: String,
+    max_store_mb: Option<u64>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -91,6 +123,7 @@ struct RawStorage {
 struct RawCampaigns {
     base_dir: Option<String>,
     models_dir: Option<String>,
+    max_queued: Option<usize>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -202,6 +235,55 @@ impl ServiceConfig {
                 ),
             ));
         }
+        if raw.server.allowed_hosts.len() > 64 {
+            return Err(fail("server.allowed_hosts", "at most 64 names".into()));
+        }
+        let mut allowed_hosts = Vec::new();
+        for h in &raw.server.allowed_hosts {
+            let h = h.trim().to_ascii_lowercase();
+            let (name, port) = match h.rsplit_once(':') {
+                Some((n, p)) if !n.ends_with(']') && !n.contains(':') => (n, Some(p)),
+                _ => (h.as_str(), None),
+            };
+            let name_ok = !name.is_empty()
+                && name.len() <= 253
+                && name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '.');
+            if !name_ok || port.is_some_and(|p| p.parse::<u16>().is_err()) {
+                return Err(fail(
+                    "server.allowed_hosts",
+                    "each entry is a host name or `name:port` (letters, digits, `-`, `.`),                      no scheme or path"
+                        .into(),
+                ));
+            }
+            allowed_hosts.push(h);
+        }
+        if raw.storage.max_store_mb == Some(0) {
+            return Err(fail("storage.max_store_mb", "must be at least 1 MB".into()));
+        }
+        if raw.campaigns.max_queued == Some(0) {
+            return Err(fail("campaigns.max_queued", "must be at least 1".into()));
+        }
+        for p in &raw.hardware.serial_ports {
+            if !p.starts_with("/dev/") || p.len() > 1024 || p.contains("/../") {
+                return Err(fail(
+                    "hardware.serial_ports",
+                    "each entry is a device path under /dev".into(),
+                ));
+            }
+        }
+        for a in &raw.hardware.tcp_endpoints {
+            let ok = a
+                .rsplit_once(':')
+                .is_some_and(|(h, p)| !h.is_empty() && h.len() <= 253 && p.parse::<u16>().is_ok());
+            if !ok {
+                return Err(fail(
+                    "hardware.tcp_endpoints",
+                    "each entry is `host:port`".into(),
+                ));
+            }
+        }
         for (key, v) in [
             ("storage.db", &raw.storage.db),
             ("storage.results_dir", &raw.storage.results_dir),
@@ -230,6 +312,22 @@ impl ServiceConfig {
             path: PathBuf::from(origin),
             bind,
             token,
+            allowed_hosts,
+            limits: {
+                let d = super::Limits::default();
+                super::Limits {
+                    max_store_bytes: raw
+                        .storage
+                        .max_store_mb
+                        .map_or(d.max_store_bytes, |mb| mb.saturating_mul(1 << 20)),
+                    max_queued_per_stage: raw
+                        .campaigns
+                        .max_queued
+                        .unwrap_or(d.max_queued_per_stage),
+                }
+            },
+            serial_ports: raw.hardware.serial_ports,
+            tcp_endpoints: raw.hardware.tcp_endpoints,
             db,
             results_dir: resolve(&raw.storage.results_dir),
             campaigns_dir,
@@ -246,6 +344,8 @@ impl ServiceConfig {
                 .chain(self.models_dir.clone())
                 .collect(),
             results_dir: self.results_dir.clone(),
+            serial_ports: self.serial_ports.clone(),
+            tcp_endpoints: self.tcp_endpoints.clone(),
         }
     }
 }
@@ -299,6 +399,31 @@ mod tests {
         assert!(c.bind.ip().is_loopback());
         assert_eq!(c.token, None);
         assert_eq!(c.log_filter, "info");
+        assert!(c.allowed_hosts.is_empty());
+    }
+
+    #[test]
+    fn allowed_hosts_are_names_not_urls() {
+        let t = GOOD.replace(
+            "[server]\n",
+            "[server]\nallowed_hosts = [\"Lab-PC.example\", \"x:8080\"]\n",
+        );
+        assert_eq!(
+            parse(&t).unwrap().allowed_hosts,
+            ["lab-pc.example", "x:8080"]
+        );
+        for bad in ["http://evil", "a/b", "", "x:port"] {
+            let t = GOOD.replace(
+                "[server]\n",
+                &format!("[server]\nallowed_hosts = [\"{bad}\"]\n"),
+            );
+            let e = parse(&t).unwrap_err();
+            assert_eq!(
+                (e.key.as_str(), e.line),
+                ("server.allowed_hosts", 2),
+                "{bad}: {e}"
+            );
+        }
     }
 
     #[test]

@@ -37,6 +37,9 @@ use crate::types::{CampaignState, Origin};
 /// How often a campaign waiting for a stage held by another process tries again.
 const STAGE_RETRY: Duration = Duration::from_secs(2);
 
+/// Failed starts of a queued campaign before it is left `interrupted`.
+const MAX_START_TRIES: u32 = 5;
+
 /// Live events buffered per subscriber before a slow one lags (it then catches up from the store).
 const EVENT_BUFFER: usize = 4096;
 
@@ -86,6 +89,8 @@ struct Inner {
     queues: BTreeMap<String, VecDeque<i64>>,
     /// The campaign driving each stage.
     running: BTreeMap<String, Active>,
+    /// Failed starts per queued campaign (see [`Manager::retry_start`]).
+    start_failures: BTreeMap<i64, u32>,
 }
 
 impl Inner {
@@ -102,6 +107,7 @@ impl Inner {
 /// Owns the store, the queues and the running campaigns. Create with [`Manager::new`], then
 /// [`Manager::start`] inside a tokio runtime.
 pub struct Manager {
+    limits: Limits,
     store: SharedStore,
     events: broadcast::Sender<Event>,
     results_dir: PathBuf,
@@ -128,15 +134,42 @@ async fn preflight_report(c: &Campaign) -> preflight::Report {
     report
 }
 
+/// A store failure as the client sees it: the details (with the store's server path) go to the
+/// log only.
 fn store_err(e: StoreError) -> ApiError {
-    ApiError::internal(e.to_string())
+    tracing::error!(error = %e, "store");
+    ApiError::internal("the service's store failed (its log has the details)")
+}
+
+/// What one service lets clients fill.
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    /// Submissions are refused (507) while the store (with its WAL) is larger, bytes.
+    pub max_store_bytes: u64,
+    /// Campaigns waiting per stage; one more is refused (409).
+    pub max_queued_per_stage: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_store_bytes: 4 << 30,
+            max_queued_per_stage: 100,
+        }
+    }
 }
 
 impl Manager {
     /// `results_dir`: where relative `[outputs] dir` of campaigns go; `campaigns_dir`: where
     /// relative paths in submitted campaign files resolve.
-    pub fn new(store: SharedStore, results_dir: &Path, campaigns_dir: &Path) -> Arc<Manager> {
+    pub fn new(
+        store: SharedStore,
+        results_dir: &Path,
+        campaigns_dir: &Path,
+        limits: Limits,
+    ) -> Arc<Manager> {
         Arc::new(Manager {
+            limits,
             store,
             events: broadcast::channel(EVENT_BUFFER).0,
             results_dir: results_dir.to_path_buf(),
@@ -297,31 +330,60 @@ impl Manager {
             let Ok(_stage) = stagelock::try_lock(db_path, &row.stage) else {
                 continue;
             };
-            let now = self.db().campaign(row.id).ok().flatten();
-            let Some(now) = now.filter(|r| r.state == CampaignState::Running) else {
-                continue;
-            };
-            let stored = self.db().sample_count(row.id).unwrap_or(0);
-            let msg = format!(
-                "the process that ran it exited without finishing (was {}); {stored} of {} \
-                 samples are stored and a resume continues from there",
-                now.state.as_str(),
-                now.planned
-            );
-            tracing::warn!(campaign = row.id, stage = %row.stage, "{msg}");
-            if let Err(e) = self
-                .db()
-                .set_state(row.id, CampaignState::Interrupted, Some(&msg))
-            {
-                tracing::warn!(campaign = row.id, error = %e, "orphan check: state not stored");
-                continue;
+            self.mark_orphan(row.id);
+        }
+    }
+
+    /// Marks campaign `id` `interrupted` if the store still says `running`: the caller holds its
+    /// stage's lock, so the process that ran it is gone.
+    fn mark_orphan(&self, id: i64) {
+        let now = self.db().campaign(id).ok().flatten();
+        let Some(now) = now.filter(|r| r.state == CampaignState::Running) else {
+            return;
+        };
+        let stored = self.db().sample_count(id).unwrap_or(0);
+        let msg = format!(
+            "the process that ran it exited without finishing (was {}); {stored} of {} \
+             samples are stored and a resume continues from there",
+            now.state.as_str(),
+            now.planned
+        );
+        tracing::warn!(campaign = id, stage = %now.stage, "{msg}");
+        if let Err(e) = self
+            .db()
+            .set_state(id, CampaignState::Interrupted, Some(&msg))
+        {
+            tracing::warn!(campaign = id, error = %e, "orphan check: state not stored");
+            return;
+        }
+        self.emit(
+            id,
+            "interrupted",
+            by_service(json!({"reason": "its process exited without finishing",
+                   "previous_state": now.state.as_str(), "stored": stored, "resumable": true})),
+        );
+    }
+
+    /// With `stage`'s lock held: campaigns the store still shows `running` on it that this
+    /// service does not run are orphans of a dead process. Marked `interrupted` before `id`
+    /// starts, so the store's one-running-campaign-per-stage rule does not refuse `id` (a
+    /// campaign submitted just as a foreground `csmetro run` died was stranded `queued`).
+    fn reclaim_stage(&self, stage: &str, id: i64) {
+        let rows = match self.db().unfinished() {
+            Ok(rows) => rows,
+            Err(e) => {
+                tracing::warn!(error = %e, "stage reclaim: cannot read the store");
+                return;
             }
-            self.emit(
-                row.id,
-                "interrupted",
-                by_service(json!({"reason": "its process exited without finishing",
-                       "previous_state": now.state.as_str(), "stored": stored, "resumable": true})),
-            );
+        };
+        for row in rows {
+            if row.stage == stage
+                && row.id != id
+                && row.state == CampaignState::Running
+                && self.inner().active(row.id).is_none()
+            {
+                self.mark_orphan(row.id);
+            }
         }
     }
 
@@ -346,11 +408,14 @@ impl Manager {
                     .active(e.campaign)
                     .is_some_and(|a| *a.control.borrow() == Control::Pause);
                 if paused {
-                    let _ = m.db().set_state(
+                    if let Err(err) = m.db().set_state(
                         e.campaign,
                         CampaignState::Paused,
                         Some("paused by the operator"),
-                    );
+                    ) {
+                        // The engine holds anyway; only the stored state lags.
+                        tracing::error!(campaign = e.campaign, error = %err, "paused state not stored");
+                    }
                 }
             }
         });
@@ -404,6 +469,7 @@ impl Manager {
             .map(|f| f.to_string_lossy().into_owned())
             .filter(|f| !f.is_empty())
             .unwrap_or_else(|| "submitted.toml".into());
+        self.check_quota()?;
         let mut c = Campaign::parse(text, &file, &self.campaigns_dir)
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
         // `verify = ID`: a characterisation in this service's store only.
@@ -412,8 +478,20 @@ impl Manager {
         // load_stored resolves relative paths from the stored path's directory.
         c.origin = self.campaigns_dir.join(&file).display().to_string();
         self.preflight_at_submit(&c)?;
-        let id = session::create(&self.store, &c).map_err(ApiError::internal)?;
         let stage = c.spec.campaign.stage.clone();
+        let waiting = self.inner().queues.get(&stage).map_or(0, VecDeque::len);
+        if waiting >= self.limits.max_queued_per_stage {
+            return Err(ApiError::conflict(format!(
+                "{waiting} campaigns already wait for stage {stage} (the service's \
+                 [campaigns] max_queued): submit again when some have run"
+            )));
+        }
+        let id = session::create(&self.store, &c).map_err(|e| {
+            tracing::error!(error = %e, "campaign not recorded");
+            ApiError::internal(
+                "the campaign could not be recorded (the service's log has the details)",
+            )
+        })?;
         let position = {
             let mut inner = self.inner();
             let q = inner.queues.entry(stage.clone()).or_default();
@@ -429,6 +507,35 @@ impl Manager {
         );
         self.schedule(&stage);
         self.status(id)
+    }
+
+    /// 507 while the store file (and its write-ahead log) is over [`Limits::max_store_bytes`]:
+    /// clients cannot fill the disk one campaign at a time.
+    fn check_quota(&self) -> Result<(), ApiError> {
+        let Some(db) = self.db().path().map(Path::to_path_buf) else {
+            return Ok(());
+        };
+        let size = |p: &Path| std::fs::metadata(p).map_or(0, |m| m.len());
+        let mut wal = db.clone().into_os_string();
+        wal.push("-wal");
+        let used = size(&db) + size(Path::new(&wal));
+        if used > self.limits.max_store_bytes {
+            tracing::warn!(
+                used,
+                max = self.limits.max_store_bytes,
+                "store over its quota"
+            );
+            return Err(ApiError::new(
+                axum::http::StatusCode::INSUFFICIENT_STORAGE,
+                format!(
+                    "the store holds {} MB, over the service's quota ([storage] max_store_mb = \
+                     {}): nothing new is recorded until an operator frees space",
+                    used >> 20,
+                    self.limits.max_store_bytes >> 20
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// The pre-flight of `csmetro check`, before the campaign is recorded, when its stage is
@@ -465,9 +572,10 @@ impl Manager {
                 axum::http::StatusCode::SERVICE_UNAVAILABLE
             }
         };
+        tracing::warn!(campaign = %c.spec.campaign.name, "{}; not queued", report.error_message());
         Err(ApiError::new(
             status,
-            format!("{}; the campaign was not queued", report.error_message()),
+            format!("{}; the campaign was not queued", report.client_message()),
         ))
     }
 
@@ -478,7 +586,7 @@ impl Manager {
                 return;
             }
             let db_path = self.db().path().map(Path::to_path_buf);
-            let (id, rx) = {
+            let (id, rx, locked) = {
                 let mut inner = self.inner();
                 if inner.running.contains_key(stage) {
                     return;
@@ -513,6 +621,7 @@ impl Manager {
                     }
                 };
                 inner.queues.get_mut(stage).and_then(|q| q.pop_front());
+                let locked = lock.is_some();
                 let (tx, rx) = watch::channel(Control::Run);
                 inner.running.insert(
                     stage.to_string(),
@@ -524,8 +633,11 @@ impl Manager {
                         progress: Progress::default(),
                     },
                 );
-                (id, rx)
+                (id, rx, locked)
             };
+            if locked {
+                self.reclaim_stage(stage, id);
+            }
             // Another process may have finished it while it waited for the stage.
             if self
                 .db()
@@ -564,7 +676,9 @@ impl Manager {
             .is_none_or(|r| r.message.as_deref() != Some(msg.as_str()));
         if first {
             tracing::warn!(campaign = id, error = %msg, "waiting for the stage");
-            let _ = self.db().set_state(id, CampaignState::Queued, Some(&msg));
+            if let Err(e) = self.db().set_state(id, CampaignState::Queued, Some(&msg)) {
+                tracing::error!(campaign = id, error = %e, "waiting state not stored");
+            }
             self.emit(
                 id,
                 "waiting_for_stage",
@@ -583,9 +697,13 @@ impl Manager {
 
     /// Ends a campaign's attempt as resumable (state interrupted) and closes its event stream.
     fn interrupt(&self, id: i64, msg: String) {
-        let _ = self
+        if let Err(e) = self
             .db()
-            .set_state(id, CampaignState::Interrupted, Some(&msg));
+            .set_state(id, CampaignState::Interrupted, Some(&msg))
+        {
+            // The event below still tells clients; the store is what a restart reads.
+            tracing::error!(campaign = id, error = %e, "interrupted state not stored");
+        }
         self.emit(
             id,
             "error",
@@ -622,7 +740,8 @@ impl Manager {
             // rig may have changed since it was queued. A failure leaves it resumable.
             let report = preflight_report(&c).await;
             if report.blocks() {
-                let msg = format!("{}; not started", report.error_message());
+                tracing::warn!(campaign = id, "{}; not started", report.error_message());
+                let msg = format!("{}; not started", report.client_message());
                 me.interrupt(id, msg.clone());
                 me.finished(id, &stage, Ok(Err(msg)));
                 return;
@@ -653,6 +772,7 @@ impl Manager {
         };
         match r {
             Ok(Ok(fin)) => {
+                self.inner().start_failures.remove(&id);
                 tracing::info!(campaign = id, state = fin.state.as_str(), "campaign ended");
                 if fin.state == CampaignState::Interrupted && !operator_abort {
                     self.emit(
@@ -662,7 +782,13 @@ impl Manager {
                     );
                 }
             }
-            Ok(Err(e)) => tracing::warn!(campaign = id, error = %e, "campaign stopped"),
+            Ok(Err(e)) => {
+                tracing::warn!(campaign = id, error = %e, "campaign stopped");
+                if self.retry_start(id, stage, &e) {
+                    self.active.send_modify(|n| *n = n.saturating_sub(1));
+                    return;
+                }
+            }
             Err(e) => {
                 let msg = format!("campaign task failed: {e}");
                 tracing::error!(campaign = id, error = %msg);
@@ -671,6 +797,51 @@ impl Manager {
         }
         self.active.send_modify(|n| *n = n.saturating_sub(1));
         self.schedule(stage);
+    }
+
+    /// A campaign whose attempt failed before it started (the store still says `queued`)
+    /// goes back to the head of its stage's queue and is tried again after [`STAGE_RETRY`];
+    /// after [`MAX_START_TRIES`] failures it is `interrupted` with the reason (resumable).
+    /// Either way it stays controllable. Returns whether it was queued again.
+    fn retry_start(self: &Arc<Self>, id: i64, stage: &str, error: &str) -> bool {
+        let queued = self
+            .db()
+            .campaign(id)
+            .ok()
+            .flatten()
+            .is_some_and(|r| r.state == CampaignState::Queued);
+        if !queued {
+            return false;
+        }
+        let tries = {
+            let mut inner = self.inner();
+            let n = inner.start_failures.entry(id).or_insert(0);
+            *n += 1;
+            *n
+        };
+        if tries >= MAX_START_TRIES {
+            self.inner().start_failures.remove(&id);
+            self.interrupt(
+                id,
+                format!("could not start after {tries} tries: {error}; resume once fixed"),
+            );
+            return false;
+        }
+        tracing::warn!(campaign = id, tries, error = %error, "could not start; queued again");
+        self.inner()
+            .queues
+            .entry(stage.to_string())
+            .or_default()
+            .push_front(id);
+        let (me, stage) = (Arc::clone(self), stage.to_string());
+        let mut stop = self.shutdown_signal();
+        tokio::spawn(async move {
+            tokio::select! {
+                _ = tokio::time::sleep(STAGE_RETRY) => me.schedule(&stage),
+                _ = stop.changed() => {}
+            }
+        });
+        true
     }
 
     fn row(&self, id: i64) -> Result<CampaignRow, ApiError> {
@@ -765,8 +936,24 @@ impl Manager {
         {
             let mut inner = self.inner();
             let Some(a) = inner.active(id) else {
+                // Queued (in the queue, or left `queued` by a failed start): held before it
+                // starts; resume queues it again.
+                let in_queue = inner.queue_position(id);
+                if let Some((stage, _)) = &in_queue {
+                    if let Some(q) = inner.queues.get_mut(stage) {
+                        q.retain(|&x| x != id);
+                    }
+                }
                 drop(inner);
-                return Err(self.refuse(id, "pause"));
+                let row = self.row(id)?;
+                if in_queue.is_none() && row.state != CampaignState::Queued {
+                    return Err(self.refuse(id, "pause"));
+                }
+                self.db()
+                    .set_state(id, CampaignState::Paused, Some(&msg))
+                    .map_err(store_err)?;
+                self.emit_by_operator(id, "paused", origin);
+                return self.status(id);
             };
             if a.control.borrow().halts() {
                 drop(inner);
@@ -889,7 +1076,7 @@ impl Manager {
         let row = self.row(id)?;
         let resting = matches!(
             row.state,
-            CampaignState::Interrupted | CampaignState::Paused
+            CampaignState::Interrupted | CampaignState::Paused | CampaignState::Queued
         );
         if queued.is_none() && !resting {
             return Err(self.refuse(id, "abort"));

@@ -8,13 +8,14 @@ use std::time::Duration;
 use axum::http::StatusCode;
 
 pub mod config;
+pub mod guard;
 pub mod manager;
 pub mod page;
 mod progress;
 pub mod routes;
 
 pub use config::{ConfigError, ServiceConfig};
-pub use manager::{CampaignStatus, Manager};
+pub use manager::{CampaignStatus, Limits, Manager};
 
 /// How long shutdown waits for running campaigns to stop motion and record their state.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(10);
@@ -82,7 +83,12 @@ async fn stop_signal() {
 pub async fn run(cfg: ServiceConfig) -> Result<(), String> {
     let store = crate::store::Store::open(&cfg.db).map_err(|e| e.to_string())?;
     let store = Arc::new(Mutex::new(store));
-    let manager = Manager::new(store.clone(), &cfg.results_dir, &cfg.campaigns_dir);
+    let manager = Manager::new(
+        store.clone(),
+        &cfg.results_dir,
+        &cfg.campaigns_dir,
+        cfg.limits,
+    );
     let listener = tokio::net::TcpListener::bind(cfg.bind)
         .await
         .map_err(|e| format!("cannot listen on {}: {e}", cfg.bind))?;
@@ -132,7 +138,14 @@ pub async fn run(cfg: ServiceConfig) -> Result<(), String> {
         });
     }
 
-    let app = routes::router(manager.clone(), cfg.token.clone(), cfg.submit_policy());
+    // The guard knows the port actually bound (`:0` in tests).
+    let guard = guard::Guard::new(addr, &cfg.allowed_hosts);
+    let app = routes::router(
+        manager.clone(),
+        cfg.token.clone(),
+        cfg.submit_policy(),
+        guard,
+    );
     let mut down = manager.shutdown_signal();
     // Connect info: the event log names the client address of every control action.
     let app = app.into_make_service_with_connect_info::<std::net::SocketAddr>();

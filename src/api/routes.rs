@@ -15,9 +15,17 @@
 //! | `GET /campaigns/{id}/results/{*name}` | the bytes, with their stored content type |
 //! | `GET /campaigns/{id}/verification` | the verdict of a verification (`csmetro verify ID --json`'s object) of characterisation `id` or by verification campaign `id`; 404 when none |
 //! | `POST /stages/{name}/move` | body `{"x_um", "y_um"?, "direction"?, "approach_um"?, "compensation_from"?, "hardware_from"?, "measure"?}`: a (compensated) move; 409 while a campaign runs or waits on that stage |
+//! | `GET /stages/{name}/events[?after=ID&limit=L]` | the stage's log outside campaigns: each move (`move`, then `moved` or `move_failed`) with who asked |
 //!
 //! With a token configured every route, `/health` included, needs `Authorization: Bearer TOKEN`;
 //! only the page and its assets (the same for everyone, no data) load without it.
+//!
+//! Before any of that, [`super::guard`] checks `Host`, `Origin`, fetch metadata and content
+//! types: 421 for a Host that is not the service's, 403 for another page's request, 415 for a
+//! state change in a type a browser may send without asking (`text/plain`, forms). `POST
+//! /campaigns` takes `application/toml` or `application/json`, `POST /stages/{name}/move`
+//! `application/json`, pause/resume/abort no body (or `application/json`). No CORS is answered.
+//! Result files are served with `Content-Security-Policy: sandbox` and `nosniff`.
 //!
 //! Submit, pause, resume and abort are logged with their origin: the client's address and,
 //! when the request carries an `X-Operator: NAME` header (UTF-8, at most 64 bytes, no control
@@ -41,9 +49,9 @@ use axum::{Json, Router};
 use futures_util::Stream;
 use serde::Deserialize;
 use serde_json::json;
-use subtle::ConstantTimeEq;
 use tokio::sync::{broadcast, mpsc};
 
+use super::guard::{token_matches, BodyKind, Guard};
 use super::{ApiError, CampaignStatus, Manager};
 use crate::campaign::session::Event;
 use crate::campaign::spec::{Campaign, SubmitPolicy};
@@ -83,23 +91,33 @@ struct App {
     token: Option<Arc<str>>,
     /// What submitted campaigns may read and write.
     policy: Arc<SubmitPolicy>,
+    /// Host, Origin and content-type policy.
+    guard: Arc<Guard>,
 }
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.status, Json(json!({"error": self.message}))).into_response()
+        let message = crate::types::shorten_numbers(&self.message).into_owned();
+        (self.status, Json(json!({"error": message}))).into_response()
     }
 }
 
 type ApiResult<T> = Result<T, ApiError>;
 
 /// The service's routes; `token`: the bearer token every request must carry, if any;
-/// `policy`: what a submitted campaign may read and write.
-pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy) -> Router {
+/// `policy`: what a submitted campaign may read and write; `guard`: which hosts, origins and
+/// content types it answers.
+pub fn router(
+    manager: Arc<Manager>,
+    token: Option<String>,
+    policy: SubmitPolicy,
+    guard: Guard,
+) -> Router {
     let app = App {
         manager,
         token: token.map(Arc::from),
         policy: Arc::new(policy),
+        guard: Arc::new(guard),
     };
     Router::new()
         .route("/", get(super::page::index))
@@ -116,9 +134,64 @@ pub fn router(manager: Arc<Manager>, token: Option<String>, policy: SubmitPolicy
         .route("/campaigns/{id}/results/{*name}", get(result))
         .route("/campaigns/{id}/verification", get(verification))
         .route("/stages/{name}/move", post(move_stage))
+        .route("/stages/{name}/events", get(stage_events))
         .fallback(|| async { ApiError::not_found("no such route") })
+        .layer(middleware::from_fn(content_types))
         .layer(middleware::from_fn_with_state(app.clone(), auth))
+        .layer(middleware::from_fn_with_state(app.clone(), screen))
         .with_state(app)
+}
+
+/// The body a state-changing route takes, by method and path (None for reads).
+fn body_kind(method: &axum::http::Method, path: &str) -> Option<BodyKind> {
+    if method == axum::http::Method::GET || method == axum::http::Method::HEAD {
+        return None;
+    }
+    let parts: Vec<&str> = path.trim_matches('/').split('/').collect();
+    Some(match parts.as_slice() {
+        ["campaigns"] => BodyKind::Campaign,
+        ["stages", _, "move"] => BodyKind::Json,
+        _ => BodyKind::None,
+    })
+}
+
+fn refused(req: &Request, e: ApiError) -> Response {
+    tracing::warn!(method = %req.method(), path = %req.uri().path(), status = e.status.as_u16(), reason = %e.message, "request refused by the browser policy");
+    e.into_response()
+}
+
+/// Outermost layer: who is asking (Host, Origin, fetch metadata; [`super::guard`]) before
+/// authentication, and `nosniff` on every answer.
+async fn screen(State(app): State<App>, req: Request, next: Next) -> Response {
+    let mut r = match app.guard.check_source(req.method(), req.headers()) {
+        Ok(()) => next.run(req).await,
+        Err(e) => refused(&req, e),
+    };
+    r.headers_mut().insert(
+        header::X_CONTENT_TYPE_OPTIONS,
+        HeaderValue::from_static("nosniff"),
+    );
+    r
+}
+
+/// After authentication: a state change carries only its route's content types.
+async fn content_types(req: Request, next: Next) -> Response {
+    let len = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok())
+        // A chunked body has a length nobody declared: count it as one.
+        .or_else(|| {
+            req.headers()
+                .contains_key(header::TRANSFER_ENCODING)
+                .then_some(1)
+        });
+    let kind = body_kind(req.method(), req.uri().path());
+    match Guard::check_body(req.method(), req.headers(), kind, len) {
+        Ok(()) => next.run(req).await,
+        Err(e) => refused(&req, e),
+    }
 }
 
 async fn auth(State(app): State<App>, req: Request, next: Next) -> Response {
@@ -133,8 +206,9 @@ async fn auth(State(app): State<App>, req: Request, next: Next) -> Response {
             .and_then(|v| v.to_str().ok())
             .and_then(|v| v.strip_prefix("Bearer "))
             .unwrap_or("");
-        // Constant time: the comparison does not tell how much of a guess was right.
-        if !bool::from(given.as_bytes().ct_eq(token.as_bytes())) {
+        // Constant time, length included: the comparison does not tell how much of a guess was
+        // right.
+        if !token_matches(given.as_bytes(), token.as_bytes()) {
             let mut r = ApiError::new(
                 StatusCode::UNAUTHORIZED,
                 "missing or wrong token (send `Authorization: Bearer <token>`)",
@@ -318,7 +392,21 @@ async fn result(
     let (ctype, bytes) = blocking(move || m.result(id, &name)).await?;
     let ctype = HeaderValue::from_str(&ctype)
         .unwrap_or_else(|_| HeaderValue::from_static("application/octet-stream"));
-    Ok(([(header::CONTENT_TYPE, ctype)], bytes).into_response())
+    // Stored HTML and SVG open on the service's own origin: sandboxed, they run no script and
+    // reach nothing of it.
+    Ok((
+        [
+            (header::CONTENT_TYPE, ctype),
+            (
+                header::CONTENT_SECURITY_POLICY,
+                HeaderValue::from_static(
+                    "sandbox; default-src 'none'; img-src data:; style-src 'unsafe-inline'",
+                ),
+            ),
+        ],
+        bytes,
+    )
+        .into_response())
 }
 
 #[derive(Deserialize)]
@@ -461,15 +549,29 @@ async fn follow(
     }
 }
 
-/// `POST /stages/{name}/move`, see [`crate::compensation::motion`].
+/// `POST /stages/{name}/move`, see [`crate::compensation::motion`]. Every move that passes its
+/// checks is logged on the stage (`GET /stages/{name}/events`) with who asked: `move` before
+/// anything moves, then `moved` or `move_failed`.
 async fn move_stage(
     State(app): State<App>,
+    ApiOrigin(who): ApiOrigin,
     Path(name): Path<String>,
     body: Bytes,
 ) -> ApiResult<Json<serde_json::Value>> {
     let m = app.manager.clone();
+    let stage = name.clone();
     let (c, comp, req, lock) =
         blocking(move || crate::compensation::motion::api_prepare(&m, &name, &body)).await?;
+    let wanted: serde_json::Map<String, serde_json::Value> = req
+        .wanted
+        .iter()
+        .map(|(a, v)| (format!("{}_um", a.as_str()), json!(v)))
+        .collect();
+    let mut asked = who.fields();
+    asked["wanted"] = serde_json::Value::Object(wanted);
+    asked["compensated"] = json!(comp.is_some());
+    // No trace, no motion: a move whose log entry cannot be written does not happen.
+    stage_event(&app, &stage, "move", asked).await?;
     let out = crate::compensation::motion::execute(&c, comp.as_ref(), &req, std::future::pending())
         .await
         .map_err(|e| match e {
@@ -477,7 +579,81 @@ async fn move_stage(
             crate::compensation::motion::MoveError::Failed(m) => ApiError::internal(m),
         });
     drop(lock);
+    let mut done = who.fields();
+    match &out {
+        Ok(v) => done["result"] = v.clone(),
+        Err(e) => done["error"] = json!(e.message),
+    }
+    let kind = if out.is_ok() { "moved" } else { "move_failed" };
+    if let Err(e) = stage_event(&app, &stage, kind, done).await {
+        tracing::error!(stage = %stage, error = %e, "the end of a move was not logged");
+    }
     out.map(Json)
+}
+
+/// Appends to a stage's log (off the async workers: the store's mutex and disk).
+async fn stage_event(
+    app: &App,
+    stage: &str,
+    kind: &'static str,
+    data: serde_json::Value,
+) -> ApiResult<i64> {
+    let m = app.manager.clone();
+    let stage = stage.to_string();
+    blocking(move || {
+        m.store()
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .add_stage_event(&stage, kind, &data)
+            .map_err(|e| {
+                tracing::error!(error = %e, "stage event not stored");
+                ApiError::internal("the stage's log could not be written")
+            })
+    })
+    .await
+}
+
+#[derive(Deserialize)]
+struct StageEventsQuery {
+    after: Option<i64>,
+    limit: Option<usize>,
+}
+
+/// Largest page of a stage's log.
+const MAX_STAGE_EVENTS_PAGE: usize = 1000;
+
+/// `GET /stages/{name}/events?after=ID&limit=L`: what was done to the stage outside campaigns
+/// (moves, with their origin), oldest first: `{"stage", "events": [...], "next"}`.
+async fn stage_events(
+    State(app): State<App>,
+    Path(name): Path<String>,
+    Query(q): Query<StageEventsQuery>,
+) -> ApiResult<Json<serde_json::Value>> {
+    let after = q.after.unwrap_or(0);
+    let limit = q.limit.unwrap_or(MAX_STAGE_EVENTS_PAGE);
+    if after < 0 || limit == 0 || limit > MAX_STAGE_EVENTS_PAGE {
+        return Err(ApiError::bad_request(format!(
+            "after must be ≥ 0 and limit in 1..={MAX_STAGE_EVENTS_PAGE}"
+        )));
+    }
+    if name.is_empty() || name.len() > crate::campaign::spec::MAX_NAME_LEN {
+        return Err(ApiError::bad_request("stage: a name of 1 to 64 bytes"));
+    }
+    let m = app.manager.clone();
+    let stage = name.clone();
+    let rows = blocking(move || {
+        m.store()
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .stage_events_after(&stage, after, limit)
+            .map_err(|e| {
+                tracing::error!(error = %e, "stage events not read");
+                ApiError::internal("the stage's log could not be read")
+            })
+    })
+    .await?;
+    let next = rows.last().map_or(after, |r| r.id);
+    Ok(Json(json!({"stage": name, "events": rows, "next": next})))
 }
 
 /// `GET /campaigns/{id}/verification`: the stored verdict, see [`crate::compensation::verify`].

@@ -142,6 +142,23 @@ impl Report {
         };
         format!("pre-flight check `{}` failed: {}{more}", c.name, c.detail)
     }
+    /// [`Report::error_message`] for a client of the service: a device failure says only
+    /// which check failed, not why (a refused connection, a timeout and a wrong reply would
+    /// otherwise tell a client what answers where on the service's network). The full message
+    /// goes to the service's log.
+    pub fn client_message(&self) -> String {
+        if self.failure_class() == Class::Config {
+            return self.error_message();
+        }
+        match self.checks.iter().find(|c| c.status == Status::Fail) {
+            Some(c) => format!(
+                "pre-flight check `{}` failed: the device is unreachable or did not answer as \
+                 expected (the service's log has the details)",
+                c.name
+            ),
+            None => "pre-flight checks not all passed".into(),
+        }
+    }
     /// The class of the first failure.
     pub fn failure_class(&self) -> Class {
         if self.exit_code() == 2 {

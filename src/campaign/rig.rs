@@ -200,12 +200,11 @@ struct SimParts {
 /// the campaign's to meet, not the pre-flight's).
 async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimParts, String> {
     let s = &c.spec.hardware.sim;
-    let model = match &s.model {
-        Some(p) => {
-            let path = c.resolve(p);
-            StageModel::load(&path).map_err(|e| format!("{}: {e}", path.display()))?
-        }
-        None => StageModel::default(),
+    // The model validation loaded (and, for a submitted file, confined): never read again.
+    let model = match (&s.model, &c.model) {
+        (Some(_), Some(m)) => m.model.clone(),
+        (Some(_), None) => return Err("the campaign's stage model was not validated".into()),
+        (None, _) => StageModel::default(),
     };
     let start_mm = [
         (c.axis(AxisId::X).map_or(0.0, |a| a.grid.start_um)) / 1000.0,

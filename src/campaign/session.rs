@@ -38,7 +38,8 @@ pub(crate) fn lock(s: &SharedStore) -> std::sync::MutexGuard<'_, Store> {
 /// Stores a new campaign (state queued) and returns its id.
 pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, String> {
     let planned = crate::compensation::campaign::planned(c).unwrap_or(plan(c).total() as u64);
-    lock(store)
+    let s = lock(store);
+    let id = s
         .create_campaign(
             &c.spec.campaign.name,
             &c.text,
@@ -46,7 +47,13 @@ pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, String> {
             &c.spec.campaign.stage,
             planned,
         )
-        .map_err(|e| e.to_string())
+        .map_err(|e| e.to_string())?;
+    // The model it was validated with runs it, at every resume too.
+    if let Some(m) = &c.model {
+        s.set_model_snapshot(id, &m.text)
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(id)
 }
 
 /// Reloads a stored campaign's file (its text was stored with it).
@@ -59,8 +66,9 @@ pub fn load_stored(store: &SharedStore, id: i64) -> Result<Campaign, String> {
         .parent()
         .map(|p| p.to_path_buf())
         .unwrap_or_default();
-    let mut c =
-        Campaign::parse(&row.spec_toml, &row.spec_path, &base).map_err(|e| e.to_string())?;
+    let snapshot = lock(store).model_snapshot(id).map_err(|e| e.to_string())?;
+    let mut c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)
+        .map_err(|e| e.to_string())?;
     // `verify = ID`: the characterisation's axes.
     crate::compensation::campaign::resolve(&mut c, &lock(store)).map_err(|e| e.to_string())?;
     Ok(c)

@@ -3,6 +3,7 @@
 //! line and the key.
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use csmetro_camera::CameraConfig;
 use csmetro_gcs::C863Config;
@@ -319,6 +320,14 @@ pub enum Trust {
     /// allows and writes only below its results directory; errors show neither server paths
     /// nor file contents.
     Submitted(SubmitPolicy),
+    /// Read back from the store to run or resume: validated when it was recorded, its stage
+    /// model is the text snapshot taken then (`model_toml`), never the file again (a file
+    /// swapped in meanwhile changes nothing). Stores from before snapshots (`None`) read the
+    /// file as [`Trust::Local`] does.
+    Stored {
+        base_dir: PathBuf,
+        model_toml: Option<String>,
+    },
 }
 
 /// What a submitted campaign may read and write (from the service configuration).
@@ -330,12 +339,16 @@ pub struct SubmitPolicy {
     pub read_roots: Vec<PathBuf>,
     /// `[storage] results_dir`: every output directory is below it.
     pub results_dir: PathBuf,
+    /// `[hardware] serial_ports`: the only serial devices a submitted campaign may open.
+    pub serial_ports: Vec<String>,
+    /// `[hardware] tcp_endpoints`: the only `host:port` a submitted campaign may connect to.
+    pub tcp_endpoints: Vec<String>,
 }
 
 impl Trust {
     fn base_dir(&self) -> &Path {
         match self {
-            Trust::Local { base_dir } => base_dir,
+            Trust::Local { base_dir } | Trust::Stored { base_dir, .. } => base_dir,
             Trust::Submitted(p) => &p.base_dir,
         }
     }
@@ -355,6 +368,17 @@ pub struct Campaign {
     pub solver: Solver,
     /// `[map]`, resolved.
     pub map: Option<MapPlan>,
+    /// The simulator's stage model as validated (`[hardware.sim] model`), with the text it was
+    /// read from: the rig runs this one, and the store keeps the text with the campaign.
+    pub model: Option<Arc<LoadedModel>>,
+}
+
+/// A stage model read and checked at validation.
+#[derive(Debug)]
+pub struct LoadedModel {
+    pub model: csmetro_sim::StageModel,
+    /// The TOML it was parsed from (stored with the campaign: a resume runs the same truth).
+    pub text: String,
 }
 
 /// One axis, resolved.
@@ -420,6 +444,24 @@ impl Campaign {
         Ok(c)
     }
 
+    /// A campaign read back from the store: `model_toml` is the stage model's snapshot taken
+    /// when it was recorded (None: a store from before snapshots; the file is read).
+    pub fn parse_stored(
+        text: &str,
+        origin: &str,
+        base_dir: &Path,
+        model_toml: Option<String>,
+    ) -> Result<Campaign, SpecError> {
+        Campaign::parse_with(
+            text,
+            origin,
+            &Trust::Stored {
+                base_dir: base_dir.to_path_buf(),
+                model_toml,
+            },
+        )
+    }
+
     /// Validates a local campaign file as a build with every camera backend would: to check a
     /// lab's file on a machine without the camera libraries. The run paths (`load`, `parse`,
     /// `parse_submitted`) also refuse a camera backend this build lacks.
@@ -481,16 +523,18 @@ impl Campaign {
             key: path.to_string(),
             message,
         };
-        let c = validate(&spec, trust, &fail).map(|(axes, method, solver, map)| Campaign {
-            spec,
-            text: text.to_string(),
-            origin: origin.into(),
-            base_dir: trust.base_dir().to_path_buf(),
-            axes,
-            method,
-            solver,
-            map,
-        })?;
+        let c =
+            validate(&spec, trust, &fail).map(|(axes, method, solver, map, model)| Campaign {
+                spec,
+                text: text.to_string(),
+                origin: origin.into(),
+                base_dir: trust.base_dir().to_path_buf(),
+                axes,
+                method,
+                solver,
+                map,
+                model: model.map(Arc::new),
+            })?;
         crate::compensation::check_spec(&c, matches!(trust, Trust::Submitted(_)))
             .map_err(|(k, m)| fail(k, m))?;
         Ok(c)
@@ -523,7 +567,13 @@ impl Campaign {
     }
 }
 
-type Validated = (Vec<AxisPlan>, Method, Solver, Option<MapPlan>);
+type Validated = (
+    Vec<AxisPlan>,
+    Method,
+    Solver,
+    Option<MapPlan>,
+    Option<LoadedModel>,
+);
 
 /// A campaign or stage name: it becomes part of file names, so a short plain word.
 fn check_name(v: &str) -> Result<(), String> {
@@ -567,6 +617,7 @@ fn validate(
         ));
     }
     let h = &spec.hardware;
+    let mut model = None;
     if !pos(h.reference_timeout_s) {
         return Err(fail("hardware.reference_timeout_s", "must be > 0 s".into()));
     }
@@ -651,7 +702,7 @@ fn validate(
                 }
             }
             if let Some(m) = &s.model {
-                load_model(m, trust).map_err(|e| fail("hardware.sim.model", e))?;
+                model = Some(load_model(m, trust).map_err(|e| fail("hardware.sim.model", e))?);
             }
             let [tlo, thi] = s.travel_mm;
             if !(tlo.is_finite() && thi.is_finite() && tlo < thi && thi - tlo <= 15.0) {
@@ -700,17 +751,28 @@ fn validate(
                         "must be [lo, hi] with lo < hi (µm)".into(),
                     ));
                 }
-                if let (Trust::Submitted(_), csmetro_gcs::Transport::Serial { port, .. }) =
-                    (trust, &c.transport)
-                {
-                    // A submitted file opens serial devices only, never other files.
-                    use std::os::unix::fs::FileTypeExt;
-                    let device = port.starts_with("/dev/")
-                        && std::fs::metadata(port).is_ok_and(|m| m.file_type().is_char_device());
-                    if !device {
+                if let Trust::Submitted(policy) = trust {
+                    // A submitted file opens only what the service's configuration lists; the
+                    // value is not repeated (it may be a probe of the server's devices).
+                    let allowed = match &c.transport {
+                        csmetro_gcs::Transport::Serial { port, .. } => {
+                            use std::os::unix::fs::FileTypeExt;
+                            policy.serial_ports.iter().any(|p| p == port)
+                                && port.starts_with("/dev/")
+                                && std::fs::metadata(port)
+                                    .is_ok_and(|m| m.file_type().is_char_device())
+                        }
+                        csmetro_gcs::Transport::Tcp { address, .. } => {
+                            policy.tcp_endpoints.iter().any(|a| a == address)
+                        }
+                    };
+                    if !allowed {
                         return Err(fail(
                             &format!("hardware.controllers.{name}.transport"),
-                            "the port is not a serial device under /dev".into(),
+                            "the service does not allow this port: submitted campaigns open \
+                             only the serial devices and TCP endpoints listed in the service's \
+                             [hardware] serial_ports and tcp_endpoints"
+                                .into(),
                         ));
                     }
                 }
@@ -934,7 +996,7 @@ fn validate(
         }
         None => None,
     };
-    Ok((plans, method, solver, map))
+    Ok((plans, method, solver, map, model))
 }
 
 pub mod map;

@@ -26,6 +26,7 @@ pub mod camera;
 pub mod check;
 pub mod client;
 pub mod demo;
+pub mod export;
 pub mod gap;
 pub mod generate;
 pub mod move_cmd;
@@ -92,7 +93,10 @@ pub fn finish(result: CliResult) -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {}", e.message.replace('\n', " "));
+            eprintln!(
+                "error: {}",
+                crate::types::shorten_numbers(&e.message.replace('\n', " "))
+            );
             ExitCode::from(e.code)
         }
     }

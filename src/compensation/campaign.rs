@@ -107,11 +107,15 @@ pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
         .parent()
         .map(std::path::Path::to_path_buf)
         .unwrap_or_default();
-    let ch = Campaign::parse(&row.spec_toml, &row.spec_path, &base).map_err(|_| {
-        err(format!(
-            "campaign {id}: its stored file no longer validates"
-        ))
-    })?;
+    let snapshot = store
+        .model_snapshot(id)
+        .map_err(|e| err(format!("store: {e}")))?;
+    let ch =
+        Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot).map_err(|_| {
+            err(format!(
+                "campaign {id}: its stored file no longer validates"
+            ))
+        })?;
     if ch.spec.campaign.verify.is_some() || ch.axes.is_empty() {
         return Err(err(format!(
             "campaign {id} is a verification, not a characterisation"

@@ -235,6 +235,15 @@ pub type Prepared = (
     Option<crate::campaign::stagelock::StageLock>,
 );
 
+/// A server-side failure as a client sees it: what failed, not the message (it may hold server
+/// paths); the whole of it goes to the log.
+fn hidden(what: &str, e: &dyn std::fmt::Display) -> crate::api::ApiError {
+    tracing::error!(error = %e, "move: {what}");
+    crate::api::ApiError::internal(format!(
+        "{what} could not be read (the service's log has the details)"
+    ))
+}
+
 /// The service's side of a move: the body checked, the stage free (409 while a campaign of it
 /// runs or waits), its lock taken (campaigns submitted meanwhile wait for it), the hardware and
 /// compensation resolved from the store. Blocking (store).
@@ -281,7 +290,7 @@ pub fn api_prepare(
     let of_stage = |id: i64| -> Result<crate::store::CampaignRow, ApiError> {
         let row = s
             .campaign(id)
-            .map_err(|e| ApiError::internal(e.to_string()))?
+            .map_err(|e| hidden("store", &e))?
             .ok_or_else(|| ApiError::not_found(format!("no campaign {id}")))?;
         if row.stage != stage {
             return Err(ApiError::bad_request(format!(
@@ -305,7 +314,7 @@ pub fn api_prepare(
         Some(id) => of_stage(id)?.id,
         None => s
             .campaigns()
-            .map_err(|e| ApiError::internal(e.to_string()))?
+            .map_err(|e| hidden("store", &e))?
             .into_iter()
             .find(|r| r.stage == stage)
             .map(|r| r.id)
@@ -317,7 +326,8 @@ pub fn api_prepare(
     };
     let db_path = s.path().map(std::path::Path::to_path_buf);
     drop(s);
-    let c = crate::campaign::session::load_stored(&store, hw).map_err(ApiError::internal)?;
+    let c = crate::campaign::session::load_stored(&store, hw)
+        .map_err(|e| hidden(&format!("campaign {hw}'s hardware"), &e))?;
     let lock = match db_path {
         Some(p) => Some(
             crate::campaign::stagelock::try_lock(&p, stage)

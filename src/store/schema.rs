@@ -119,4 +119,20 @@ CREATE TRIGGER samples_touch_campaign AFTER INSERT ON samples BEGIN
      WHERE id = NEW.campaign_id;
 END;
 "#,
+    // 3 -> 4: the log of what was done to a stage outside campaigns (moves over the API, with
+    // who asked), so every motion a client causes leaves a trace; a campaign's stage model
+    // snapshot.
+    r#"
+CREATE TABLE stage_events (
+    id     INTEGER PRIMARY KEY AUTOINCREMENT,
+    stage  TEXT    NOT NULL,
+    unix_s REAL    NOT NULL,
+    kind   TEXT    NOT NULL,
+    data   TEXT    NOT NULL
+);
+CREATE INDEX stage_events_by_stage ON stage_events (stage, id);
+-- The stage model a campaign was validated with (its TOML): resumes run the same truth and
+-- never read a file that may have been swapped since.
+ALTER TABLE campaigns ADD COLUMN model_toml TEXT;
+"#,
 ];

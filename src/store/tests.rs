@@ -125,7 +125,10 @@ fn open_sets_pragmas_and_schema_version() {
             "SELECT group_concat(name, ',') FROM (SELECT name FROM sqlite_schema \
              WHERE type = 'table' AND name NOT LIKE 'sqlite_%' ORDER BY name)",
         );
-        assert_eq!(tables, "campaigns,events,results,samples,store_info");
+        assert_eq!(
+            tables,
+            "campaigns,events,results,samples,stage_events,store_info"
+        );
     }
     assert!(Store::open_in_memory().unwrap().path().is_none());
 }
@@ -774,8 +777,11 @@ fn a_schema_2_store_keeps_its_samples_and_takes_map_samples() {
     {
         // Back to schema 2 as an older csmetro wrote it: the samples table without 'map'.
         let conn = Connection::open(&path).unwrap();
-        conn.execute_batch("CREATE TABLE s2 AS SELECT * FROM samples; DROP TABLE samples;")
-            .unwrap();
+        conn.execute_batch(
+            "CREATE TABLE s2 AS SELECT * FROM samples; DROP TABLE samples; \
+             DROP TABLE stage_events; ALTER TABLE campaigns DROP COLUMN model_toml;",
+        )
+        .unwrap();
         let create = MIGRATIONS[0]
             .split("CREATE TABLE samples (")
             .nth(1)
@@ -815,4 +821,27 @@ fn updated_unix_s_moves_with_every_committed_sample() {
     std::thread::sleep(std::time::Duration::from_millis(20));
     assert!(!store.insert_sample(id, &sample(0)).unwrap());
     assert_eq!(store.campaign(id).unwrap().unwrap().updated_unix_s, last);
+}
+
+#[test]
+fn stage_events_are_logged_per_stage_in_order() {
+    let store = Store::open_in_memory().unwrap();
+    let a = store
+        .add_stage_event(
+            "sim-xy",
+            "move_requested",
+            &serde_json::json!({"x_um": 1.0}),
+        )
+        .unwrap();
+    store
+        .add_stage_event("other", "move_requested", &serde_json::json!({}))
+        .unwrap();
+    let b = store
+        .add_stage_event("sim-xy", "moved", &serde_json::json!({"x_um": 1.0}))
+        .unwrap();
+    let all = store.stage_events_after("sim-xy", 0, 10).unwrap();
+    assert_eq!(all.iter().map(|e| e.id).collect::<Vec<_>>(), [a, b]);
+    assert_eq!(all[1].kind, "moved");
+    assert_eq!(store.stage_events_after("sim-xy", a, 10).unwrap().len(), 1);
+    assert_eq!(store.stage_events_after("sim-xy", 0, 1).unwrap().len(), 1);
 }

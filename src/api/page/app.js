@@ -228,7 +228,12 @@ async function control(action) {
       !confirm(`Abort campaign ${sel.id}? Motion stops and the campaign cannot be resumed.`)) return;
   $('control-msg').textContent = `${action}…`;
   try {
-    const r = await api(`/campaigns/${sel.id}/${action}`, { method: 'POST' });
+    // JSON, as the service asks of every browser request that changes something.
+    const r = await api(`/campaigns/${sel.id}/${action}`, {
+      method: 'POST',
+      headers: { 'Content-Type': 'application/json' },
+      body: '{}',
+    });
     if (!r.ok) {
       $('control-msg').textContent = await errorOf(r);
       return;

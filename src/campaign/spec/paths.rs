@@ -7,12 +7,27 @@ use super::*;
 /// Resolves the stage model a campaign names and reads it (at most 1 MiB, a regular file).
 /// Submitted campaigns: the path resolves from the policy's base directory and must stay inside
 /// one of its read roots, symlinks followed; errors never show a server path or the file.
-pub(super) fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::StageModel, String> {
+pub(super) fn load_model(m: &str, trust: &Trust) -> Result<LoadedModel, String> {
     if m.is_empty() || m.len() > MAX_PATH_LEN || m.contains('\0') {
         return Err(format!("must be a file name of 1..={MAX_PATH_LEN} bytes"));
     }
     let policy = match trust {
-        Trust::Local { base_dir } => {
+        Trust::Stored {
+            model_toml: Some(text),
+            ..
+        } => {
+            let model = csmetro_sim::StageModel::from_toml_str(text)
+                .map_err(|e| format!("the stored stage model: {e}"))?;
+            return Ok(LoadedModel {
+                model,
+                text: text.clone(),
+            });
+        }
+        Trust::Local { base_dir }
+        | Trust::Stored {
+            base_dir,
+            model_toml: None,
+        } => {
             let p = if Path::new(m).is_absolute() {
                 PathBuf::from(m)
             } else {
@@ -20,8 +35,9 @@ pub(super) fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::StageMod
             };
             let text =
                 read_bounded(&p, MAX_TOML_BYTES).map_err(|e| format!("{}: {e}", p.display()))?;
-            return csmetro_sim::StageModel::from_toml_str(&text)
-                .map_err(|e| format!("{}: {e}", p.display()));
+            let model = csmetro_sim::StageModel::from_toml_str(&text)
+                .map_err(|e| format!("{}: {e}", p.display()))?;
+            return Ok(LoadedModel { model, text });
         }
         Trust::Submitted(p) => p,
     };
@@ -67,7 +83,14 @@ pub(super) fn load_model(m: &str, trust: &Trust) -> Result<csmetro_sim::StageMod
             "{shown}: not a stage model (TOML error at line {line})"
         ));
     }
-    csmetro_sim::StageModel::from_toml_str(&text).map_err(|e| format!("{shown}: {e}"))
+    // Only where, never what: the message would quote the file's own keys and values.
+    let model = csmetro_sim::StageModel::from_toml_str(&text).map_err(|e| match e {
+        csmetro_sim::ModelError::Line { line, .. } => {
+            format!("{shown}: not a valid stage model (see its line {line})")
+        }
+        _ => format!("{shown}: not a valid stage model"),
+    })?;
+    Ok(LoadedModel { model, text })
 }
 
 /// `a/./b/../c` → `a/c`, without touching the file system.

@@ -213,6 +213,8 @@ fn policy(dir: &Path) -> SubmitPolicy {
         base_dir: dir.join("campaigns"),
         read_roots: vec![dir.join("campaigns"), dir.join("sim")],
         results_dir: dir.join("results"),
+        serial_ports: vec![],
+        tcp_endpoints: vec!["127.0.0.1:50863".into()],
     }
 }
 
@@ -270,6 +272,8 @@ fn a_submitted_real_campaign_opens_serial_devices_only() {
         "/etc/passwd",
         "/dev/../etc/passwd",
         "/dev/zero/../../etc/passwd",
+        // A character device, but not in the service's list.
+        "/dev/null",
     ] {
         let t = text.replace(port, bad);
         let e = Campaign::parse_submitted(&t, "r.toml", &p).unwrap_err();
@@ -278,6 +282,25 @@ fn a_submitted_real_campaign_opens_serial_devices_only() {
         // The local operator names their own ports (a build without the file's camera backend
         // refuses it for that reason alone: tested in `a_camera_backend_this_build_lacks_...`).
         Campaign::parse_any_build(&t, "r.toml", dir.path()).unwrap();
+    }
+}
+
+#[test]
+fn a_submitted_real_campaign_connects_to_listed_endpoints_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = policy(dir.path());
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/campaigns/lab-xy-rig.toml"
+    ))
+    .unwrap();
+    let listed = "127.0.0.1:50863";
+    assert!(text.contains(listed), "the rig file's x controller");
+    for bad in ["127.0.0.1:22", "db.internal:5432"] {
+        let t = text.replace(listed, bad);
+        let e = Campaign::parse_submitted(&t, "r.toml", &p).unwrap_err();
+        assert_eq!(e.key, "hardware.controllers.x.transport", "{bad}: {e}");
+        assert!(!e.to_string().contains(bad), "{e}");
     }
 }
 
@@ -353,8 +376,9 @@ fn a_camera_backend_this_build_lacks_is_refused_at_validation_naming_the_feature
             ("hardware.camera", line(text, "[hardware.camera]"))
         };
         assert_eq!((e.key.as_str(), e.line), want, "{e}");
-        // The service's path refuses it the same way.
-        let p = policy(dir.path());
+        // The service's path refuses it the same way (its ports allowed).
+        let mut p = policy(dir.path());
+        p.serial_ports = vec!["/dev/null".into()];
         let e = Campaign::parse_submitted(
             &text
                 .replace(
