@@ -24,7 +24,8 @@ def main(path, results):
         # The default plot resolves: entry -> NXdata -> its signal and axes datasets.
         data = entry[entry.attrs["default"]]
         assert data.attrs["NX_class"] == "NXdata"
-        signal = data[data.attrs["signal"]]
+        signal_name = data.attrs["signal"]
+        signal = data[signal_name]
         axes = data[data.attrs["axes"]]
         assert signal.shape == axes.shape and signal.shape[0] > 1
         assert axes.attrs["units"] == "um"
@@ -82,7 +83,7 @@ def main(path, results):
     root = nx.nxload(path)
     plot = root.plottable_data
     assert plot is not None and plot.nxsignal is not None, root.tree[:2000]
-    assert plot.nxsignal.nxname == data.attrs["signal"]
+    assert plot.nxsignal.nxname == signal_name
     print(f"ok: {checked} values equal, default plot {plot.nxpath}")
 
 
