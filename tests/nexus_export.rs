@@ -27,9 +27,20 @@ fn a_campaign_exports_to_nexus_that_h5py_and_nexusformat_read_back() {
         )
         .replace("seed = 3", "seed = 3\nfull_scan = true")
         .replace("dir = \"", &format!("dir = \"{}/", dir.path().display()));
-    std::fs::write(&file, text).unwrap();
+    // `[outputs] nexus = true` writes the file with the results; a build without the feature
+    // refuses the key at validation (exit 2), before anything runs.
+    let with_nexus = text.replace("[outputs]\n", "[outputs]\nnexus = true\n");
+    assert_ne!(with_nexus, text);
+    std::fs::write(&file, &with_nexus).unwrap();
     let run = common::run_json(&file, &db);
-    json_of(&run);
+    if !cfg!(feature = "nexus") {
+        assert_eq!(run.status.code(), Some(2), "{run:?}");
+        assert!(String::from_utf8_lossy(&run.stderr).contains("outputs.nexus"));
+        std::fs::write(&file, text).unwrap();
+        json_of(&common::run_json(&file, &db));
+    } else {
+        json_of(&run);
+    }
     let results = dir.path().join("nx-1");
     let out = dir.path().join("c.nxs");
     let o = bin()
@@ -75,6 +86,20 @@ fn a_campaign_exports_to_nexus_that_h5py_and_nexusformat_read_back() {
     );
     let said = String::from_utf8_lossy(&check.stdout);
     assert!(said.starts_with("ok: "), "{said}");
+    // The one written with the results reads the same.
+    let beside = results.join("nx-1.nxs");
+    let check = Command::new("python3")
+        .arg(common::repo("tests/nexus/check_nexus.py"))
+        .arg(&beside)
+        .arg(&results)
+        .output()
+        .unwrap();
+    assert!(
+        check.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&check.stdout),
+        String::from_utf8_lossy(&check.stderr)
+    );
 
     // An unknown campaign is the user's mistake (exit 2), and nothing is written.
     let missing = dir.path().join("none.nxs");

@@ -511,6 +511,12 @@ pub async fn execute_with(
         );
         errors.push(e.clone());
     }
+    #[cfg(feature = "nexus")]
+    if let (true, Ok(d)) = (c.spec.outputs.nexus, &written) {
+        if let Err(e) = write_nexus(&store, id, d, &c.spec.campaign.name, errors.is_empty()) {
+            errors.push(format!("NeXus file not written: {e}"));
+        }
+    }
     let (state, message) = if errors.is_empty() {
         (CampaignState::Done, None)
     } else {
@@ -580,6 +586,22 @@ fn utc(unix_s: f64) -> String {
         (secs / 60) % 60,
         secs % 60
     )
+}
+
+/// `[outputs] nexus = true`: the campaign as `<dir>/<name>-<id>.nxs`, in the state it is about
+/// to end in.
+#[cfg(feature = "nexus")]
+fn write_nexus(
+    store: &SharedStore,
+    id: i64,
+    dir: &std::path::Path,
+    name: &str,
+    ok: bool,
+) -> Result<(), String> {
+    let mut e = crate::export::Export::gather(&lock(store), id).map_err(|e| e.to_string())?;
+    e.state = if ok { "done" } else { "failed" }.into();
+    crate::export::nexus::write(&e, &dir.join(format!("{name}-{id}.nxs")))
+        .map_err(|e| e.to_string())
 }
 
 /// `report.html` of a campaign that measured to its end, from its results and its log.

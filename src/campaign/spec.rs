@@ -280,6 +280,9 @@ pub struct Outputs {
     /// Where result files go (relative to the working directory); `{id}` and `{name}` expand.
     pub dir: String,
     pub plots: bool,
+    /// Also write the campaign as a NeXus file (`<name>-<id>.nxs`) with the results; needs a
+    /// build with `--features nexus`.
+    pub nexus: bool,
 }
 
 impl Default for Outputs {
@@ -287,6 +290,7 @@ impl Default for Outputs {
         Self {
             dir: "csmetro-results/{name}-{id}".into(),
             plots: true,
+            nexus: false,
         }
     }
 }
@@ -859,6 +863,14 @@ fn validate(
     }
     if r.pitch_um.is_some_and(|p| !pos(p)) {
         return Err(fail("reconstruction.pitch_um", "must be > 0 µm".into()));
+    }
+    if spec.outputs.nexus && !cfg!(feature = "nexus") {
+        return Err(fail(
+            "outputs.nexus",
+            "writing NeXus files needs a csmetro built with --features nexus (and Debian's \
+             libhdf5-dev)"
+                .into(),
+        ));
     }
     if spec.outputs.dir.trim().is_empty() {
         return Err(fail("outputs.dir", "must not be empty".into()));
