@@ -6,9 +6,26 @@
 //! `CSMETRO_REQUIRE_NEXUS=1` (CI).
 mod common;
 
+use std::path::Path;
 use std::process::Command;
 
 use common::{bin, campaign, json_of};
+
+/// h5py and nexusformat open `file` and find every value of the results in `results`.
+fn read_back(file: &Path, results: &Path) {
+    let check = Command::new("python3")
+        .arg(common::repo("tests/nexus/check_nexus.py"))
+        .arg(file)
+        .arg(results)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        check.status.success() && said.starts_with("ok: "),
+        "{said}\n{}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+}
 
 #[test]
 fn a_campaign_exports_to_nexus_that_h5py_and_nexusformat_read_back() {
@@ -72,34 +89,9 @@ fn a_campaign_exports_to_nexus_that_h5py_and_nexusformat_read_back() {
         return;
     }
     assert!(results.join("iso230.json").is_file(), "{results:?}");
-    let check = Command::new("python3")
-        .arg(common::repo("tests/nexus/check_nexus.py"))
-        .arg(&out)
-        .arg(&results)
-        .output()
-        .unwrap();
-    assert!(
-        check.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&check.stdout),
-        String::from_utf8_lossy(&check.stderr)
-    );
-    let said = String::from_utf8_lossy(&check.stdout);
-    assert!(said.starts_with("ok: "), "{said}");
+    read_back(&out, &results);
     // The one written with the results reads the same.
-    let beside = results.join("nx-1.nxs");
-    let check = Command::new("python3")
-        .arg(common::repo("tests/nexus/check_nexus.py"))
-        .arg(&beside)
-        .arg(&results)
-        .output()
-        .unwrap();
-    assert!(
-        check.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&check.stdout),
-        String::from_utf8_lossy(&check.stderr)
-    );
+    read_back(&results.join("nx-1.nxs"), &results);
 
     // An unknown campaign is the user's mistake (exit 2), and nothing is written.
     let missing = dir.path().join("none.nxs");

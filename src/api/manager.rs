@@ -311,14 +311,7 @@ impl Manager {
 
     /// One pass of [`Manager::watch_orphans`].
     fn sweep_orphans(&self, db_path: &Path) {
-        let rows = match self.db().unfinished() {
-            Ok(rows) => rows,
-            Err(e) => {
-                tracing::warn!(error = %e, "orphan check: cannot read the store");
-                return;
-            }
-        };
-        for row in rows {
+        for row in self.unfinished_rows("orphan check") {
             // Paused by the operator: held on purpose (possibly across a restart), not orphaned.
             if row.state != CampaignState::Running || self.inner().active(row.id).is_some() {
                 continue;
@@ -332,6 +325,15 @@ impl Manager {
             };
             self.mark_orphan(row.id);
         }
+    }
+
+    /// The store's unfinished campaigns; none (and a warning naming `what`) when it cannot be
+    /// read: the check runs again later.
+    fn unfinished_rows(&self, what: &str) -> Vec<CampaignRow> {
+        self.db().unfinished().unwrap_or_else(|e| {
+            tracing::warn!(error = %e, "{what}: cannot read the store");
+            Vec::new()
+        })
     }
 
     /// Marks campaign `id` `interrupted` if the store still says `running`: the caller holds its
@@ -369,14 +371,7 @@ impl Manager {
     /// starts, so the store's one-running-campaign-per-stage rule does not refuse `id` (a
     /// campaign submitted just as a foreground `csmetro run` died was stranded `queued`).
     fn reclaim_stage(&self, stage: &str, id: i64) {
-        let rows = match self.db().unfinished() {
-            Ok(rows) => rows,
-            Err(e) => {
-                tracing::warn!(error = %e, "stage reclaim: cannot read the store");
-                return;
-            }
-        };
-        for row in rows {
+        for row in self.unfinished_rows("stage reclaim") {
             if row.stage == stage
                 && row.id != id
                 && row.state == CampaignState::Running

@@ -569,23 +569,8 @@ fn write_files(dir: &std::path::Path, files: &[(String, String, Vec<u8>)]) -> Re
 /// Formats a Unix time as UTC, `2026-11-27 09:50:00 UTC` (civil date from days since the epoch,
 /// H. Hinnant's algorithm).
 fn utc(unix_s: f64) -> String {
-    let t = unix_s.max(0.0) as i64;
-    let (days, secs) = (t.div_euclid(86_400), t.rem_euclid(86_400));
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!(
-        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02} UTC",
-        secs / 3600,
-        (secs / 60) % 60,
-        secs % 60
-    )
+    let [y, m, d, hh, mm, ss] = crate::types::utc_parts(unix_s);
+    format!("{y:04}-{m:02}-{d:02} {hh:02}:{mm:02}:{ss:02} UTC")
 }
 
 /// `[outputs] nexus = true`: the campaign as `<dir>/<name>-<id>.nxs`, in the state it is about

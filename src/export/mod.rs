@@ -173,20 +173,8 @@ pub fn unit_of(name: &str) -> Option<&'static str> {
 
 /// A name usable as an HDF5 link: `/` and `.` replaced, at most 255 bytes.
 pub fn link_name(name: &str) -> String {
-    let mut s: String = name
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '_' || c == '-' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
+    let mut s = crate::report::file_stem(name);
     s.truncate(255);
-    if s.is_empty() {
-        s.push('_');
-    }
     s
 }
 

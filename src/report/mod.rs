@@ -167,7 +167,8 @@ impl Default for ReportOptions {
 }
 
 /// A component name safe as a file name: anything but `[A-Za-z0-9_-]` becomes `_`.
-fn file_stem(component: &str) -> String {
+/// `component` as a file or link name: `[A-Za-z0-9_-]`, others `_`.
+pub(crate) fn file_stem(component: &str) -> String {
     let s: String = component
         .chars()
         .map(|c| {
