@@ -334,6 +334,23 @@ pub fn shorten_numbers(msg: &str) -> std::borrow::Cow<'_, str> {
     std::borrow::Cow::Owned(out)
 }
 
+/// (year, month, day, hour, minute, second) in UTC of a Unix time (H. Hinnant's days-to-civil
+/// algorithm); times before 1970 are clamped to it.
+pub fn utc_parts(unix_s: f64) -> [i64; 6] {
+    let t = unix_s.max(0.0) as i64;
+    let (days, secs) = (t.div_euclid(86_400), t.rem_euclid(86_400));
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    [y, m, d, secs / 3600, (secs / 60) % 60, secs % 60]
+}
+
 #[cfg(test)]
 mod shorten_tests {
     use super::shorten_numbers;
@@ -355,21 +372,4 @@ mod shorten_tests {
             "seed 12345678901234567"
         );
     }
-}
-
-/// (year, month, day, hour, minute, second) in UTC of a Unix time (H. Hinnant's days-to-civil
-/// algorithm); times before 1970 are clamped to it.
-pub fn utc_parts(unix_s: f64) -> [i64; 6] {
-    let t = unix_s.max(0.0) as i64;
-    let (days, secs) = (t.div_euclid(86_400), t.rem_euclid(86_400));
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    [y, m, d, secs / 3600, (secs / 60) % 60, secs % 60]
 }
