@@ -680,6 +680,12 @@ impl Manager {
                 by_service(json!({"stage": stage, "reason": msg})),
             );
         }
+        self.schedule_later(stage);
+    }
+
+    /// Runs [`Manager::schedule`] for `stage` again after [`STAGE_RETRY`] (unless the service
+    /// stops first).
+    fn schedule_later(self: &Arc<Self>, stage: &str) {
         let (me, stage) = (Arc::clone(self), stage.to_string());
         let mut stop = self.shutdown_signal();
         tokio::spawn(async move {
@@ -828,14 +834,7 @@ impl Manager {
             .entry(stage.to_string())
             .or_default()
             .push_front(id);
-        let (me, stage) = (Arc::clone(self), stage.to_string());
-        let mut stop = self.shutdown_signal();
-        tokio::spawn(async move {
-            tokio::select! {
-                _ = tokio::time::sleep(STAGE_RETRY) => me.schedule(&stage),
-                _ = stop.changed() => {}
-            }
-        });
+        self.schedule_later(stage);
         true
     }
 
