@@ -381,3 +381,58 @@ fn iso_sweep() {
     }
     println!("buried: backlash within 15 % {b}/{n}, drift named {d}/{n}");
 }
+
+/// With `time_s` the drift has a rate per hour; a per-cycle step drift leaves the reversal as
+/// measured, a continuous one is corrected for what it does between the two passes.
+#[test]
+fn time_column_gives_the_rate_per_hour() {
+    let spec = IsoSpec {
+        targets: 7,
+        noise_um: 0.5,
+        backlash_um: 8.0,
+        drift: DriftShape::Linear(2.0),
+        position: PositionError::Irregular(20.0),
+        ..IsoSpec::default()
+    };
+    let t = make(spec, 99);
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("iso.csv");
+    std::fs::write(&f, t.csv(true)).unwrap();
+    let (j, _) = run_cli(&f, -21000.0, 21000.0, true);
+    let d = named(&j, "thermal_drift").unwrap_or_else(|| panic!("{j:#}"));
+    let cycle_s = 2.0 * 7.0 * spec.dwell_s + 2.0 * spec.reversal_s;
+    let per_h = d["rate_um_per_h"].as_f64().unwrap();
+    let want = 2.0 / cycle_s * 3600.0;
+    assert!((per_h / want - 1.0).abs() < 0.15, "{per_h} vs {want}");
+    let per_cycle = d["rate_um_per_cycle"].as_f64().unwrap();
+    assert!((per_cycle / 2.0 - 1.0).abs() < 0.15, "{per_cycle}");
+    let b = named(&j, "backlash").unwrap()["value_um"].as_f64().unwrap();
+    assert!((b / 8.0 - 1.0).abs() < 0.15, "backlash {b}");
+    assert_eq!(d["timing"], "continuous in time", "{d}");
+}
+
+#[test]
+fn simulate_refuses_non_finite_noise_and_huge_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let truth = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim/ideal.toml");
+    for extra in [
+        vec!["--noise-um", "inf"],
+        vec!["--noise-um", "NaN"],
+        vec!["--noise-um=-1"],
+        vec!["--targets", "100000000"],
+        vec!["--runs", "1000", "--targets", "100000"],
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_csmetro"))
+            .args(["gap", "simulate", "--truth"])
+            .arg(&truth)
+            .arg("--out")
+            .arg(dir.path().join("d.csv"))
+            .args(&extra)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{extra:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}

@@ -27,6 +27,9 @@ pub const ALPHA_FAMILY: f64 = 0.01;
 /// Reversal variation beyond the pure error at which the backlash is judged against the
 /// spread of the per-target reversals (its standard error over targets) as well.
 const ALPHA_VARIES: f64 = 0.05;
+/// χ² (1 df) by which correcting the reversals for a continuous drift must make them more
+/// constant before the drift is taken as continuous in time.
+const TIMING_EVIDENCE: f64 = 0.0;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Shape {
@@ -774,7 +777,7 @@ pub fn analyse(samples: &[Sample], model: &StageModel, timed: bool) -> Option<Is
             };
             let (pc, var, nb) = spread(Timing::PerCycle);
             let (co, _, _) = spread(Timing::Continuous);
-            if nb >= 3 && (pc - co) / var.max(1e-300) > 3.84 {
+            if nb >= 3 && (pc - co) / var.max(1e-300) > TIMING_EVIDENCE {
                 Timing::Continuous
             } else {
                 Timing::PerCycle
