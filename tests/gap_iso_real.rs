@@ -436,3 +436,132 @@ fn simulate_refuses_non_finite_noise_and_huge_sizes() {
         assert!(!err.contains("panicked"), "{err}");
     }
 }
+
+/// Odd tables never panic and never name anything they cannot support: one direction only, too
+/// few cycles, one target, missing readings, a constant (quantised) table, huge values.
+#[test]
+fn odd_tables_are_handled() {
+    let base = make(
+        IsoSpec {
+            targets: 6,
+            backlash_um: 5.0,
+            position: PositionError::Irregular(10.0),
+            ..IsoSpec::default()
+        },
+        3,
+    );
+    let opts = Options {
+        iso230: true,
+        ..Options::default()
+    };
+    let model = StageModel::new([-21000.0, 21000.0], [0.0, 1000.0]);
+    let all = samples_of(&base);
+    let variants: Vec<(&str, Vec<Sample>)> = vec![
+        (
+            "forward only",
+            all.iter().filter(|s| s.direction > 0.0).copied().collect(),
+        ),
+        (
+            "two cycles",
+            all.iter().filter(|s| s.run <= 2).copied().collect(),
+        ),
+        (
+            "one target",
+            all.iter()
+                .filter(|s| (s.target_x_um - base.targets[2]).abs() < 1e-6)
+                .copied()
+                .collect(),
+        ),
+        (
+            "missing readings",
+            all.iter()
+                .enumerate()
+                .filter(|(i, _)| i % 7 != 3)
+                .map(|(_, s)| *s)
+                .collect(),
+        ),
+        (
+            "constant",
+            all.iter()
+                .map(|s| Sample {
+                    meas_x_um: s.target_x_um,
+                    ..*s
+                })
+                .collect(),
+        ),
+        (
+            "huge",
+            all.iter()
+                .map(|s| Sample {
+                    meas_x_um: s.target_x_um + 1e12 * (s.run as f64),
+                    ..*s
+                })
+                .collect(),
+        ),
+    ];
+    for (name, s) in variants {
+        match diagnose(&model, &s, &opts) {
+            Ok(d) => {
+                let j = d.to_json();
+                assert!(j.is_object(), "{name}");
+                let _ = d.summary();
+                if name == "constant" {
+                    assert!(d.added.is_empty(), "{name}: {}", d.summary());
+                }
+                if name == "forward only" {
+                    assert!(
+                        !d.added.iter().any(|a| a.kind == "backlash"),
+                        "{name}: {}",
+                        d.summary()
+                    );
+                }
+            }
+            Err(e) => assert!(!e.0.is_empty(), "{name}"),
+        }
+    }
+}
+
+/// Where the targets resolve a library period (here 41 targets ~150 µm apart and the 400 µm
+/// leadscrew pitch), the cyclic error is tested and named with the rest; where they do not (the
+/// 5 mm grids above) it is only said that they cannot.
+#[test]
+fn a_resolved_leadscrew_period_is_named_on_a_dense_table() {
+    let spec = IsoSpec {
+        targets: 41,
+        start_um: 1000.0,
+        span_um: 6000.0,
+        noise_um: 0.2,
+        backlash_um: 3.0,
+        periodic: Some((400.0, 1.5, 0.7)),
+        position: PositionError::SmoothNoLine(5.0),
+        ..IsoSpec::default()
+    };
+    let t = make(spec, 5);
+    let d = diagnose_table(&t);
+    let iso = d.iso.as_ref().unwrap();
+    let c = iso
+        .findings()
+        .find(|f| f.kind == "leadscrew_cyclic" && f.named)
+        .unwrap_or_else(|| panic!("{}", d.summary()));
+    assert!((c.value / 1.5 - 1.0).abs() < 0.15, "{}", d.summary());
+    assert!(d.added.iter().any(|a| a.kind == "leadscrew_cyclic"));
+    let b = iso
+        .findings()
+        .find(|f| f.kind == "backlash" && f.named)
+        .unwrap();
+    assert!((b.value / 3.0 - 1.0).abs() < 0.15, "{}", d.summary());
+    // Without the periodic error nothing cyclic is named.
+    let t = make(
+        IsoSpec {
+            periodic: None,
+            ..spec
+        },
+        6,
+    );
+    let d = diagnose_table(&t);
+    assert!(
+        !d.added.iter().any(|a| a.kind.ends_with("cyclic")),
+        "{}",
+        d.summary()
+    );
+}

@@ -67,6 +67,8 @@ struct Table {
     cycles: Vec<i64>,
     cycle_time: Vec<f64>,
     t0: f64,
+    /// Library cyclic errors the targets resolve: (kind, period µm).
+    periods: Vec<(&'static str, f64)>,
 }
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -75,6 +77,8 @@ struct Named {
     hyst: bool,
     scale: bool,
     drift: Option<(Shape, Timing)>,
+    /// Cyclic terms named, one bit per entry of `Table::periods`.
+    cyclic: u32,
 }
 
 struct Fit {
@@ -87,6 +91,8 @@ struct Fit {
     hyst: Option<(f64, f64)>,
     /// Scale, µm per µm.
     scale: Option<f64>,
+    /// Cosine and sine amplitude of each resolvable period (fitted with a line beside it).
+    cyc: Vec<Option<(f64, f64)>>,
 }
 
 /// One effect the decomposition tested.
@@ -328,7 +334,11 @@ fn key(v: f64) -> i64 {
     super::design::key_um(v)
 }
 
-fn build_tables(samples: &[Sample], model: &StageModel) -> (Vec<Table>, Vec<String>) {
+fn build_tables(
+    samples: &[Sample],
+    model: &StageModel,
+    motor_period_um: f64,
+) -> (Vec<Table>, Vec<String>) {
     use std::collections::BTreeMap;
     let mut groups: BTreeMap<(AxisId, i64), Vec<&Sample>> = BTreeMap::new();
     for s in samples {
@@ -397,7 +407,33 @@ fn build_tables(samples: &[Sample], model: &StageModel) -> (Vec<Table>, Vec<Stri
             .map(|(s, &n)| s / n.max(1) as f64)
             .collect();
         let t0 = obs.iter().map(|o| o.t).fold(f64::INFINITY, f64::min);
+        let xs: Vec<f64> = targets.iter().map(|a| a.1).collect();
+        let max_gap = xs.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+        let span = xs[xs.len() - 1] - xs[0];
+        let mut periods: Vec<(&'static str, f64)> = Vec::new();
+        for e in model.effects.iter().filter(|e| e.axis == axis) {
+            match &e.kind {
+                EffectKind::LeadscrewCyclic { period_um, .. } => {
+                    periods.push(("leadscrew_cyclic", *period_um))
+                }
+                EffectKind::MotorCyclic { period_um, .. } => {
+                    periods.push(("motor_cyclic", *period_um))
+                }
+                _ => {}
+            }
+        }
+        if !periods.iter().any(|p| p.0 == "leadscrew_cyclic") {
+            periods.push(("leadscrew_cyclic", 400.0));
+        }
+        if !periods.iter().any(|p| p.0 == "motor_cyclic") && motor_period_um > 0.0 {
+            periods.push(("motor_cyclic", motor_period_um));
+        }
+        // Resolved: sampled above Nyquist everywhere, within the span, 8 targets at least (a
+        // line and one harmonic leave 4 df of lack of fit).
+        periods.retain(|p| p.1.is_finite() && p.1 > 2.0 * max_gap && p.1 <= span && xs.len() >= 8);
+        periods.truncate(32);
         out.push(Table {
+            periods,
             axis,
             static_um,
             travel: model.travel(axis),
@@ -538,6 +574,11 @@ impl Table {
         } else {
             None
         };
+        let cyc = self
+            .periods
+            .iter()
+            .map(|&(_, p)| cyclic_fit(&m, p).map(|c| (c.0, c.1)))
+            .collect();
         Fit {
             beta,
             mu,
@@ -546,6 +587,7 @@ impl Table {
             b_mean,
             hyst,
             scale,
+            cyc,
         }
     }
 
@@ -561,6 +603,14 @@ impl Table {
         if named.scale {
             if let Some(k) = f.scale {
                 v += k * o.pos;
+            }
+        }
+        for (j, c) in f.cyc.iter().enumerate() {
+            if named.cyclic & (1 << j) != 0 {
+                if let Some((a, b)) = c {
+                    let w = std::f64::consts::TAU * o.pos / self.periods[j].1;
+                    v += a * w.cos() + b * w.sin();
+                }
             }
         }
         if let Some(h) = h {
@@ -701,8 +751,13 @@ struct Pending {
 
 /// Decomposes every ISO table of `samples` (residuals against `model`). None when no line group
 /// has the shape (≥ 3 cycles over repeated targets).
-pub fn analyse(samples: &[Sample], model: &StageModel, timed: bool) -> Option<IsoAnalysis> {
-    let (tables, skipped) = build_tables(samples, model);
+pub fn analyse(
+    samples: &[Sample],
+    model: &StageModel,
+    timed: bool,
+    motor_period_um: f64,
+) -> Option<IsoAnalysis> {
+    let (tables, skipped) = build_tables(samples, model, motor_period_um);
     if tables.is_empty() {
         return None;
     }
@@ -1092,6 +1147,89 @@ fn push_reversal_scale(
             });
         }
     }
+    // Cyclic errors of the library's periods, only where the targets resolve them: the two
+    // terms beside a line, against the pure error and against the lack of fit left.
+    let m: Vec<(f64, f64)> = x.iter().copied().zip(y.iter().copied()).collect();
+    for (pj, &(kind, period)) in tb.periods.iter().enumerate() {
+        let Some((a, b, ss, rss, df_lof)) = cyclic_fit(&m, period) else {
+            continue;
+        };
+        let n = m.len() as f64;
+        let f_pe = ss / 2.0 / mean(&w).max(1e-300);
+        let f_lof = ss / 2.0 / (rss / df_lof).max(1e-300);
+        let p = f_sf(f_pe, 2.0, df_pe).max(f_sf(f_lof, 2.0, df_lof));
+        let amp = a.hypot(b);
+        let se = (2.0 * mean(&w).max(rss / df_lof) / n).sqrt();
+        let mut extra = serde_json::Map::new();
+        extra.insert("period_um".into(), json!(period));
+        extra.insert("period_index".into(), json!(pj));
+        extra.insert("cos_um".into(), json!(a));
+        extra.insert("sin_um".into(), json!(b));
+        pending.push(Pending {
+            table: ti,
+            order: 4 + pj,
+            finding: Finding {
+                kind,
+                what: format!("cyclic error of period {period:.1} µm (amplitude)"),
+                axis: tb.axis,
+                static_um: tb.static_um,
+                value: amp,
+                se,
+                unit: "um",
+                t: amp / se.max(1e-300),
+                p,
+                alpha: f64::NAN,
+                significant: false,
+                named: false,
+                refused: None,
+                heldout_alone_um: f64::NAN,
+                heldout_before_um: None,
+                heldout_after_um: None,
+                extra: tag(extra),
+                effect: None,
+            },
+        });
+    }
+}
+
+/// Cosine and sine of one period fitted beside a smooth curve (Chebyshev polynomial of degree
+/// 1–6, by the number of targets) to the bidirectional means: (a, b, the sum of squares the two
+/// terms add, residual sum of squares, its degrees of freedom). A smooth position error of
+/// longer periods is then not taken for the cyclic one.
+fn cyclic_fit(m: &[(f64, f64)], period: f64) -> Option<(f64, f64, f64, f64, f64)> {
+    let n = m.len();
+    if n < 8 {
+        return None;
+    }
+    let deg = ((n - 6) / 4).clamp(1, 6);
+    let lo = m.iter().map(|v| v.0).fold(f64::INFINITY, f64::min);
+    let hi = m.iter().map(|v| v.0).fold(f64::NEG_INFINITY, f64::max);
+    if hi <= lo {
+        return None;
+    }
+    let u = |x: f64| 2.0 * (x - lo) / (hi - lo) - 1.0;
+    let w = |x: f64| std::f64::consts::TAU * x / period;
+    let fit = |with: bool| {
+        let k = deg + 1 + if with { 2 } else { 0 };
+        let a = DMatrix::from_fn(n, k, |i, j| {
+            let x = m[i].0;
+            if j <= deg {
+                (j as f64 * u(x).clamp(-1.0, 1.0).acos()).cos()
+            } else if j == deg + 1 {
+                w(x).cos()
+            } else {
+                w(x).sin()
+            }
+        });
+        let y = DVector::from_fn(n, |i, _| m[i].1);
+        let beta = a.clone().svd(true, true).solve(&y, 1e-10).ok()?;
+        let r = &y - &a * &beta;
+        Some((beta, r.dot(&r)))
+    };
+    let (b4, rss4) = fit(true)?;
+    let (_, rss2) = fit(false)?;
+    let df = n as f64 - (deg + 3) as f64;
+    Some((b4[deg + 1], b4[deg + 2], (rss2 - rss4).max(0.0), rss4, df))
 }
 
 type TableModel = Option<(f64, f64, f64, (Shape, f64, f64), Timing)>;
@@ -1201,7 +1339,7 @@ fn finalise(
         let mut cur = before;
         for (_, s, _, f) in fs.iter_mut() {
             let mut alone = Named::default();
-            set(&mut alone, f.kind, drift);
+            set(&mut alone, f, drift);
             let a = tb.loco(&alone);
             f.heldout_alone_um = (a.0 / a.1.max(1) as f64).sqrt();
             if !*s {
@@ -1212,7 +1350,7 @@ fn finalise(
                 continue;
             }
             let mut trial = named;
-            set(&mut trial, f.kind, drift);
+            set(&mut trial, f, drift);
             let t = tb.loco(&trial);
             if t.0 < cur.0 {
                 f.named = true;
@@ -1234,7 +1372,7 @@ fn finalise(
             if !f.named {
                 continue;
             }
-            f.effect = effect_of(f.kind, tb, &ff, shape.0);
+            f.effect = effect_of(f, tb, &ff, shape.0);
             if f.kind == "thermal_drift" {
                 f.extra.insert("r_before_um".into(), json!(r_before));
                 f.extra.insert("r_after_um".into(), json!(r_after));
@@ -1313,17 +1451,23 @@ fn corrected(f: &Finding) -> bool {
         .unwrap_or(false)
 }
 
-fn set(n: &mut Named, kind: &str, drift: Option<(Shape, Timing)>) {
-    match kind {
+fn set(n: &mut Named, f: &Finding, drift: Option<(Shape, Timing)>) {
+    match f.kind {
         "backlash" => n.backlash = true,
         "hysteresis" => n.hyst = true,
         "scale" => n.scale = true,
         "thermal_drift" => n.drift = drift,
+        "leadscrew_cyclic" | "motor_cyclic" => {
+            if let Some(j) = f.extra.get("period_index").and_then(Json::as_u64) {
+                n.cyclic |= 1u32 << (j.min(31) as u32);
+            }
+        }
         _ => {}
     }
 }
 
-fn effect_of(kind: &str, tb: &Table, f: &Fit, shape: Shape) -> Option<Effect> {
+fn effect_of(fnd: &Finding, tb: &Table, f: &Fit, shape: Shape) -> Option<Effect> {
+    let kind = fnd.kind;
     let k = match kind {
         "backlash" => EffectKind::Backlash {
             reversal_um: f.b_mean,
@@ -1339,6 +1483,24 @@ fn effect_of(kind: &str, tb: &Table, f: &Fit, shape: Shape) -> Option<Effect> {
             ppm: f.scale? * 1e6,
             ref_um: 0.0,
         },
+        "leadscrew_cyclic" | "motor_cyclic" => {
+            let j = fnd.extra.get("period_index").and_then(Json::as_u64)? as usize;
+            let (a, b) = (*f.cyc.get(j)?)?;
+            let period_um = tb.periods.get(j)?.1;
+            if kind == "motor_cyclic" {
+                EffectKind::MotorCyclic {
+                    period_um,
+                    cos_um: vec![a],
+                    sin_um: vec![b],
+                }
+            } else {
+                EffectKind::LeadscrewCyclic {
+                    period_um,
+                    cos_um: vec![a],
+                    sin_um: vec![b],
+                }
+            }
+        }
         "thermal_drift" => match shape {
             Shape::Linear => EffectKind::ThermalDrift {
                 component: tb.axis,

@@ -402,7 +402,7 @@ pub fn diagnose(
         }
     }
     let iso = if opts.iso230 {
-        super::saturated::analyse(samples, model, opts.time_from_column)
+        super::saturated::analyse(samples, model, opts.time_from_column, opts.motor_period_um)
     } else {
         None
     };

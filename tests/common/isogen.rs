@@ -105,6 +105,8 @@ pub struct IsoSpec {
     pub drift_continuous: bool,
     pub position: PositionError,
     pub scale_ppm: f64,
+    /// A periodic error (period µm, amplitude µm, phase rad), the same in both directions.
+    pub periodic: Option<(f64, f64, f64)>,
     /// Seconds at each target (move + dwell + reading) and at each reversal.
     pub dwell_s: f64,
     pub reversal_s: f64,
@@ -123,6 +125,7 @@ impl Default for IsoSpec {
             drift_continuous: true,
             position: PositionError::None,
             scale_ppm: 0.0,
+            periodic: None,
             dwell_s: 12.0,
             reversal_s: 30.0,
         }
@@ -233,7 +236,11 @@ pub fn make(spec: IsoSpec, seed: u64) -> IsoTable {
                 t += spec.dwell_s;
                 let x = targets[i];
                 let when = if spec.drift_continuous { t } else { cycle_mid };
+                let wave = spec.periodic.map_or(0.0, |(per, amp, ph)| {
+                    amp * (std::f64::consts::TAU * x / per + ph).sin()
+                });
                 let dev = pos_err[i]
+                    + wave
                     + spec.scale_ppm * 1e-6 * x
                     + if up { 0.5 } else { -0.5 } * spec.backlash_um
                     + drift_at(spec.drift, when / cycle_s)
