@@ -99,6 +99,8 @@ fn muts_x_names_the_backlash_and_the_drift_and_says_what_it_cannot_see() {
     let r = d["rate_um_per_cycle"].as_f64().unwrap();
     assert!((-2.0..-0.9).contains(&r), "drift {r} µm/cycle");
     assert!(d["shape"].is_string() && d["rate_se_um_per_cycle"].as_f64().unwrap() > 0.0);
+    assert_eq!(j["drift"]["significant"], true, "{}", j["drift"]);
+    assert_eq!(j["drift"]["between_cycles"][0]["named"], true);
     // No time column: no rate per hour is made up.
     assert!(d["rate_um_per_h"].is_null(), "{d}");
     let (rb, ra) = (
@@ -219,6 +221,18 @@ fn other_real_tables_name_what_the_hand_decomposition_shows() {
                 assert!((r / d - 1.0).abs() < 0.35, "{ctx}");
             }
             None => assert!(named(&j, "thermal_drift").is_none(), "{ctx}"),
+        }
+        if c.backlash.is_none() && c.drift.is_none() {
+            // The null: nothing named, nothing left beyond the pure error, no drift.
+            assert!(j["added"].as_array().unwrap().is_empty(), "{ctx}");
+            assert_eq!(j["unexplained"]["significant"], false, "{ctx}");
+            assert_eq!(j["drift"]["significant"], false, "{ctx}");
+            let text = j["cannot_see"].as_array().unwrap();
+            assert!(
+                text.iter()
+                    .any(|t| t.as_str().unwrap().contains("cannot show a reversal below")),
+                "{ctx}"
+            );
         }
     }
 }

@@ -238,6 +238,9 @@ pub struct IsoTable {
     /// RMS and z of the repeatable position structure left once the named effects are removed.
     pub unexplained_rms_um: f64,
     pub unexplained_z: f64,
+    /// Structure left beyond the pure error (position error, irregular reversals or cycle
+    /// offsets off the trend); detection limits alone do not count.
+    pub structure_left: bool,
 }
 
 impl IsoTable {
@@ -257,6 +260,7 @@ impl IsoTable {
             "cannot_see": self.cannot_see_json,
             "unexplained_rms_um": self.unexplained_rms_um,
             "unexplained_z": self.unexplained_z,
+            "structure_left": self.structure_left,
         })
     }
 }
@@ -1394,7 +1398,7 @@ fn finalise(
         }
         let findings: Vec<Finding> = fs.into_iter().map(|x| x.3).collect();
         let iso_reversal = tb.fit(&all, None).b_mean;
-        let (cannot, cj, un_rms, un_z) =
+        let (cannot, cj, un_rms, un_z, left) =
             cannot_see(tb, &ff, &named, s2, df_pe, ss_free, shape, &findings, model);
         sse_b += before.0;
         sse_a += cur.0;
@@ -1415,6 +1419,7 @@ fn finalise(
             cannot_see_json: cj,
             unexplained_rms_um: un_rms,
             unexplained_z: un_z,
+            structure_left: left,
         });
     }
     let _ = timed;
@@ -1540,8 +1545,9 @@ fn cannot_see(
     shape: (Shape, f64, f64),
     findings: &[Finding],
     model: &StageModel,
-) -> (Vec<String>, Json, f64, f64) {
+) -> (Vec<String>, Json, f64, f64, bool) {
     let mut text = Vec::new();
+    let mut left = false;
     let mut j = serde_json::Map::new();
     let nt = tb.targets.len();
     let mut xs = tb.targets.clone();
@@ -1630,6 +1636,7 @@ fn cannot_see(
         })
         .collect();
     if z > 3.5 && rms > 0.0 {
+        left = true;
         let mut s = format!(
             "a repeatable position-dependent error of {rms:.2} µm RMS (largest {:.2} µm at {:.0} µm; χ² z {z:.1} against the pure error) is left unexplained: {nt} targets {:.0} µm apart resolve no period below {min_period:.0} µm, so it cannot be told apart from a cyclic error, a sensor nonlinearity or any shorter-period error",
             worst.1, worst.0, max_gap
@@ -1687,6 +1694,7 @@ fn cannot_see(
         let zr = chi2_z(chi, dfr);
         let rr = (ssr / k - wsum / k).max(0.0).sqrt();
         if zr > 3.5 {
+            left = true;
             let lo = f.b_i.iter().map(|b| b.1).fold(f64::INFINITY, f64::min);
             let hi = f.b_i.iter().map(|b| b.1).fold(f64::NEG_INFINITY, f64::max);
             text.push(format!(
@@ -1707,6 +1715,7 @@ fn cannot_see(
         let zc = chi2_z(ss_c / s2, dfc);
         let per_cycle = (ss_c / (tb.obs.len() as f64 / nc) / nc).sqrt();
         if zc > 3.5 {
+            left = true;
             text.push(format!(
                 "the cycle offsets scatter {per_cycle:.2} µm RMS beyond {} (χ² z {zc:.1}): a zero that wanders or a drift of another shape; give `time_s` and measure more cycles (or a reference at a fixed target between cycles) to resolve it",
                 if named.drift.is_some() { "the named drift" } else { "a constant zero" }
@@ -1755,5 +1764,5 @@ fn cannot_see(
     }
     j.insert("detection_limits".into(), Json::Object(lim));
     j.insert("text".into(), json!(text));
-    (text, Json::Object(j), rms, z)
+    (text, Json::Object(j), rms, z, left)
 }

@@ -283,7 +283,7 @@ pub fn diagnose(
     let beta = design.fit(&current);
     let e = design.residual(&rows, &current, &beta);
     let cs = cell_stats(&rows, &e, current.len());
-    let drift = drift_test(samples, model, &rows, &e, &cs, opts.z_unexplained);
+    let mut drift = drift_test(samples, model, &rows, &e, &cs, opts.z_unexplained);
     let (sigma2, from_repeats) = if drift.significant {
         // Repeats that drift are not the noise: σ from what the drift leaves.
         (drift.sigma2_rest, true)
@@ -472,11 +472,23 @@ pub fn diagnose(
         let un = iso
             .tables
             .iter()
-            .filter(|t| !t.cannot_see.is_empty())
+            .filter(|t| t.structure_left)
             .map(|t| t.unexplained_rms_um)
             .fold(0.0, f64::max);
-        unexplained_sig = iso.tables.iter().any(|t| !t.cannot_see.is_empty());
+        unexplained_sig = iso.tables.iter().any(|t| t.structure_left);
         unexplained_rms = un;
+        // The drift object says what the decomposition named: a drift between cycles.
+        for f in iso
+            .findings()
+            .filter(|f| f.named && f.kind == "thermal_drift")
+        {
+            drift.significant = true;
+            drift.z = drift.z.max(f.t.abs());
+            let c = usize::from(f.axis == AxisId::Y);
+            if let Some(r) = f.extra.get("rate_um_per_h").and_then(|v| v.as_f64()) {
+                drift.rate_mid_um_per_h[c] = r;
+            }
+        }
     }
     Ok(Diagnosis {
         iso,
