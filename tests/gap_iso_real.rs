@@ -345,11 +345,14 @@ pub fn buried_sweep(n: usize, seed: u64) -> (usize, usize, usize, Vec<String>) {
         hit_b += usize::from(ok_b);
         hit_d += usize::from(ok_d);
         if !ok_b || !ok_d {
+            let fd = iso.findings().find(|f| f.kind == "thermal_drift");
             log.push(format!(
-                "buried #{i}: backlash {b:.2} -> {:?}, drift {:?} continuous {} -> {ok_d}; named {:?}",
+                "buried #{i}: backlash {b:.2} -> {:?}, drift {:?} continuous {} -> {ok_d} (p {:?}, {:?}); named {:?}",
                 fb.map(|f| f.value),
                 s.drift,
                 s.drift_continuous,
+                fd.map(|f| f.p),
+                fd.and_then(|f| f.refused.clone()),
                 named_kinds(&d)
             ));
         }
