@@ -1373,6 +1373,10 @@ fn finalise(
         let r_after = named.drift.and_then(|(s, t)| tb.iso_r(Some((&ff, s, t))));
         let before_rms = (before.0 / before.1.max(1) as f64).sqrt();
         for (_, _, _, f) in fs.iter_mut() {
+            // Alone: from this baseline (one zero per table, nothing named) to
+            // `heldout_rms_alone_um`.
+            f.extra
+                .insert("heldout_rms_baseline_um".into(), json!(before_rms));
             if !f.named {
                 continue;
             }
