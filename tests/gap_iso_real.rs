@@ -344,6 +344,13 @@ pub fn buried_sweep(n: usize, seed: u64) -> (usize, usize, usize, Vec<String>) {
         let ok_d = iso.findings().any(|f| f.kind == "thermal_drift" && f.named);
         hit_b += usize::from(ok_b);
         hit_d += usize::from(ok_d);
+        if std::env::var("GAP_ISO_SHOW")
+            .ok()
+            .and_then(|v| v.parse::<usize>().ok())
+            == Some(i)
+        {
+            println!("{}", d.summary());
+        }
         if !ok_b || !ok_d {
             let fd = iso.findings().find(|f| f.kind == "thermal_drift");
             log.push(format!(

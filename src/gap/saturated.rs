@@ -1284,18 +1284,30 @@ fn finalise(
         })
         .collect();
     // Drift named only when it also predicts held-out cycles better.
-    let drift_named: Vec<bool> = (0..tables.len())
+    // The shape that predicts held-out cycles: the fitted one, or a straight line when a
+    // settling fitted to four cycles cannot be extrapolated to the fifth (its first cycles
+    // carry most of the settling).
+    let loco_drift: Vec<Option<(Shape, Timing)>> = (0..tables.len())
         .map(|ti| {
-            drift_sig[ti]
-                && per_table[ti].is_some_and(|(_, _, _, shape, timing)| {
-                    let with = Named {
-                        drift: Some((shape.0, timing)),
-                        ..Default::default()
-                    };
-                    tables[ti].loco_rms(&with) < tables[ti].loco_rms(&Named::default())
-                })
+            let (_, _, _, shape, timing) = per_table[ti]?;
+            if !drift_sig[ti] {
+                return None;
+            }
+            let none = tables[ti].loco_rms(&Named::default());
+            let mut tries = vec![shape.0];
+            if shape.0 != Shape::Linear {
+                tries.push(Shape::Linear);
+            }
+            tries.into_iter().map(|sh| (sh, timing)).find(|&d| {
+                let with = Named {
+                    drift: Some(d),
+                    ..Default::default()
+                };
+                tables[ti].loco_rms(&with) < none
+            })
         })
         .collect();
+    let drift_named: Vec<bool> = loco_drift.iter().map(Option::is_some).collect();
     // Pass 2: the variants that match the drift decision.
     let keep: Vec<bool> = pending
         .iter()
@@ -1337,7 +1349,7 @@ fn finalise(
             }
         }
         fs.sort_by_key(|a| a.0);
-        let drift = Some((shape.0, timing));
+        let drift = loco_drift[ti].or(Some((shape.0, timing)));
         let mut named = Named::default();
         let before = tb.loco(&named);
         let mut cur = before;
@@ -1368,9 +1380,10 @@ fn finalise(
         }
         // Final fit with everything named: effects for the model, ISO R with and without drift.
         let all = |_: usize| true;
-        let ff = tb.fit(&all, named.drift);
+        let est = named.drift.map(|_| (shape.0, timing));
+        let ff = tb.fit(&all, est);
         let r_before = tb.iso_r(None);
-        let r_after = named.drift.and_then(|(s, t)| tb.iso_r(Some((&ff, s, t))));
+        let r_after = est.and_then(|(s, t)| tb.iso_r(Some((&ff, s, t))));
         let before_rms = (before.0 / before.1.max(1) as f64).sqrt();
         for (_, _, _, f) in fs.iter_mut() {
             // Alone: from this baseline (one zero per table, nothing named) to
@@ -1382,6 +1395,12 @@ fn finalise(
             }
             f.effect = effect_of(f, tb, &ff, shape.0);
             if f.kind == "thermal_drift" {
+                if let Some((Shape::Linear, _)) = named.drift.filter(|_| shape.0 != Shape::Linear) {
+                    f.extra.insert(
+                        "heldout_shape".into(),
+                        json!("linear (the settling fitted to the other cycles does not extrapolate to a held-out end cycle)"),
+                    );
+                }
                 f.extra.insert("r_before_um".into(), json!(r_before));
                 f.extra.insert("r_after_um".into(), json!(r_after));
                 if let (Some(a), Some(b)) = (r_before, r_after) {
