@@ -30,6 +30,9 @@ const ALPHA_VARIES: f64 = 0.05;
 /// χ² (1 df) by which correcting the reversals for a continuous drift must make them more
 /// constant before the drift is taken as continuous in time.
 const TIMING_EVIDENCE: f64 = 0.0;
+/// Share of the bidirectional means' variance a line must explain to be named a scale error
+/// (else it is the linear part of a position-dependent error of another shape).
+const SCALE_LINE_SHARE: f64 = 0.9;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Shape {
@@ -1123,6 +1126,12 @@ fn push_reversal_scale(
                 - x.iter().copied().fold(f64::INFINITY, f64::min);
             let mut extra = serde_json::Map::new();
             extra.insert("ppm".into(), json!(k * 1e6));
+            let my = mean(&y);
+            let sst: f64 = y.iter().map(|v| (v - my).powi(2)).sum();
+            extra.insert(
+                "line_share".into(),
+                json!(if sst > 0.0 { 1.0 - rss / sst } else { 0.0 }),
+            );
             extra.insert("se_ppm".into(), json!(se * 1e6));
             extra.insert("over_targets_um".into(), json!(k * span));
             pending.push(Pending {
@@ -1359,6 +1368,14 @@ fn finalise(
             let a = tb.loco(&alone);
             f.heldout_alone_um = (a.0 / a.1.max(1) as f64).sqrt();
             if !*s {
+                continue;
+            }
+            let share = f.extra.get("line_share").and_then(Json::as_f64);
+            if let Some(sh) = share.filter(|&sh| f.kind == "scale" && sh < SCALE_LINE_SHARE) {
+                f.refused = Some(format!(
+                    "the line is only {:.0} % of the position-dependent error: part of that error, not a scale error",
+                    100.0 * sh
+                ));
                 continue;
             }
             if f.kind == "thermal_drift" && !drift_named[ti] {
