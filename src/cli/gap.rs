@@ -131,8 +131,12 @@ pub fn run(args: Args) -> CliResult {
     };
     let mut opts = gap::Options {
         kinds: args.kinds,
+        time_from_column: format != (data::Format::Iso230 { timed: false }),
         ..Default::default()
     };
+    if matches!(format, data::Format::Iso230 { .. }) {
+        opts.iso230 = true;
+    }
     if let Some(p) = args.motor_period_um {
         if !(p.is_finite() && p > 0.0) {
             return Err(CliError::input("gap: --motor-period-um must be > 0"));
@@ -221,11 +225,39 @@ fn run_selftest(a: SelftestArgs) -> CliResult {
 }
 
 fn run_simulate(a: SimulateArgs) -> CliResult {
-    let truth = load_model(&a.truth)?;
+    if let Some(n) = a.noise_um {
+        if !(n.is_finite() && n >= 0.0) {
+            return Err(CliError::input(format!(
+                "gap simulate: --noise-um = {n} must be a finite number >= 0"
+            )));
+        }
+    }
+    // Bounded like every data file the diagnosis reads back.
+    const MAX_RUNS: usize = 1000;
+    const MAX_TARGETS: usize = 100_000;
+    const MAX_STATICS: usize = 100;
     if a.runs == 0 || a.targets == 0 {
         return Err(CliError::input(
             "gap simulate: --runs and --targets must be >= 1",
         ));
+    }
+    if a.runs > MAX_RUNS || a.targets > MAX_TARGETS || a.statics > MAX_STATICS {
+        return Err(CliError::input(format!(
+            "gap simulate: at most --runs {MAX_RUNS}, --targets {MAX_TARGETS}, --statics {MAX_STATICS}"
+        )));
+    }
+    if a.runs * a.targets * a.statics.max(1) > 2_000_000 {
+        return Err(CliError::input(
+            "gap simulate: --runs x --targets x --statics must stay <= 2,000,000 samples per axis",
+        ));
+    }
+    let truth = load_model(&a.truth)?;
+    let sigma = a.noise_um.unwrap_or_else(|| truth.noise_sigma_um());
+    if !(sigma.is_finite() && sigma >= 0.0) {
+        return Err(CliError::input(format!(
+            "{}: the noise σ of the truth model is {sigma} (must be finite, >= 0)",
+            a.truth.display()
+        )));
     }
     let spec = data::CampaignSpec {
         runs: a.runs,

@@ -24,8 +24,10 @@ mod design;
 pub mod drift;
 mod localise;
 mod report;
+pub mod saturated;
 mod search;
 pub mod selftest;
+mod stats;
 
 use csmetro_sim::{AxisId, StageModel};
 
@@ -69,6 +71,12 @@ pub struct Options {
     pub z_where: f64,
     /// z for significant unexplained structure (lack of fit or time structure).
     pub z_unexplained: f64,
+    /// ISO 230-2 decomposition (saturated model, pure-error tests, leave-one-cycle-out) for
+    /// data that are ISO 230-2 tables (the CLI sets it for an ISO 230-2 export): each cycle's
+    /// zero is then a finding (drift), not a per-line nuisance as in line campaigns.
+    pub iso230: bool,
+    /// Whether `time_s` came from the data (false: row order, so no rates per hour).
+    pub time_from_column: bool,
 }
 
 impl Default for Options {
@@ -90,6 +98,8 @@ impl Default for Options {
             time_bins: 60,
             z_where: 3.7,
             z_unexplained: 3.5,
+            iso230: false,
+            time_from_column: true,
         }
     }
 }

@@ -141,6 +141,9 @@ pub struct Diagnosis {
     pub notes: Vec<String>,
     /// Drift in time against the noise left once it is removed.
     pub drift: super::drift::Drift,
+    /// ISO 230-2 decomposition (tables of repeated bidirectional cycles): what is named there
+    /// is what `added` holds.
+    pub iso: Option<super::saturated::IsoAnalysis>,
 }
 
 fn finite(v: f64) -> Option<f64> {
@@ -253,6 +256,9 @@ impl Diagnosis {
             },
             "candidates": self.candidates,
             "notes": self.notes,
+            "findings": self.iso.as_ref().map_or_else(Vec::new, |i| i.findings().map(|f| f.to_json()).collect::<Vec<_>>()),
+            "cannot_see": self.iso.as_ref().map_or_else(Vec::new, |i| i.tables.iter().flat_map(|t| t.cannot_see.iter().cloned()).collect::<Vec<_>>()),
+            "iso_decomposition": self.iso.as_ref().map(|i| i.to_json()),
             "drift": {
                 "significant": self.drift.significant,
                 "z": self.drift.z,
@@ -266,6 +272,18 @@ impl Diagnosis {
                 },
                 "line_offset_rate_um_per_h": finite(self.drift.offset_rate_um_per_h),
                 "line_offset_z": finite(self.drift.offset_z),
+                "between_cycles": self.iso.as_ref().map(|i| i.findings().filter(|f| f.kind == "thermal_drift").map(|f| {
+                    let g = |k: &str| f.extra.get(k).cloned().unwrap_or(Json::Null);
+                    json!({
+                        "axis": f.axis.as_str(),
+                        "named": f.named,
+                        "rate_um_per_cycle": g("rate_um_per_cycle"),
+                        "rate_se_um_per_cycle": g("rate_se_um_per_cycle"),
+                        "rate_um_per_h": g("rate_um_per_h"),
+                        "shape": g("shape"),
+                        "p": f.p,
+                    })
+                }).collect::<Vec<_>>()),
             },
         })
     }
@@ -292,6 +310,9 @@ impl Diagnosis {
             "held-out RMS gap (leave-one-run-out): before {:.4} µm, after {:.4} µm",
             self.heldout_rms_before_um, self.heldout_rms_after_um
         );
+        if let Some(iso) = &self.iso {
+            s.push_str(&iso.summary());
+        }
         if self.where_.is_empty() {
             let _ = writeln!(
                 s,
@@ -313,6 +334,11 @@ impl Diagnosis {
             let _ = writeln!(
                 s,
                 "which: no effect improves the held-out fit significantly"
+            );
+        } else if self.iso.is_some() {
+            let _ = writeln!(
+                s,
+                "which (named by the ISO 230-2 decomposition, held-out RMS cumulative):"
             );
         }
         for (i, a) in self.added.iter().enumerate() {

@@ -283,7 +283,7 @@ pub fn diagnose(
     let beta = design.fit(&current);
     let e = design.residual(&rows, &current, &beta);
     let cs = cell_stats(&rows, &e, current.len());
-    let drift = drift_test(samples, model, &rows, &e, &cs, opts.z_unexplained);
+    let mut drift = drift_test(samples, model, &rows, &e, &cs, opts.z_unexplained);
     let (sigma2, from_repeats) = if drift.significant {
         // Repeats that drift are not the noise: σ from what the drift leaves.
         (drift.sigma2_rest, true)
@@ -401,7 +401,97 @@ pub fn diagnose(
             ));
         }
     }
+    let iso = if opts.iso230 {
+        super::saturated::analyse(samples, model, opts.time_from_column, opts.motor_period_um)
+    } else {
+        None
+    };
+    let mut before = before;
+    let mut after = cur_cv.rms;
+    let mut sigma = sigma;
+    let mut from_repeats = from_repeats;
+    let mut unexplained_sig = significant;
+    let mut unexplained_rms = if significant { unexpl_rms } else { 0.0 };
+    if let Some(iso) = &iso {
+        // ISO 230-2 tables: what is named is what the saturated-model tests and the held-out
+        // cycles support; the line search (per-cycle line offsets, judged against what is left
+        // unexplained) is reported beside it.
+        let line_picks: Vec<String> = added
+            .iter()
+            .map(|a| format!("{} {}", a.kind, a.axis))
+            .collect();
+        let mut model_iso = model.clone();
+        let mut added_iso = Vec::new();
+        let b2 = iso.heldout_before_um.powi(2);
+        let s2 = iso.sigma_um.powi(2);
+        for f in iso.findings().filter(|f| f.named) {
+            let Some(eff) = f.effect.clone() else {
+                continue;
+            };
+            merge_into(&mut model_iso, &eff);
+            let rms = f.heldout_after_um.unwrap_or(f64::NAN);
+            let gap_closed = (b2 - s2 > 1e-12 * b2 && b2 > 0.0)
+                .then(|| ((b2 - rms * rms) / (b2 - s2)).clamp(0.0, 1.0));
+            added_iso.push(Added {
+                kind: f.kind.into(),
+                axis: f.axis.as_str().into(),
+                effect: eff,
+                heldout_rms_um: rms,
+                gap_closed,
+                t_stat: f.t.abs(),
+                ties: Vec::new(),
+            });
+        }
+        let named_iso: Vec<String> = added_iso
+            .iter()
+            .map(|a| format!("{} {}", a.kind, a.axis))
+            .collect();
+        let dropped: Vec<&String> = line_picks
+            .iter()
+            .filter(|p| !named_iso.contains(p))
+            .collect();
+        if !dropped.is_empty() {
+            notes.push(format!(
+                "the line search (per-cycle line offsets, judged against what is left unexplained) also proposed {}; on ISO 230-2 tables only what the pure-error tests and held-out cycles support is named",
+                dropped.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
+            ));
+        }
+        if iso.findings().any(|f| f.named && f.kind == "thermal_drift") {
+            notes.retain(|n| !n.contains("each line's own offset absorbs it"));
+        }
+        for t in &iso.tables {
+            notes.extend(t.cannot_see.iter().cloned());
+        }
+        notes.extend(iso.skipped.iter().cloned());
+        added = added_iso;
+        updated = model_iso;
+        before = iso.heldout_before_um;
+        after = iso.heldout_after_um;
+        sigma = iso.sigma_um;
+        from_repeats = true;
+        let un = iso
+            .tables
+            .iter()
+            .filter(|t| t.structure_left)
+            .map(|t| t.unexplained_rms_um)
+            .fold(0.0, f64::max);
+        unexplained_sig = iso.tables.iter().any(|t| t.structure_left);
+        unexplained_rms = un;
+        // The drift object says what the decomposition named: a drift between cycles.
+        for f in iso
+            .findings()
+            .filter(|f| f.named && f.kind == "thermal_drift")
+        {
+            drift.significant = true;
+            drift.z = drift.z.max(f.t.abs());
+            let c = usize::from(f.axis == AxisId::Y);
+            if let Some(r) = f.extra.get("rate_um_per_h").and_then(|v| v.as_f64()) {
+                drift.rate_mid_um_per_h[c] = r;
+            }
+        }
+    }
     Ok(Diagnosis {
+        iso,
         notes,
         drift,
         n_samples: samples.len(),
@@ -410,15 +500,15 @@ pub fn diagnose(
         sigma_um: sigma,
         sigma_from_repeats: from_repeats,
         heldout_rms_before_um: before,
-        heldout_rms_after_um: cur_cv.rms,
+        heldout_rms_after_um: after,
         lack_of_fit_before_z: lof_before_z,
         added,
         where_: where_before,
         frequency: freq_before,
         other_axis: other_axis_map(samples, &rows, &cs0, sigma2),
         unexplained: Unexplained {
-            significant,
-            rms_um: if significant { unexpl_rms } else { 0.0 },
+            significant: unexplained_sig,
+            rms_um: unexplained_rms,
             lack_of_fit_z: lof_z,
             time_z,
             where_: if significant { where_after } else { Vec::new() },
