@@ -371,6 +371,7 @@ pub async fn execute_with(
                 EngineError::Camera(_) => "camera",
                 EngineError::Store(_) => "storage",
                 EngineError::Other(_) => "acquisition",
+                EngineError::Halted(_) => "halted",
             };
             let msg = fail(cause, format!("stopped: {e}"));
             return Err(format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` continues from the last stored sample"));
