@@ -74,6 +74,13 @@ pub(crate) const MAX_TOML_BYTES: u64 = 1 << 20;
 /// kernel files (/proc, /sys) are refused before a byte is read (`/dev/zero` would never end),
 /// and the read stops one byte past the limit whatever the file's metadata claims.
 pub(crate) fn read_bounded(path: &Path, limit: u64) -> Result<String, String> {
+    let bytes = read_bounded_bytes(path, limit)?;
+    String::from_utf8(bytes).map_err(|_| "not UTF-8 text".into())
+}
+
+/// [`read_bounded`] without the UTF-8 check: the bytes of a regular file of at most `limit`
+/// bytes (PNG frames).
+pub(crate) fn read_bounded_bytes(path: &Path, limit: u64) -> Result<Vec<u8>, String> {
     // Before opening: opening a fifo blocks until someone writes to it.
     let meta = std::fs::metadata(path).map_err(|e| io_reason(&e))?;
     // Kernel files (/proc, /sys) pass for regular ones of size 0.
@@ -98,7 +105,7 @@ pub(crate) fn read_bounded(path: &Path, limit: u64) -> Result<String, String> {
     if bytes.len() as u64 > limit {
         return Err(format!("larger than {limit} bytes"));
     }
-    String::from_utf8(bytes).map_err(|_| "not UTF-8 text".into())
+    Ok(bytes)
 }
 
 /// An I/O error without the path or the OS's wording beyond its kind.

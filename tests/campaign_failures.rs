@@ -132,3 +132,102 @@ fn results_that_cannot_be_written_are_an_error() {
     assert_eq!(s.campaign(1).unwrap().unwrap().state, CampaignState::Failed);
     assert!(s.result(1, "summary.json").unwrap().is_some());
 }
+
+/// Makes the store refuse one kind of write, as a full disk or a read-only store would: the
+/// schema is created first, then a trigger fails the writes `when` selects.
+fn fail_writes(db: &Path, trigger: &str) {
+    drop(Store::open(db).unwrap());
+    let c = rusqlite::Connection::open(db).unwrap();
+    c.execute_batch(trigger).unwrap();
+}
+
+#[test]
+fn a_curve_that_cannot_be_stored_fails_the_campaign() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    fail_writes(
+        &db,
+        "CREATE TRIGGER no_curves BEFORE INSERT ON results WHEN NEW.name LIKE 'curves/%' \
+         BEGIN SELECT RAISE(FAIL, 'disk full (test)'); END;",
+    );
+    let c = campaign(dir.path(), 1000.0, &dir.path().join("out"), "");
+    let o = run_json(&c, &db);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let j = summary(&o);
+    assert_eq!(j["state"], "failed", "{j}");
+    let errors = j["errors"].to_string();
+    assert!(
+        errors.contains("curves/") && errors.contains("not stored") && errors.contains("disk full"),
+        "{errors}"
+    );
+    let s = Store::open(&db).unwrap();
+    let row = s.campaign(1).unwrap().unwrap();
+    assert_eq!(row.state, CampaignState::Failed);
+    assert!(row.message.unwrap_or_default().contains("not stored"));
+    let log = s.events_after(1, 0).unwrap();
+    assert!(
+        !log.iter().any(|e| e.kind == "reconstructed"),
+        "a curve not stored is not announced as reconstructed"
+    );
+    assert!(log
+        .iter()
+        .any(|e| e.kind == "error" && e.data["cause"] == "storage"));
+}
+
+#[test]
+fn an_abort_whose_state_cannot_be_stored_is_an_error() {
+    // Left `running` in the store, an aborted campaign would be resumed by the service's next
+    // start: the abort must not be reported as done.
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    fail_writes(
+        &db,
+        "CREATE TRIGGER no_abort BEFORE UPDATE OF state ON campaigns \
+         WHEN NEW.state = 'aborted' BEGIN SELECT RAISE(FAIL, 'disk full (test)'); END;",
+    );
+    let c = campaign(dir.path(), 1000.0, &dir.path().join("out"), "");
+    // Time scale 1: still referencing when the abort comes.
+    let text = std::fs::read_to_string(&c)
+        .unwrap()
+        .replace("time_scale = 1000", "time_scale = 1");
+    std::fs::write(&c, text).unwrap();
+    let child = common::bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(&db)
+        .arg(&c)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    loop {
+        let running = rusqlite::Connection::open(&db)
+            .and_then(|c| {
+                c.query_row("SELECT state FROM campaigns WHERE id = 1", [], |r| {
+                    r.get::<_, String>(0)
+                })
+            })
+            .is_ok_and(|s| s == "running");
+        if running {
+            break;
+        }
+        assert!(t0.elapsed().as_secs() < 30, "never running");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let pid = child.id().to_string();
+    assert!(std::process::Command::new("kill")
+        .args(["-INT", &pid])
+        .status()
+        .unwrap()
+        .success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("motion stopped, but its state (aborted) was not stored"),
+        "{err}"
+    );
+    assert!(!err.contains("aborted; motion stopped"), "{err}");
+}

@@ -281,6 +281,12 @@ fn bad_campaign_files_name_file_line_and_key_and_nothing_is_stored() {
             "time_scale = 1000\ntime_scale = 10",
             "hardware.sim.time_scale",
         ),
+        // A reference move of days that no abort could cut short before issue 47.
+        (
+            "time_scale = 1000",
+            "time_scale = 1e-300",
+            "hardware.sim.time_scale: must be in [1e-3, 1e6]",
+        ),
     ];
     for (from, to, key) in cases {
         assert!(good.contains(from), "{from}");

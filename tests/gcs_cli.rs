@@ -148,3 +148,51 @@ fn sim_controller_refuses_bad_random_faults_naming_the_file() {
     assert!(!out.status.success(), "--fault-seed without random faults");
     assert!(String::from_utf8_lossy(&out.stderr).contains("random_faults"));
 }
+
+#[test]
+fn sim_time_scales_outside_the_sane_range_are_refused() {
+    // 1e-300 passed before: a simulator whose reference move never ends.
+    for scale in ["1e-300", "0.0001", "1e7", "NaN"] {
+        let out = Command::new(BIN)
+            .args(["sim", "controller", "--pty", "--time-scale", scale])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "--time-scale {scale}: {err}");
+        assert!(
+            err.contains("--time-scale: must be in [1e-3, 1e6]"),
+            "--time-scale {scale}: {err}"
+        );
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("sim.toml");
+    std::fs::write(&cfg, "# simulator\ntime_scale = 1e-300\n").unwrap();
+    let out = Command::new(BIN)
+        .args(["sim", "controller", "--pty", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("sim.toml:2: time_scale: must be in [1e-3, 1e6]"),
+        "{err}"
+    );
+    let rig = dir.path().join("rig.toml");
+    std::fs::write(
+        &rig,
+        "time_scale = 1e-300\n[x]\ntcp = \"127.0.0.1:0\"\n[y]\ntcp = \"127.0.0.1:0\"\n",
+    )
+    .unwrap();
+    let out = Command::new(BIN)
+        .args(["sim", "rig", "--config"])
+        .arg(&rig)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("rig.toml:1: time_scale: must be in [1e-3, 1e6]"),
+        "{err}"
+    );
+}

@@ -504,3 +504,33 @@ async fn port_that_stays_away_gives_io_error_after_bounded_attempts() {
         }
     }
 }
+
+#[tokio::test]
+async fn a_request_dropped_before_its_reply_does_not_answer_the_next_one() {
+    // An abort drops the driver's future mid-exchange: the POS? reply still comes, later.
+    // Taken as the answer to the next query of the same shape, it would be a wrong value;
+    // the next request resyncs first instead.
+    use csmetro_gcs::{AxisQuery, Command};
+    for link in BOTH {
+        let (sim, mut d) = referenced(link).await;
+        d.move_to(3_000.0).await.unwrap();
+        d.wait_on_target(Duration::from_secs(10)).await.unwrap();
+        let tmx = Command::Query {
+            query: AxisQuery::Tmx,
+            axes: vec!["1".into()],
+        };
+        let want = d.query(&tmx).await.unwrap().axis_f64("1").unwrap();
+        assert_ne!(want, 3.0);
+        sim.inject(Fault::DelayReply { ms: 100, count: 1 });
+        let cut = tokio::time::timeout(Duration::from_millis(30), d.position_um()).await;
+        assert!(
+            cut.is_err(),
+            "{link:?}: POS? should still wait for its reply"
+        );
+        let r = d.query(&tmx).await.unwrap();
+        assert_eq!(r.axis_f64("1").unwrap(), want, "{link:?}: {r:?}");
+        // A stop right after a cut exchange goes out and stops.
+        d.stop().await.unwrap();
+        assert!(!d.is_moving().await.unwrap());
+    }
+}

@@ -202,3 +202,36 @@ fn a_huge_png_is_refused_from_its_header_and_rejections_name_the_frame() {
     let (_, v) = decode_json(&f);
     assert_eq!(v["frame"], f.as_str(), "{v}");
 }
+
+#[test]
+fn decode_refuses_a_fifo_instead_of_blocking() {
+    // Opening a fifo blocks until a writer comes: the frame must be refused before that, as
+    // every other input file is (exit 2, the file named).
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("frame.png");
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    let mut child = Command::new(env!("CARGO_BIN_EXE_csmetro"))
+        .args(["ppp", "decode"])
+        .arg(&fifo)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > std::time::Duration::from_secs(10) {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            panic!("`csmetro ppp decode FIFO` still blocked after 10 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("frame.png: not a regular file"), "{err}");
+}

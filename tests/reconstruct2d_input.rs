@@ -91,3 +91,98 @@ fn a_few_samples_still_give_a_linear_map() {
     let (code, err, _) = run(GOOD, "0:5:50", &["--method", "auto"]);
     assert_eq!(code, 0, "{err}");
 }
+
+/// Samples at (x, y) on a grid 0:50:2000 in both directions, with errors of a plausible
+/// stage (a cyclic error along x, a bow along y, squareness).
+fn samples_at(points: &[(f64, f64)]) -> String {
+    let mut t = String::from("x_um,y_um,ex_um,ey_um\n");
+    for &(x, y) in points {
+        let ex = 0.3 * (x / 400.0 * std::f64::consts::TAU).sin() + 1e-4 * y;
+        let ey = 2e-7 * (y - 1000.0) * (y - 1000.0) - 5e-5 * x;
+        t.push_str(&format!("{x},{y},{ex:.5},{ey:.5}\n"));
+    }
+    t
+}
+
+fn run_grid(samples: &str, grid: &str) -> (i32, String, bool) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.csv");
+    std::fs::write(&path, samples).unwrap();
+    let out = dir.path().join("map.csv");
+    let o = Command::new(env!("CARGO_BIN_EXE_csmetro"))
+        .args([
+            "reconstruct2d",
+            "--grid-x",
+            grid,
+            "--grid-y",
+            grid,
+            "--samples",
+        ])
+        .arg(&path)
+        .arg("--out")
+        .arg(&out)
+        .arg("--json")
+        .output()
+        .unwrap();
+    let err = String::from_utf8(o.stderr).unwrap();
+    (o.status.code().unwrap(), err, out.exists())
+}
+
+#[test]
+fn samples_that_do_not_span_the_plane_are_refused() {
+    // Every sample on the diagonal x = y: any map fits them, and the cross-validation on the
+    // same line reported a tiny error for a made-up map (exit 0 before).
+    let diag: Vec<(f64, f64)> = (0..41)
+        .map(|k| (50.0 * k as f64, 50.0 * k as f64))
+        .collect();
+    for method in ["auto", "physics", "linear"] {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.csv");
+        std::fs::write(&path, samples_at(&diag)).unwrap();
+        let out = dir.path().join("map.csv");
+        let o = Command::new(env!("CARGO_BIN_EXE_csmetro"))
+            .args([
+                "reconstruct2d",
+                "--grid-x",
+                "0:50:2000",
+                "--grid-y",
+                "0:50:2000",
+            ])
+            .args(["--method", method, "--samples"])
+            .arg(&path)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{method}: {err}");
+        assert!(
+            err.contains("s.csv: all 41 samples lie on one line, from (0, 0) to (2000, 2000) µm"),
+            "{method}: {err}"
+        );
+        assert!(
+            err.contains("measure points spread over the plane"),
+            "{err}"
+        );
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(!out.exists(), "{method}: nothing written");
+    }
+    // A band along the bottom edge, 100 µm of 2000: the rest would be extrapolated.
+    let band: Vec<(f64, f64)> = (0..41)
+        .flat_map(|i| [0.0, 50.0, 100.0].map(|y| (50.0 * i as f64, y)))
+        .collect();
+    let (code, err, wrote) = run_grid(&samples_at(&band), "0:50:2000");
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("the samples cover 5.0 % of the grid"), "{err}");
+    assert!(!wrote);
+    // The same number of points spread over the plane is a map.
+    let spread: Vec<(f64, f64)> = (0..123)
+        .map(|k| {
+            let i = k % 41;
+            (50.0 * i as f64, 50.0 * ((k / 41 * 13 + i * 7) % 41) as f64)
+        })
+        .collect();
+    let (code, err, wrote) = run_grid(&samples_at(&spread), "0:50:2000");
+    assert_eq!(code, 0, "{err}");
+    assert!(wrote);
+}

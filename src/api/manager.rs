@@ -1131,7 +1131,15 @@ impl Manager {
         self.shutdown.send_replace(true);
         for a in self.inner().running.values() {
             tracing::info!(campaign = a.id, "stopping for shutdown");
-            a.control.send_replace(Control::Stop);
+            // An abort already requested stays an abort: turned into a resumable stop, the
+            // campaign would end `interrupted` and run again at the next start.
+            a.control.send_if_modified(|c| {
+                let stop = *c != Control::Abort;
+                if stop {
+                    *c = Control::Stop;
+                }
+                stop
+            });
         }
         let mut rx = self.active.subscribe();
         let _ = tokio::time::timeout(grace, rx.wait_for(|n| *n == 0)).await;

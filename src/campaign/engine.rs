@@ -2,8 +2,11 @@
 //! settle → trigger → decode → a sample, committed at once and streamed to the reconstruction
 //! worker. Decoding (and the simulated camera's rendering) runs on blocking threads while the
 //! stage moves on; a rejected frame is re-measured later, re-approached from its run's
-//! direction, and never stored. Pause, resume and abort are checked between points; abort, an
-//! unrecoverable error and the end of the campaign stop motion.
+//! direction, and never stored. Pause is checked between points. Abort and stop are watched
+//! during every wait (identification, reference moves, moves, settling, the camera, decoding):
+//! the axis command in progress is dropped and both axes get a stop at once, and no motion
+//! command is sent once either is requested. An unrecoverable error and the end of the campaign
+//! also stop motion.
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
 
@@ -162,6 +165,43 @@ pub enum EngineError {
     Store(String),
     #[error("{0}")]
     Other(String),
+    /// Abort or stop requested while the engine waited; [`Engine::run`] turns it into its end
+    /// state, it never leaves the engine.
+    #[error("halted ({0:?})")]
+    Halted(Control),
+}
+
+/// The halt (Abort or Stop) requested, if any.
+fn requested(control: &watch::Receiver<Control>) -> Option<Control> {
+    let c = *control.borrow();
+    c.halts().then_some(c)
+}
+
+/// Resolves once Abort or Stop is requested; never when nobody can request one any more.
+async fn halt_requested(control: &mut watch::Receiver<Control>) -> Control {
+    // The guard is dropped before any other await (it is not Send).
+    let c = control.wait_for(|c| c.halts()).await.map(|c| *c);
+    match c {
+        Ok(c) => c,
+        Err(_) => std::future::pending().await,
+    }
+}
+
+/// Runs `op` (an axis command) unless a halt is requested before or while it runs; a halt
+/// drops it at once (the GCS driver's exchanges are cancel-safe), and the caller's `?` takes
+/// [`EngineError::Halted`] up to [`Engine::run`], which stops both axes.
+async fn guarded<T>(
+    control: &mut watch::Receiver<Control>,
+    op: impl std::future::Future<Output = Result<T, EngineError>>,
+) -> Result<T, EngineError> {
+    if let Some(c) = requested(control) {
+        return Err(EngineError::Halted(c));
+    }
+    tokio::select! {
+        biased;
+        c = halt_requested(control) => Err(EngineError::Halted(c)),
+        r = op => r,
+    }
 }
 
 fn ax(axis: AxisId) -> impl FnOnce(AxisError) -> EngineError {
@@ -262,6 +302,10 @@ pub struct Engine<'a> {
     /// Applied to every commanded target of the moving axis (verification runs,
     /// `[compensation]`); samples keep the wanted target, so their error is the residual.
     pub compensation: Option<std::sync::Arc<crate::compensation::Compensation>>,
+    /// Points measured whose frames are still being decoded, oldest first.
+    flight: VecDeque<InFlight>,
+    /// Both axes were sent a stop after a halt request (sent once).
+    stopped: bool,
 }
 
 impl<'a> Engine<'a> {
@@ -290,6 +334,16 @@ impl<'a> Engine<'a> {
                 .map_or(2, |n| n.get())
                 .clamp(2, 8),
             compensation: None,
+            flight: VecDeque::new(),
+            stopped: false,
+        }
+    }
+
+    /// A halt was requested: stops both axes (once) before anything else is done.
+    async fn stop_for_halt(&mut self) {
+        if !self.stopped {
+            self.stopped = true;
+            self.rig.stop_all().await;
         }
     }
 
@@ -320,13 +374,45 @@ impl<'a> Engine<'a> {
         self.rig.clock.set(t);
     }
 
-    /// Runs the plan; on error or abort the axes are stopped before returning.
+    /// Runs the plan; on error, abort or stop the axes are stopped before returning. An error
+    /// met after a halt was requested (a command cut short by it) ends the campaign as the
+    /// halt says: the operator's abort stays an abort.
     pub async fn run(&mut self, plan: &Plan) -> Result<Outcome, EngineError> {
         let t0 = Instant::now();
         self.rig.clock.set(self.start_time_s);
         let r = self.run_inner(plan).await;
-        if !matches!(r, Ok(EndState::Done)) {
-            self.rig.stop_all().await;
+        let r = match r {
+            Ok(EndState::Done) => Ok(EndState::Done),
+            Ok(end) => {
+                self.stop_for_halt().await;
+                Ok(end)
+            }
+            Err(EngineError::Halted(c)) => {
+                self.stop_for_halt().await;
+                Ok(end_of(c))
+            }
+            Err(e) => {
+                self.rig.stop_all().await;
+                match requested(&self.control) {
+                    Some(c) => {
+                        self.recorder.event(
+                            "error",
+                            json!({"cause": "after_halt", "error": e.to_string(), "resumable": c == Control::Stop}),
+                        );
+                        Ok(end_of(c))
+                    }
+                    None => Err(e),
+                }
+            }
+        };
+        if r.as_ref().is_ok_and(|e| *e != EndState::Done) {
+            // Motion is stopped: points already measured are decoded and stored (a resume
+            // does not measure them again).
+            while let Some(f) = self.flight.pop_front() {
+                if let Err(e) = self.land(f, 0).await {
+                    tracing::warn!(error = %e, "a point measured before the halt was not stored");
+                }
+            }
         }
         let end = r?;
         Ok(Outcome {
@@ -343,13 +429,23 @@ impl<'a> Engine<'a> {
         }
         let timeout = Duration::from_secs_f64(self.campaign.spec.hardware.reference_timeout_s);
         for a in [AxisId::X, AxisId::Y] {
-            let info = self.rig.axis(a).identify().await.map_err(ax(a))?;
+            let rig = &mut *self.rig;
+            let info = guarded(&mut self.control, async {
+                rig.axis(a).identify().await.map_err(ax(a))
+            })
+            .await?;
             self.recorder.event(
                 "axis",
                 json!({"axis": a.as_str(), "idn": info.idn, "stage": info.stage, "travel_um": [info.travel_um.0, info.travel_um.1]}),
             );
             let t = Instant::now();
-            self.rig.axis(a).reference(timeout).await.map_err(ax(a))?;
+            // A reference move runs for seconds (tens at a slow reference velocity): a halt
+            // cuts it short, and the next axis's is never started.
+            let rig = &mut *self.rig;
+            guarded(&mut self.control, async {
+                rig.axis(a).reference(timeout).await.map_err(ax(a))
+            })
+            .await?;
             let phys = self.rig.time.physical_since(t);
             let t = self.rig.clock.get() + phys;
             self.rig.clock.set(t);
@@ -488,10 +584,15 @@ impl<'a> Engine<'a> {
     ) -> Result<f64, EngineError> {
         let timeout = Duration::from_secs_f64(self.campaign.spec.hardware.move_timeout_s);
         let t = Instant::now();
+        // Every motion command goes through here: none is sent once a halt is requested.
         let a = self.rig.axis(axis);
-        let from = a.position_um().await.map_err(ax(axis))?;
-        a.move_to(target_um).await.map_err(ax(axis))?;
-        a.wait_on_target(timeout).await.map_err(ax(axis))?;
+        let from = guarded(&mut self.control, async {
+            let from = a.position_um().await.map_err(ax(axis))?;
+            a.move_to(target_um).await.map_err(ax(axis))?;
+            a.wait_on_target(timeout).await.map_err(ax(axis))?;
+            Ok(from)
+        })
+        .await?;
         let from = timed_from_um.unwrap_or(from);
         Ok(self.rig.motion_s(axis, (target_um - from).abs(), t))
     }
@@ -552,7 +653,7 @@ impl<'a> Engine<'a> {
             .ok_or_else(|| EngineError::Other("camera lost".into()))?;
         let timeout = Duration::from_secs(5);
         // A real camera blocks for its exposure: keep the runtime's threads free.
-        let (cam, jobs) = tokio::task::spawn_blocking(move || {
+        let mut task = tokio::task::spawn_blocking(move || {
             let mut jobs = Vec::new();
             for _ in 0..frames {
                 match cam.trigger(timeout) {
@@ -561,9 +662,22 @@ impl<'a> Engine<'a> {
                 }
             }
             (cam, Ok(jobs))
-        })
-        .await
-        .map_err(|e| EngineError::Other(format!("camera task: {e}")))?;
+        });
+        // The stage stands still meanwhile, but a halt still stops the axes now; the trigger
+        // (bounded by its timeout) then ends, and the halt is taken at the next point.
+        let done = tokio::select! {
+            biased;
+            _ = halt_requested(&mut self.control) => None,
+            r = &mut task => Some(r),
+        };
+        let done = match done {
+            Some(r) => r,
+            None => {
+                self.stop_for_halt().await;
+                task.await
+            }
+        };
+        let (cam, jobs) = done.map_err(|e| EngineError::Other(format!("camera task: {e}")))?;
         self.rig.camera = Some(cam);
         Ok(jobs?)
     }
@@ -580,13 +694,17 @@ impl<'a> Engine<'a> {
             self.move_axis(t.run.axis, command_um, from).await?
         };
         let wait = settle + dwell;
-        tokio::time::sleep(self.rig.time.wall(wait)).await;
-        let encoder_um = self
-            .rig
-            .axis(t.run.axis)
-            .position_um()
-            .await
-            .map_err(ax(t.run.axis))?;
+        let pause = self.rig.time.wall(wait);
+        guarded(&mut self.control, async {
+            tokio::time::sleep(pause).await;
+            Ok(())
+        })
+        .await?;
+        let a = self.rig.axis(t.run.axis);
+        let encoder_um = guarded(&mut self.control, async {
+            a.position_um().await.map_err(ax(t.run.axis))
+        })
+        .await?;
         let time_s = self.rig.clock.get() + move_s + wait;
         self.rig.clock.set(time_s);
         let trig = Instant::now();
@@ -622,10 +740,21 @@ impl<'a> Engine<'a> {
         f: InFlight,
         rejected_before: u32,
     ) -> Result<Option<Target>, EngineError> {
-        let d = f
-            .job
-            .await
-            .map_err(|e| EngineError::Other(format!("decode task: {e}")))?;
+        let mut f = f;
+        // No motion while decoding, but a halt stops the axes now, not after the decode.
+        let d = tokio::select! {
+            biased;
+            _ = halt_requested(&mut self.control), if !self.stopped => None,
+            d = &mut f.job => Some(d),
+        };
+        let d = match d {
+            Some(d) => d,
+            None => {
+                self.stop_for_halt().await;
+                (&mut f.job).await
+            }
+        };
+        let d = d.map_err(|e| EngineError::Other(format!("decode task: {e}")))?;
         let run = f.target.run;
         {
             let st = self.stat(run);
@@ -689,36 +818,36 @@ impl<'a> Engine<'a> {
         };
         self.approach(b.run, &todo[0], b.index == 0).await?;
         self.planned_from_um = before(&todo[0]);
-        let mut flight: VecDeque<InFlight> = VecDeque::new();
         let mut retry: Vec<Target> = Vec::new();
-        let mut halted = None;
         for t in &todo {
-            let c = *self.control.borrow();
-            if c != Control::Run {
-                // Land what is in flight before pausing or stopping.
-                while let Some(f) = flight.pop_front() {
+            if let Some(c) = requested(&self.control) {
+                // `run` stops the axes, then lands what is in flight.
+                return Ok(c);
+            }
+            if *self.control.borrow() == Control::Pause {
+                // Land what is in flight before pausing.
+                while let Some(f) = self.flight.pop_front() {
                     retry.extend(self.land(f, 0).await?);
                 }
                 let c = self.control_point().await;
                 if c.halts() {
-                    halted = Some(c);
-                    break;
+                    return Ok(c);
                 }
                 // Resumed: approach again from the run's side.
                 self.approach(b.run, t, true).await?;
                 self.planned_from_um = before(t);
             }
             let f = self.measure(t).await?;
-            flight.push_back(f);
-            if flight.len() >= self.depth {
-                let f = flight.pop_front().expect("non-empty");
+            self.flight.push_back(f);
+            if self.flight.len() >= self.depth {
+                let f = self.flight.pop_front().expect("non-empty");
                 retry.extend(self.land(f, 0).await?);
             }
         }
-        while let Some(f) = flight.pop_front() {
+        while let Some(f) = self.flight.pop_front() {
             retry.extend(self.land(f, 0).await?);
         }
-        if let Some(c) = halted {
+        if let Some(c) = requested(&self.control) {
             return Ok(c);
         }
         // Rejected frames: re-approach each target from the run's side, measure again.

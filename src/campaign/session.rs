@@ -272,10 +272,13 @@ pub async fn execute_with(
     );
     // An attempt that cannot go on: the error, then the state change, both in the log.
     let fail = |cause: &str, msg: String| {
-        {
-            let s = lock(&store);
-            let _ = s.set_state(id, CampaignState::Interrupted, Some(&msg));
-        }
+        // The reason goes with the state; a state that cannot be stored is said too (the
+        // store keeps the campaign `running`, which the service's next start resumes).
+        let stored = lock(&store).set_state(id, CampaignState::Interrupted, Some(&msg));
+        let msg = match stored {
+            Ok(()) => msg,
+            Err(e) => format!("{msg}; state not stored: {e}"),
+        };
         emit(
             &store,
             &events,
@@ -313,6 +316,9 @@ pub async fn execute_with(
     let (st2, ev2) = (store.clone(), events.clone());
     let recon_failures: Arc<Mutex<Vec<String>>> = Arc::default();
     let rf2 = recon_failures.clone();
+    // Writes of the worker that failed: the campaign ends `failed` with them.
+    let write_failures: Arc<Mutex<Vec<String>>> = Arc::default();
+    let wf2 = write_failures.clone();
     let worker = Worker::start(&c, move |r| match r {
         Ok(curve) => {
             let name = format!(
@@ -320,7 +326,20 @@ pub async fn execute_with(
                 curve.run.label(),
                 curve.component.name()
             );
-            let _ = lock(&st2).put_result(id, &name, "text/csv", curve.csv().as_bytes());
+            // Bound first: the store's guard must be gone before `emit` locks it again.
+            let stored = lock(&st2).put_result(id, &name, "text/csv", curve.csv().as_bytes());
+            if let Err(e) = stored {
+                let msg = format!("{name} not stored: {e}");
+                emit(
+                    &st2,
+                    &ev2,
+                    id,
+                    "error",
+                    json!({"cause": "storage", "error": msg, "resumable": false}),
+                );
+                wf2.lock().unwrap_or_else(|p| p.into_inner()).push(msg);
+                return;
+            }
             emit(
                 &st2,
                 &ev2,
@@ -379,6 +398,7 @@ pub async fn execute_with(
                 EngineError::Camera(_) => "camera",
                 EngineError::Store(_) => "storage",
                 EngineError::Other(_) => "acquisition",
+                EngineError::Halted(_) => "halted",
             };
             let msg = fail(cause, format!("stopped: {e}"));
             return Err(format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` continues from the last stored sample"));
@@ -416,7 +436,14 @@ pub async fn execute_with(
             msg = PAUSED_AT_STOP;
             data = json!({"state": "paused", "reason": PAUSED_AT_STOP});
         }
-        let _ = lock(&store).set_state(id, state, Some(msg));
+        // Not stored, an aborted campaign would be left `running` and resumed by the
+        // service's next start: an error, not a finished campaign.
+        lock(&store).set_state(id, state, Some(msg)).map_err(|e| {
+            format!(
+                "campaign {id}: motion stopped, but its state ({}) was not stored: {e}",
+                state.as_str()
+            )
+        })?;
         emit(&store, &events, id, "finished", data);
         return Ok(Finished {
             id,
@@ -441,6 +468,13 @@ pub async fn execute_with(
         .unwrap_or_else(|e| e.into_inner())
         .clone();
     let mut errors = problems(&t, &failures);
+    errors.extend(
+        write_failures
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .cloned(),
+    );
     let mut rep = super::results::build(
         &c,
         id,

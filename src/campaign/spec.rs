@@ -657,11 +657,8 @@ fn validate(
     match h.kind {
         HardwareKind::Sim => {
             let s = &h.sim;
-            if !(pos(s.time_scale) && s.time_scale <= 1e6) {
-                return Err(fail(
-                    "hardware.sim.time_scale",
-                    "must be in (0, 1e6]".into(),
-                ));
+            if let Err(m) = csmetro_sim::check_time_scale(s.time_scale) {
+                return Err(fail("hardware.sim.time_scale", m));
             }
             if !nonneg(s.frame_time_s) {
                 return Err(fail("hardware.sim.frame_time_s", "must be ≥ 0 s".into()));

@@ -8,10 +8,13 @@ use std::process::ExitCode;
 
 use clap::Subcommand;
 use csmetro_ppp::render;
-use csmetro_ppp::{read_png, selftest, write_png, DecodeResult, Pose, PppConfig};
+use csmetro_ppp::{png_from_bytes, selftest, write_png, DecodeResult, Pose, PppConfig};
 use serde_json::json;
 
 use super::{CliError, CliResult};
+
+/// Largest PNG frame file read: a 2^24 px 16-bit frame stored uncompressed, with room.
+const MAX_PNG_BYTES: u64 = 64 << 20;
 
 /// Exit code of a frame the decoder rejected.
 pub const EXIT_REJECTED: u8 = 3;
@@ -178,7 +181,12 @@ fn run_render(a: RenderArgs) -> CliResult {
 fn run_decode(a: DecodeArgs) -> CliResult {
     let cfg = a.config.load()?;
     let decoder = cfg.decoder().map_err(|e| CliError::input(e.to_string()))?;
-    let frame = read_png(&a.frame).map_err(|e| CliError::input(e.to_string()))?;
+    // Through the shared bounded reader, as every other input file: a fifo or a device is
+    // refused before it is opened (opening a fifo blocks until a writer comes).
+    let shown = a.frame.display().to_string();
+    let bytes = crate::tomlpos::read_bounded_bytes(&a.frame, MAX_PNG_BYTES)
+        .map_err(|e| CliError::input(format!("{shown}: {e}")))?;
+    let frame = png_from_bytes(&bytes, &shown).map_err(|e| CliError::input(e.to_string()))?;
     let r: DecodeResult = decoder.decode(&frame);
     if a.json {
         let mut v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;

@@ -47,6 +47,12 @@ pub fn run(a: Args) -> CliResult {
     // Before reading the samples: a grid too large is refused at once.
     let g = Grid2::new(gx, gy).map_err(|e| CliError::input(format!("--grid-x/--grid-y: {e}")))?;
     let s = recon2d::read_map_samples_csv(&a.samples, &g).map_err(CliError::input)?;
+    // Samples that do not span the plane give a map and an error estimate that both look
+    // fine and are not: refused, saying what to measure.
+    if s.len() >= 3 {
+        recon2d::coverage(&g, &s)
+            .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
+    }
     let (map, report) = recon2d::reconstruct(&g, &s, method)
         .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
     match &a.out {

@@ -164,10 +164,8 @@ async fn soak(
             "--commands must be 1..={MAX_SOAK_COMMANDS}, not {commands}"
         )));
     }
-    if !(time_scale.is_finite() && time_scale > 0.0) {
-        return Err(CliError::input(format!(
-            "--time-scale must be > 0, not {time_scale}"
-        )));
+    if let Err(m) = csmetro_sim::check_time_scale(time_scale) {
+        return Err(CliError::input(format!("--time-scale: {m}")));
     }
     if !(1..=60_000).contains(&reply_timeout_ms) {
         return Err(CliError::input(format!(
@@ -239,6 +237,15 @@ fn load_config(path: &Path) -> Result<(Option<f64>, ControllerConfig), CliError>
                 })?,
         ),
     };
+    if let Some(Err(m)) = scale.map(csmetro_sim::check_time_scale) {
+        let line = crate::tomlpos::span_of(&text, "time_scale").map_or(String::new(), |r| {
+            format!(":{}", crate::tomlpos::line_of(&text, r.start))
+        });
+        return Err(CliError::input(format!(
+            "{}{line}: time_scale: {m}",
+            path.display()
+        )));
+    }
     let cfg: ControllerConfig = match table.remove("controller") {
         None => ControllerConfig::default(),
         Some(v) => v
@@ -275,10 +282,8 @@ async fn controller(a: ControllerArgs) -> CliResult {
             .seed = seed;
     }
     let scale = a.time_scale.or(file_scale).unwrap_or(1.0);
-    if !(scale.is_finite() && scale > 0.0) {
-        return Err(CliError::input(format!(
-            "--time-scale must be > 0, not {scale}"
-        )));
+    if let Err(m) = csmetro_sim::check_time_scale(scale) {
+        return Err(CliError::input(format!("--time-scale: {m}")));
     }
     let model = match &a.model {
         Some(p) => StageModel::load(p).map_err(|e| CliError::input(e.to_string()))?,
@@ -351,10 +356,8 @@ async fn bench_gcs(
         None => (None, ControllerConfig::default()),
     };
     let scale = scale.or(file_scale).unwrap_or(1.0);
-    if !(scale.is_finite() && scale > 0.0) {
-        return Err(CliError::input(format!(
-            "--time-scale must be > 0, not {scale}"
-        )));
+    if let Err(m) = csmetro_sim::check_time_scale(scale) {
+        return Err(CliError::input(format!("--time-scale: {m}")));
     }
     let (sim, clock, path) = match port {
         Some(p) => (None, None, p.display().to_string()),

@@ -229,10 +229,12 @@ pub async fn execute(
         .ok_or("not a verification campaign")?;
     let t0 = std::time::Instant::now();
     let fail = |msg: String| {
-        {
-            let s = lock(&store);
-            let _ = s.set_state(id, CampaignState::Interrupted, Some(&msg));
-        }
+        // A state that cannot be stored is said with the reason.
+        let stored = lock(&store).set_state(id, CampaignState::Interrupted, Some(&msg));
+        let msg = match stored {
+            Ok(()) => msg,
+            Err(e) => format!("{msg}; state not stored: {e}"),
+        };
         emit(
             &store,
             &events,
@@ -333,7 +335,14 @@ pub async fn execute(
                     "stopped; resumes from the last stored sample",
                 )
             };
-            let _ = lock(&store).set_state(id, state, Some(msg));
+            // Not stored, an aborted campaign would be left `running` and resumed by the
+            // service's next start: an error, not a finished campaign.
+            lock(&store).set_state(id, state, Some(msg)).map_err(|e| {
+                format!(
+                    "campaign {id}: motion stopped, but its state ({}) was not stored: {e}",
+                    state.as_str()
+                )
+            })?;
             emit(
                 &store,
                 &events,
@@ -412,17 +421,35 @@ pub async fn execute(
     if let Err(e) = &written {
         errors.push(e.clone());
     }
-    let state = if errors.is_empty() {
+    let mut state = if errors.is_empty() {
         state
     } else {
         CampaignState::Failed
     };
-    summary["state"] = json!(state.as_str());
-    summary["errors"] = json!(errors);
-    let json_bytes = serde_json::to_vec_pretty(&summary).unwrap_or_default();
-    let _ = lock(&store).put_result(id, "summary.json", "application/json", &json_bytes);
-    if let Ok(d) = &written {
-        let _ = std::fs::write(d.join("summary.json"), &json_bytes);
+    // summary.json says the campaign's state and errors, its own write's failure included:
+    // a failed write fails the campaign and the summary is written again where it could be.
+    let mut failed_before = false;
+    loop {
+        summary["state"] = json!(state.as_str());
+        summary["errors"] = json!(errors);
+        let json_bytes =
+            serde_json::to_vec_pretty(&summary).map_err(|e| fail(format!("summary.json: {e}")))?;
+        let mut failed = Vec::new();
+        let stored = lock(&store).put_result(id, "summary.json", "application/json", &json_bytes);
+        if let Err(e) = stored {
+            failed.push(format!("results not stored (summary.json): {e}"));
+        }
+        if let Ok(d) = &written {
+            if let Err(e) = std::fs::write(d.join("summary.json"), &json_bytes) {
+                failed.push(format!("results not written (summary.json: {})", e.kind()));
+            }
+        }
+        if failed.is_empty() || failed_before {
+            break;
+        }
+        failed_before = true;
+        errors.extend(failed);
+        state = CampaignState::Failed;
     }
     let message = (!errors.is_empty()).then(|| errors.join("; "));
     lock(&store)

@@ -227,6 +227,128 @@ fn bp_cv_error(g: &Grid2, s: &MapSamples, sigma: &[f64]) -> f64 {
     rms_xy(&held, &pred)
 }
 
+/// Smallest share of the grid's area the samples' convex hull may cover: below it most of the
+/// map would be extrapolated from a corner or a band, and the cross-validation (held-out
+/// points from the same corner) would not see it. A uniform random design of 10 points covers
+/// about 40 % on average, of 30 points 70 %.
+pub const MIN_HULL_FRACTION: f64 = 0.25;
+
+/// Whether the samples span the grid: refuses samples on one line (the map's x and y
+/// dependences cannot be told apart: every model fits them, and the cross-validation, on the
+/// same line, reports a falsely small error) and samples whose convex hull covers less than
+/// [`MIN_HULL_FRACTION`] of the grid. Returns the share covered.
+pub fn coverage(g: &Grid2, s: &MapSamples) -> Result<f64, String> {
+    let m = s.len();
+    let pts: Vec<(i64, i64)> = (0..m).map(|k| (s.ix[k] as i64, s.iy[k] as i64)).collect();
+    let um = |ix: i64, iy: i64| {
+        (
+            g.x.start_um + ix as f64 * g.x.step_um,
+            g.y.start_um + iy as f64 * g.y.step_um,
+        )
+    };
+    let (wx, wy) = (
+        g.x.n.saturating_sub(1) as i64,
+        g.y.n.saturating_sub(1) as i64,
+    );
+    let span = |v: &mut dyn Iterator<Item = i64>| {
+        let (lo, hi) = v.fold((i64::MAX, i64::MIN), |(a, b), x| (a.min(x), b.max(x)));
+        (lo, hi)
+    };
+    let (x0, x1) = span(&mut pts.iter().map(|p| p.0));
+    let (y0, y1) = span(&mut pts.iter().map(|p| p.1));
+    let fraction = if wx == 0 || wy == 0 {
+        // A grid one point wide is a line: the samples need only span it.
+        match (wx, wy) {
+            (0, 0) => 1.0,
+            (0, _) => (y1 - y0) as f64 / wy as f64,
+            _ => (x1 - x0) as f64 / wx as f64,
+        }
+    } else {
+        let area2 = hull_area2(&pts);
+        if area2 == 0 {
+            // One line: the two samples farthest apart name it.
+            let (a, b) = if x1 > x0 {
+                let a = pts.iter().filter(|p| p.0 == x0).min_by_key(|p| p.1);
+                let b = pts.iter().filter(|p| p.0 == x1).max_by_key(|p| p.1);
+                (a, b)
+            } else {
+                let a = pts.iter().filter(|p| p.1 == y0).min_by_key(|p| p.0);
+                let b = pts.iter().filter(|p| p.1 == y1).max_by_key(|p| p.0);
+                (a, b)
+            };
+            let (a, b) = (
+                a.copied().unwrap_or_default(),
+                b.copied().unwrap_or_default(),
+            );
+            let (pa, pb) = (um(a.0, a.1), um(b.0, b.1));
+            return Err(format!(
+                "all {m} samples lie on one line, from ({}, {}) to ({}, {}) µm: the map's \
+                 dependence on x cannot be told from its dependence on y there, and off the \
+                 line it would be made up (its cross-validation error, from the same line, \
+                 would be falsely small); measure points spread over the plane, e.g. a random \
+                 design over the whole grid",
+                pa.0, pa.1, pb.0, pb.1
+            ));
+        }
+        area2 as f64 / (2.0 * wx as f64 * wy as f64)
+    };
+    if fraction < MIN_HULL_FRACTION {
+        let (lo, hi) = (um(x0, y0), um(x1, y1));
+        return Err(format!(
+            "the samples cover {:.1} % of the grid (their convex hull; x {}..{} µm, y {}..{} \
+             µm), less than the {:.0} % needed: the rest of the map would be extrapolated and \
+             its error is not known; measure points spread over the whole grid, or give \
+             --grid-x/--grid-y only the part measured",
+            100.0 * fraction,
+            lo.0,
+            hi.0,
+            lo.1,
+            hi.1,
+            100.0 * MIN_HULL_FRACTION
+        ));
+    }
+    Ok(fraction)
+}
+
+/// Twice the area of the convex hull of `pts` (monotone chain, exact in integers).
+fn hull_area2(pts: &[(i64, i64)]) -> i128 {
+    let mut p: Vec<(i64, i64)> = pts.to_vec();
+    p.sort_unstable();
+    p.dedup();
+    if p.len() < 3 {
+        return 0;
+    }
+    let cross = |o: (i64, i64), a: (i64, i64), b: (i64, i64)| {
+        (a.0 - o.0) as i128 * (b.1 - o.1) as i128 - (a.1 - o.1) as i128 * (b.0 - o.0) as i128
+    };
+    let mut hull: Vec<(i64, i64)> = Vec::with_capacity(2 * p.len());
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &(i64, i64)>> = if pass == 0 {
+            Box::new(p.iter())
+        } else {
+            Box::new(p.iter().rev())
+        };
+        for &q in iter {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0
+            {
+                hull.pop();
+            }
+            hull.push(q);
+        }
+        hull.pop();
+    }
+    let n = hull.len();
+    (0..n)
+        .map(|i| {
+            let (a, b) = (hull[i], hull[(i + 1) % n]);
+            a.0 as i128 * b.1 as i128 - b.0 as i128 * a.1 as i128
+        })
+        .sum::<i128>()
+        .abs()
+}
+
 /// Reconstructs the whole map with `method` (`auto`: the smallest cross-validation error).
 pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, Report2), String> {
     if s.len() < 3 {
@@ -512,6 +634,46 @@ mod tests {
             parse_map_samples_csv("position_um,error_um\n0,0\n", &grid()).unwrap_err();
         assert_eq!(line, 1);
         assert!(msg.contains("missing header"), "{msg}");
+    }
+
+    #[test]
+    fn samples_on_a_line_or_in_a_corner_do_not_span_the_grid() {
+        let g = Grid2::new(
+            Grid {
+                start_um: 0.0,
+                step_um: 10.0,
+                n: 101,
+            },
+            Grid {
+                start_um: 0.0,
+                step_um: 10.0,
+                n: 51,
+            },
+        )
+        .unwrap();
+        let at = |pts: &[(usize, usize)]| MapSamples {
+            ix: pts.iter().map(|p| p.0).collect(),
+            iy: pts.iter().map(|p| p.1).collect(),
+            ex: vec![0.0; pts.len()],
+            ey: vec![0.0; pts.len()],
+            theta: None,
+        };
+        let diag: Vec<(usize, usize)> = (0..50).map(|k| (k, k)).collect();
+        let e = coverage(&g, &at(&diag)).unwrap_err();
+        assert!(
+            e.contains("on one line, from (0, 0) to (490, 490) µm"),
+            "{e}"
+        );
+        let corner: Vec<(usize, usize)> =
+            (0..20).flat_map(|i| (0..10).map(move |j| (i, j))).collect();
+        let e = coverage(&g, &at(&corner)).unwrap_err();
+        assert!(e.contains("cover 3.4 % of the grid"), "{e}");
+        // The four corners and the centre: the whole grid.
+        let f = coverage(&g, &at(&[(0, 0), (100, 0), (0, 50), (100, 50), (50, 25)])).unwrap();
+        assert!((f - 1.0).abs() < 1e-12, "{f}");
+        // A triangle over half of it.
+        let f = coverage(&g, &at(&[(0, 0), (100, 0), (0, 50)])).unwrap();
+        assert!((f - 0.5).abs() < 1e-12, "{f}");
     }
 
     #[test]

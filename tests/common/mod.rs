@@ -144,6 +144,11 @@ pub fn write_config(dir: &Path, bind: &str, token: Option<&str>) -> PathBuf {
 impl Server {
     /// Starts `csmetro serve` with the configuration in `dir` (written if absent).
     pub fn start(dir: &Path, token: Option<&str>) -> Server {
+        Self::start_with_env(dir, token, &[])
+    }
+
+    /// [`Server::start`] with more variables in the service's environment.
+    pub fn start_with_env(dir: &Path, token: Option<&str>, env: &[(&str, &Path)]) -> Server {
         let config = dir.join("csmetro.toml");
         if !config.exists() {
             write_config(dir, "127.0.0.1:0", token);
@@ -159,6 +164,7 @@ impl Server {
             .arg(&config)
             .env_remove("RUST_LOG")
             .env_remove("NOTIFY_SOCKET")
+            .envs(env.iter().copied())
             .stdout(Stdio::piped())
             .stderr(log)
             .spawn()

@@ -424,24 +424,32 @@ impl C863 {
             .as_mut()
             .ok_or_else(|| Fail::Io("not connected".into()))?;
         self.stats.frames_sent += 1;
+        // Cancel safety: a caller may drop this future (an abort cuts a move short) after the
+        // request went out and before its reply came; out of sync until the exchange is
+        // complete, the next request resyncs first instead of taking that reply for its own.
+        self.in_sync = false;
         match tokio::time::timeout(t, conn.send(cmd)).await {
             Err(_) => return Err(Fail::Timeout),
             Ok(Err(e)) => return Err(Fail::Io(e.to_string())),
             Ok(Ok(())) => {}
         }
         if !cmd.expects_reply() {
+            self.in_sync = true;
             return Ok(None);
         }
-        match tokio::time::timeout(t, conn.next()).await {
-            Err(_) => Err(Fail::Timeout),
-            Ok(None) => Err(Fail::Io("port closed".into())),
-            Ok(Some(Err(e))) => Err(Fail::Io(e.to_string())),
+        let r = match tokio::time::timeout(t, conn.next()).await {
+            Err(_) => return Err(Fail::Timeout),
+            Ok(None) => return Err(Fail::Io("port closed".into())),
+            Ok(Some(Err(e))) => return Err(Fail::Io(e.to_string())),
             Ok(Some(Ok(Err(e)))) => Err(Fail::Garbled(e.to_string())),
             Ok(Some(Ok(Ok(r)))) => match cmd.check_reply_shape(&r) {
                 Ok(()) => Ok(Some(r)),
                 Err(e) => Err(Fail::Garbled(e)),
             },
-        }
+        };
+        // A whole reply was read (garbled or not): the stream is where it was before.
+        self.in_sync = true;
+        r
     }
 
     /// Refuses motion the soft limits do not allow, before anything is sent: a `MOV` target
@@ -863,8 +871,20 @@ impl Axis for C863 {
     }
 
     async fn stop(&mut self) -> Result<(), AxisError> {
-        self.request(&Command::Control(ControlByte::StopAll), |_| Ok(()))
-            .await?;
+        // #24 goes out first, before any resync: after a cancelled exchange or on a noisy
+        // line a resync costs a probe's round trip or its timeouts, and #24 has no reply to
+        // take out of order. Through `request` (reopen, retries) only if that send fails.
+        let stop = Command::Control(ControlByte::StopAll);
+        let t = self.cfg.reply_timeout();
+        let sent = match self.conn.as_mut() {
+            Some(conn) => matches!(tokio::time::timeout(t, conn.send(&stop)).await, Ok(Ok(()))),
+            None => false,
+        };
+        if sent {
+            self.stats.frames_sent += 1;
+        } else {
+            self.request(&stop, |_| Ok(())).await?;
+        }
         self.after_stop().await
     }
 

@@ -114,12 +114,22 @@ pub fn read_png(path: &Path) -> Result<Frame, IoError> {
         path: ps.clone(),
         source,
     })?;
+    decode_png(BufReader::new(file), ps)
+}
+
+/// Decodes an 8- or 16-bit grayscale PNG already read into memory (the caller bounded and
+/// checked the file); `name` names it in errors.
+pub fn png_from_bytes(bytes: &[u8], name: &str) -> Result<Frame, IoError> {
+    decode_png(bytes, name.to_string())
+}
+
+fn decode_png(input: impl std::io::Read, ps: String) -> Result<Frame, IoError> {
     let png_err = |e: png::DecodingError| IoError::Png {
         path: ps.clone(),
         message: e.to_string(),
     };
     let decoder = png::Decoder::new_with_limits(
-        BufReader::new(file),
+        input,
         png::Limits {
             bytes: PNG_DECODER_BYTES,
         },

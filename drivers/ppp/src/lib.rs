@@ -10,7 +10,7 @@ mod render;
 pub mod selftest;
 
 pub use decode::{DecodeConfig, DecodeResult, Decoder, Quality};
-pub use io::{read_png, write_png, IoError, MAX_FRAME_PIXELS, MAX_FRAME_SIDE};
+pub use io::{png_from_bytes, read_png, write_png, IoError, MAX_FRAME_PIXELS, MAX_FRAME_SIDE};
 pub use pattern::{m_sequence, Pattern, PatternConfig, PatternError};
 pub use render::{render, render_coverage, Optics, Pose};
 

@@ -12,7 +12,7 @@ pub use camera::{PositionSource, SimCamera};
 pub use controller::soak::{soak_gcs, BindingCheck, SoakOptions, SoakReport};
 pub use controller::{
     remove_stale_links, Controller, ControllerConfig, Endpoint, Exchange, Fault, FaultCounts,
-    FaultSpec, Outcome, RandomFaults, SimController, AXIS, GARBAGE, MAX_RANDOM_FAULT_MS,
+    FaultSpec, Outcome, RandomFaults, SimController, AXIS, GARBAGE, MAX_RANDOM_FAULT_MS, TRACE_ENV,
 };
 pub use model::{
     legendre, map_to_unit, AxisId, Component, Deviation, Direction, Effect, EffectKind, ModelError,
@@ -20,4 +20,7 @@ pub use model::{
     SIM_ONLY_KINDS,
 };
 pub use reference::{error_curve, paper_like_model, ReferenceCurveParams};
-pub use stage::{AxisState, Motion, MotionKind, Profile, SimClock, SimStage};
+pub use stage::{
+    check_time_scale, AxisState, Motion, MotionKind, Profile, SimClock, SimStage, MAX_TIME_SCALE,
+    MIN_TIME_SCALE,
+};

@@ -7,6 +7,26 @@ use std::time::{Duration, Instant};
 
 use crate::model::{AxisId, SampleContext, StageModel};
 
+/// Time scales a simulation accepts: [`MIN_TIME_SCALE`, `MAX_TIME_SCALE`]. Below 1e-3 one
+/// physical second is over a quarter of an hour: a reference move would last days, a campaign
+/// could not end, and `1e-300` makes every move's wall time overflow; above 1e6 one
+/// nanosecond of wall time is a millisecond of motion and on-target is never seen.
+pub const MIN_TIME_SCALE: f64 = 1e-3;
+/// See [`MIN_TIME_SCALE`].
+pub const MAX_TIME_SCALE: f64 = 1e6;
+
+/// Checks a time scale against [`MIN_TIME_SCALE`] and [`MAX_TIME_SCALE`]; the error says the
+/// range and the value.
+pub fn check_time_scale(scale: f64) -> Result<(), String> {
+    if scale.is_finite() && (MIN_TIME_SCALE..=MAX_TIME_SCALE).contains(&scale) {
+        Ok(())
+    } else {
+        Err(format!(
+            "must be in [{MIN_TIME_SCALE:e}, {MAX_TIME_SCALE:e}] (physical seconds per wall second), not {scale}"
+        ))
+    }
+}
+
 /// Physical time of the simulation: real time × `scale` (100 = a physical hour in 36 s).
 #[derive(Debug, Clone, Copy)]
 pub struct SimClock {

@@ -120,11 +120,11 @@ fn load(path: &Path) -> Result<RigFile, CliError> {
         let t = crate::tomlpos::TomlError::from_toml(&text, &shown.to_string(), &e);
         CliError::input(t.to_string())
     })?;
-    if !(rig.time_scale.is_finite() && rig.time_scale > 0.0 && rig.time_scale <= 1e6) {
-        return Err(CliError::input(format!(
-            "{shown}: time_scale must be in (0, 1e6], not {}",
-            rig.time_scale
-        )));
+    if let Err(m) = csmetro_sim::check_time_scale(rig.time_scale) {
+        let line = crate::tomlpos::span_of(&text, "time_scale").map_or(String::new(), |r| {
+            format!(":{}", crate::tomlpos::line_of(&text, r.start))
+        });
+        return Err(CliError::input(format!("{shown}{line}: time_scale: {m}")));
     }
     for (name, a) in [("x", &rig.x), ("y", &rig.y)] {
         if a.tcp.is_some() == a.pty {

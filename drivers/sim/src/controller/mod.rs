@@ -336,7 +336,15 @@ struct Inner {
     log: Vec<String>,
     /// `Some(cap)`: exchanges are kept (the oldest dropped beyond `cap`).
     exchanges: Option<(usize, VecDeque<Exchange>)>,
+    /// [`TRACE_ENV`]: where each command is written as it is handled.
+    trace: Option<std::fs::File>,
 }
+
+/// Environment variable naming a file to which every simulated controller of the process
+/// appends one line per command it handles, `UNIX_S AXIS MOVING ON_TARGET COMMAND` (the axis
+/// state after the command): the simulator's own record of when a stop arrived and whether the
+/// stage was still moving, for the stop-latency tests (`tests/stop_latency.rs`).
+pub const TRACE_ENV: &str = "CSMETRO_SIM_TRACE";
 
 /// The C-863 state machine for one axis of a [`SimStage`].
 pub struct Controller {
@@ -370,6 +378,13 @@ impl Controller {
                 commands: 0,
                 log: Vec::new(),
                 exchanges: None,
+                trace: std::env::var_os(TRACE_ENV).and_then(|p| {
+                    std::fs::OpenOptions::new()
+                        .create(true)
+                        .append(true)
+                        .open(p)
+                        .ok()
+                }),
             }),
         }
     }
@@ -469,6 +484,9 @@ impl Controller {
             },
             RequestBody::Control(c) => self.exec(&mut g, &Command::Control(*c)),
         };
+        if g.trace.is_some() {
+            self.trace(&mut g, &text);
+        }
         let mut out = Outcome::default();
         let mut produced = Vec::new();
         if let Some(mut reply) = reply {
@@ -521,6 +539,30 @@ impl Controller {
             });
         }
         out
+    }
+
+    /// One line of the [`TRACE_ENV`] file, written whole by one `write` (both controllers
+    /// append to the same file).
+    fn trace(&self, g: &mut Inner, text: &str) {
+        use std::io::Write;
+        let cfg = &g.cfg;
+        let (moving, ont) = self
+            .stage
+            .with_axis(self.axis, |a, now| (a.is_moving(), on_target(a, cfg, now)));
+        let unix_s = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        let line = format!(
+            "{unix_s:.6} {} {} {} {}\n",
+            self.axis.as_str(),
+            moving as u8,
+            ont as u8,
+            text.trim()
+        );
+        if let Some(f) = &mut g.trace {
+            // Best effort: a trace that cannot be written must not fail the controller.
+            let _ = f.write_all(line.as_bytes());
+        }
     }
 
     /// Draws the random faults for one reply: every kind is drawn every time, so the same
