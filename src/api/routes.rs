@@ -1,12 +1,13 @@
 //! The endpoints. JSON in and out; errors are `{"error": "..."}` with 400 (bad input), 401 (no
-//! or wrong token), 404 (no such campaign or result), 409 (not possible in the campaign's state).
+//! or wrong token), 403/415/421 (the browser screen, below), 404 (no such campaign or result), 409
+//! (not possible in the campaign's state), 507 (the store is over its quota).
 //!
 //! | route | |
 //! |---|---|
 //! | `GET /` | the operator's web page ([`super::page`]; its assets under `/ui/`) |
 //! | `GET /health` | service up; running and queued campaign ids |
 //! | `GET /campaigns` | every campaign with its state and progress, newest first |
-//! | `POST /campaigns` | body: campaign TOML (`text/plain`, `application/toml`) or JSON `{"toml": "...", "name": "file.toml"}`; 201 with its status |
+//! | `POST /campaigns` | body: campaign TOML (`application/toml`) or JSON `{"toml": "...", "name": "file.toml"}`; 201 with its status |
 //! | `GET /campaigns/{id}` | state, planned, stored, percent, message, queue position |
 //! | `GET /campaigns/{id}/events[?after=ID]` | server-sent events: the stored log, then live events (`sample` ones too); ends after `finished` |
 //! | `POST /campaigns/{id}/pause`, `/resume`, `/abort` | control; answers the status |
