@@ -129,6 +129,32 @@ pub struct Finding {
 }
 
 impl Finding {
+    /// A finding as its test leaves it: not yet held to Holm's threshold nor to the held-out
+    /// check, no effect attached. Every test overrides what it measured (kind, what, axis,
+    /// value, se, unit, t, p, extra) with struct update syntax.
+    fn undecided() -> Finding {
+        Finding {
+            kind: "",
+            what: String::new(),
+            axis: AxisId::X,
+            static_um: 0.0,
+            value: f64::NAN,
+            se: f64::NAN,
+            unit: "um",
+            t: f64::NAN,
+            p: f64::NAN,
+            alpha: f64::NAN,
+            significant: false,
+            named: false,
+            refused: None,
+            heldout_alone_um: f64::NAN,
+            heldout_before_um: None,
+            heldout_after_um: None,
+            extra: serde_json::Map::new(),
+            effect: None,
+        }
+    }
+
     pub fn to_json(&self) -> Json {
         let f = |v: f64| if v.is_finite() { json!(v) } else { Json::Null };
         let mut j = json!({
@@ -932,15 +958,8 @@ pub fn analyse(
                     0.0
                 },
                 p: p_drift,
-                alpha: f64::NAN,
-                significant: false,
-                named: false,
-                refused: None,
-                heldout_alone_um: f64::NAN,
-                heldout_before_um: None,
-                heldout_after_um: None,
                 extra,
-                effect: None,
+                ..Finding::undecided()
             },
         });
         // Reversal and scale tests on the cell means, as measured and with the drift removed:
@@ -1045,15 +1064,8 @@ fn push_reversal_scale(
                 unit: "um",
                 t: bm / se,
                 p,
-                alpha: f64::NAN,
-                significant: false,
-                named: false,
-                refused: None,
-                heldout_alone_um: f64::NAN,
-                heldout_before_um: None,
-                heldout_after_um: None,
                 extra: tag(extra),
-                effect: None,
+                ..Finding::undecided()
             },
         });
         // Linear change of the reversal over the travel (hysteresis), against the pure error
@@ -1082,15 +1094,8 @@ fn push_reversal_scale(
                         unit: "um",
                         t: k / se,
                         p,
-                        alpha: f64::NAN,
-                        significant: false,
-                        named: false,
-                        refused: None,
-                        heldout_alone_um: f64::NAN,
-                        heldout_before_um: None,
-                        heldout_after_um: None,
                         extra: tag(extra),
-                        effect: None,
+                        ..Finding::undecided()
                     },
                 });
             }
@@ -1147,15 +1152,8 @@ fn push_reversal_scale(
                     unit: "ppm",
                     t: k / se,
                     p,
-                    alpha: f64::NAN,
-                    significant: false,
-                    named: false,
-                    refused: None,
-                    heldout_alone_um: f64::NAN,
-                    heldout_before_um: None,
-                    heldout_after_um: None,
                     extra: tag(extra),
-                    effect: None,
+                    ..Finding::undecided()
                 },
             });
         }
@@ -1191,15 +1189,8 @@ fn push_reversal_scale(
                 unit: "um",
                 t: amp / se.max(1e-300),
                 p,
-                alpha: f64::NAN,
-                significant: false,
-                named: false,
-                refused: None,
-                heldout_alone_um: f64::NAN,
-                heldout_before_um: None,
-                heldout_after_um: None,
                 extra: tag(extra),
-                effect: None,
+                ..Finding::undecided()
             },
         });
     }
