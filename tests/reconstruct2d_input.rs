@@ -2,6 +2,12 @@
 use std::process::Command;
 
 fn run(samples: &str, grid_x: &str, extra: &[&str]) -> (i32, String, bool) {
+    run_xy(samples, grid_x, "0:5:20", extra)
+}
+
+/// `csmetro reconstruct2d` of `samples` (written to `s.csv`) on the grid `grid_x` × `grid_y`:
+/// (exit code, stderr, whether the map file was written).
+fn run_xy(samples: &str, grid_x: &str, grid_y: &str, extra: &[&str]) -> (i32, String, bool) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("s.csv");
     std::fs::write(&path, samples).unwrap();
@@ -12,7 +18,7 @@ fn run(samples: &str, grid_x: &str, extra: &[&str]) -> (i32, String, bool) {
             "--grid-x",
             grid_x,
             "--grid-y",
-            "0:5:20",
+            grid_y,
             "--samples",
         ])
         .arg(&path)
@@ -104,30 +110,6 @@ fn samples_at(points: &[(f64, f64)]) -> String {
     t
 }
 
-fn run_grid(samples: &str, grid: &str) -> (i32, String, bool) {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("s.csv");
-    std::fs::write(&path, samples).unwrap();
-    let out = dir.path().join("map.csv");
-    let o = Command::new(env!("CARGO_BIN_EXE_csmetro"))
-        .args([
-            "reconstruct2d",
-            "--grid-x",
-            grid,
-            "--grid-y",
-            grid,
-            "--samples",
-        ])
-        .arg(&path)
-        .arg("--out")
-        .arg(&out)
-        .arg("--json")
-        .output()
-        .unwrap();
-    let err = String::from_utf8(o.stderr).unwrap();
-    (o.status.code().unwrap(), err, out.exists())
-}
-
 #[test]
 fn samples_that_do_not_span_the_plane_are_refused() {
     // Every sample on the diagonal x = y: any map fits them, and the cross-validation on the
@@ -136,26 +118,13 @@ fn samples_that_do_not_span_the_plane_are_refused() {
         .map(|k| (50.0 * k as f64, 50.0 * k as f64))
         .collect();
     for method in ["auto", "physics", "linear"] {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("s.csv");
-        std::fs::write(&path, samples_at(&diag)).unwrap();
-        let out = dir.path().join("map.csv");
-        let o = Command::new(env!("CARGO_BIN_EXE_csmetro"))
-            .args([
-                "reconstruct2d",
-                "--grid-x",
-                "0:50:2000",
-                "--grid-y",
-                "0:50:2000",
-            ])
-            .args(["--method", method, "--samples"])
-            .arg(&path)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{method}: {err}");
+        let (code, err, wrote) = run_xy(
+            &samples_at(&diag),
+            "0:50:2000",
+            "0:50:2000",
+            &["--method", method],
+        );
+        assert_eq!(code, 2, "{method}: {err}");
         assert!(
             err.contains("s.csv: all 41 samples lie on one line, from (0, 0) to (2000, 2000) µm"),
             "{method}: {err}"
@@ -165,13 +134,13 @@ fn samples_that_do_not_span_the_plane_are_refused() {
             "{err}"
         );
         assert_eq!(err.trim().lines().count(), 1, "{err}");
-        assert!(!out.exists(), "{method}: nothing written");
+        assert!(!wrote, "{method}: nothing written");
     }
     // A band along the bottom edge, 100 µm of 2000: the rest would be extrapolated.
     let band: Vec<(f64, f64)> = (0..41)
         .flat_map(|i| [0.0, 50.0, 100.0].map(|y| (50.0 * i as f64, y)))
         .collect();
-    let (code, err, wrote) = run_grid(&samples_at(&band), "0:50:2000");
+    let (code, err, wrote) = run_xy(&samples_at(&band), "0:50:2000", "0:50:2000", &["--json"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("the samples cover 5.0 % of the grid"), "{err}");
     assert!(!wrote);
@@ -182,7 +151,7 @@ fn samples_that_do_not_span_the_plane_are_refused() {
             (50.0 * i as f64, 50.0 * ((k / 41 * 13 + i * 7) % 41) as f64)
         })
         .collect();
-    let (code, err, wrote) = run_grid(&samples_at(&spread), "0:50:2000");
+    let (code, err, wrote) = run_xy(&samples_at(&spread), "0:50:2000", "0:50:2000", &["--json"]);
     assert_eq!(code, 0, "{err}");
     assert!(wrote);
 }
