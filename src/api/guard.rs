@@ -1,6 +1,6 @@
 //! The browser is a client too: any page a lab user has open can send "simple" requests to the
 //! service on 127.0.0.1, and a DNS-rebound name can even read the answers. Every request passes
-//! [`Guard::check`] before its route:
+//! [`Guard::check_source`] (before authentication) and [`Guard::check_body`] (after it) before its route:
 //!
 //! - `Host` must name the service: the bound address (any loopback address when bound to one,
 //!   any IP literal when bound to all), `localhost`, or a name from `[server] allowed_hosts`, on
@@ -147,19 +147,6 @@ impl Guard {
         self.host_ok(authority, default)
     }
 
-    /// Checks a request's Host, Origin, fetch metadata and content type; `body` is what its
-    /// route takes (None for reads). The error says what to send instead, never a server path.
-    pub fn check(
-        &self,
-        method: &Method,
-        headers: &HeaderMap,
-        body: Option<BodyKind>,
-        body_len: Option<u64>,
-    ) -> Result<(), ApiError> {
-        self.check_source(method, headers)?;
-        Self::check_body(method, headers, body, body_len)
-    }
-
     /// Who is asking: Host, Origin and (for state changes) fetch metadata. Runs before
     /// authentication: a rebound name or another page learns nothing, not even whether a token
     /// is needed.
@@ -285,6 +272,20 @@ pub fn token_matches(given: &[u8], token: &[u8]) -> bool {
 mod tests {
     use super::*;
     use axum::http::HeaderValue;
+
+    impl Guard {
+        /// Both checks, in the order the router runs them.
+        fn check(
+            &self,
+            method: &Method,
+            headers: &HeaderMap,
+            body: Option<BodyKind>,
+            body_len: Option<u64>,
+        ) -> Result<(), ApiError> {
+            self.check_source(method, headers)?;
+            Self::check_body(method, headers, body, body_len)
+        }
+    }
 
     fn guard(bind: &str) -> Guard {
         Guard::new(bind.parse().unwrap(), &["lab-pc.example".into()])

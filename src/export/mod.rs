@@ -79,14 +79,6 @@ impl Export {
             results,
         })
     }
-
-    /// A result's bytes by name.
-    pub fn result(&self, name: &str) -> Option<&[u8]> {
-        self.results
-            .iter()
-            .find(|(n, _, _)| n == name)
-            .map(|(_, _, b)| b.as_slice())
-    }
 }
 
 /// One column of a result CSV: numbers (empty cells NaN) or text.
