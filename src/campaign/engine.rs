@@ -92,6 +92,9 @@ pub fn meets(e: &StopEstimate, goal_um: f64) -> bool {
 /// bench's curves at m = 150-250).
 pub const CV_PLAUSIBLE: f64 = 1.2;
 
+/// A line's static axis closer than this to its place (µm) is already there: not moved again.
+const STATIC_AT_UM: f64 = 0.01;
+
 /// A run's batches and the next one to measure.
 struct Sweep {
     run: RunKey,
@@ -618,7 +621,21 @@ impl<'a> Engine<'a> {
         let (lo, hi) = self.rig.axis(run.axis).soft_limits_um();
         let start = (first.target_um() - run.direction.sign() * pre).clamp(lo, hi);
         let mut phys = 0.0;
-        // The other axis stands still during a run: put it in place first.
+        // The other axis stands still during a run: put it in place first, always approached
+        // from below, so its own direction-dependent error (its backlash) is one known constant
+        // of the line, the same for every run of the axis and for the truth it is compared with.
+        let a = self.rig.axis(other);
+        let at = guarded(&mut self.control, async {
+            a.position_um().await.map_err(ax(other))
+        })
+        .await?;
+        if at > other_at + STATIC_AT_UM {
+            let (olo, _) = self.rig.axis(other).soft_limits_um();
+            let below = (other_at - pre).max(olo);
+            if below < other_at {
+                phys += self.move_axis(other, below, None).await?;
+            }
+        }
         phys += self.move_axis(other, other_at, None).await?;
         phys += self.move_axis(run.axis, start, None).await?;
         self.book_approach(run, first, phys, positioning);

@@ -151,22 +151,33 @@ fn cs_design(
     let n = ax.grid.n;
     let seed = axis_seed(seed, ax.axis);
     let deal = ax.target_error_um.is_some() && dirs > 1 && dirs * ax.m <= n;
-    let idx = Design::new(kind, if deal { dirs * ax.m } else { ax.m }, seed)
+    let mut idx = Design::new(kind, if deal { dirs * ax.m } else { ax.m }, seed)
         .indices(n)
         .expect("m validated against the grid");
+    with_ends(&mut idx, n);
     match ax.target_error_um {
         None => {
             let m = idx.len();
             (vec![idx], vec![m])
         }
         Some(_) => {
-            let order = spread_order(&idx, n, seed ^ 0xADA9);
+            // The ends first, in every direction: a run stopped early still covers the span.
+            let ends = [0, n - 1];
+            let inner: Vec<usize> = idx.iter().copied().filter(|i| !ends.contains(i)).collect();
+            let order = spread_order(&inner, n, seed ^ 0xADA9);
             let designs: Vec<Vec<usize>> = if deal {
                 (0..dirs)
-                    .map(|d| order.iter().copied().skip(d).step_by(dirs).collect())
+                    .map(|d| {
+                        // m each: the last dealt points (the least spread) make room.
+                        ends.iter()
+                            .copied()
+                            .chain(order.iter().copied().skip(d).step_by(dirs))
+                            .take(ax.m)
+                            .collect()
+                    })
                     .collect()
             } else {
-                vec![order]
+                vec![ends.iter().copied().chain(order).collect()]
             };
             let m = designs[0].len();
             let mut chunks = Vec::new();
@@ -178,6 +189,19 @@ fn cs_design(
             }
             (designs, chunks)
         }
+    }
+}
+
+/// Puts both grid ends into a design of sorted distinct indices, in place of its first and last
+/// points (m unchanged; a jittered design keeps one point per stratum): a curve is trusted, and
+/// compensated and verified, up to the ends of its grid, where a design without them would
+/// extrapolate (the demo's Y verification failed there at 0 forward and 4200 backward).
+fn with_ends(idx: &mut [usize], n: usize) {
+    if let (Some(first), true) = (idx.first_mut(), n > 0) {
+        *first = 0;
+    }
+    if let Some(last) = idx.last_mut() {
+        *last = n.saturating_sub(1);
     }
 }
 
@@ -358,7 +382,17 @@ m = 20
         let (fwd, bwd) = (run(Direction::Forward), run(Direction::Backward));
         assert_eq!((fwd.len(), bwd.len()), (3, 3));
         let all_f: Vec<usize> = fwd.concat();
-        assert!(bwd.concat().iter().all(|i| !all_f.contains(i)));
+        // Both directions measure the grid's ends first (the span is covered however early the
+        // run stops); every other position is one direction's only.
+        for run in [&fwd, &bwd] {
+            assert!(run[0].contains(&0) && run[0].contains(&(n - 1)), "{run:?}");
+        }
+        let inner = |i: &usize| *i != 0 && *i != n - 1;
+        assert!(bwd
+            .concat()
+            .iter()
+            .filter(|i| inner(i))
+            .all(|i| !all_f.contains(i)));
         // After k batches of each, the union has the farthest-point property over the whole
         // design: no design point farther from it than its closest spacing.
         let design: Vec<usize> = [fwd.concat(), bwd.concat()].concat();
@@ -366,6 +400,8 @@ m = 20
         for k in 0..2 {
             sofar.extend(&fwd[k]);
             sofar.extend(&bwd[k]);
+            sofar.sort_unstable();
+            sofar.dedup();
             let (cover, spacing) = cover_and_spacing(&mut sofar, &design, n);
             assert!(
                 cover <= spacing,

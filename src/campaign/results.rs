@@ -358,6 +358,22 @@ pub fn build(
                 if let Some(t) = &t {
                     j["cs_vs_truth"] = diff_stats(&k.values_um, t);
                 }
+                if k.u_um.len() == k.values_um.len() && !k.u_um.is_empty() {
+                    let n = k.u_um.len() as f64;
+                    j["cs"]["u_mean_um"] = json!(k.u_um.iter().sum::<f64>() / n);
+                    j["cs"]["u_max_um"] = json!(k.u_um.iter().copied().fold(0.0, f64::max));
+                    // Share of the grid where the truth lies within ±2u (simulated campaigns).
+                    if let Some(t) = t.as_ref().filter(|t| t.len() == k.u_um.len()) {
+                        let inside = k
+                            .values_um
+                            .iter()
+                            .zip(t)
+                            .zip(&k.u_um)
+                            .filter(|((v, t), u)| (*v - *t).abs() <= 2.0 * *u)
+                            .count();
+                        j["cs_band_coverage"] = json!(inside as f64 / n);
+                    }
+                }
             }
             if let (Some(f), Some(t)) = (full, &t) {
                 j["full_vs_truth"] = diff_stats(&f.values_um, t);
@@ -390,6 +406,7 @@ pub fn build(
                     .flat_map(|k| k.samples.iter().copied())
                     .collect(),
                 truth_um: t.clone(),
+                u_um: main.u_um.clone(),
             });
             // Curve file with every available column.
             let mut csv = String::from("position_um");
@@ -405,6 +422,11 @@ pub fn build(
             if let Some(t) = &t {
                 csv.push_str(",truth_um");
                 cols.push(t);
+            }
+            // Last, so readers of the older columns by position are not disturbed.
+            if let Some(k) = cs.filter(|k| k.u_um.len() == k.values_um.len()) {
+                csv.push_str(",cs_u_um");
+                cols.push(&k.u_um);
             }
             csv.push('\n');
             for (i, p) in main.positions_um.iter().enumerate() {
@@ -529,8 +551,11 @@ pub fn build(
                 "cv_error_um": d["cv_error_um"]}),
             );
         }
+        // `other_at_um`: where the line's static axis stood; a two-axis compensation needs it
+        // to take that axis's own error back out of the line's curves.
         let mut axis_json = json!({"axis": a.as_str(), "grid_points": ax.grid.n, "phases": phase_json,
-                              "acquisition_saved_pct": saved, "components": comps});
+                              "acquisition_saved_pct": saved, "components": comps,
+                              "other_at_um": ax.other_at_um});
         if !adaptive.is_empty() {
             axis_json["adaptive"] = Value::Array(adaptive);
         }
@@ -700,29 +725,25 @@ impl TruthSource {
         Some(t)
     }
 
-    /// Noise-free error of a component at each (target_x, target_y).
+    /// Noise-free error of a component at each (target_x, target_y): the stage's planar truth,
+    /// the moving axis approached in its run's direction and the static one from below (as
+    /// the engine places it), so the static axis's own error at `other_at_um` is in it.
     pub fn curve(&self, curve: &Curve, other_at_um: f64) -> Option<Vec<f64>> {
         let m = self.model.as_ref()?;
         let run = curve.run;
+        let d = run.direction.sign();
         Some(
             curve
                 .positions_um
                 .iter()
                 .map(|&p| {
-                    let (tx, ty) = match run.axis {
-                        AxisId::X => (p, other_at_um),
-                        AxisId::Y => (other_at_um, p),
+                    let v = match run.axis {
+                        AxisId::X => m.deviation_2d(p, other_at_um, d, 1.0, 0.0),
+                        AxisId::Y => m.deviation_2d(other_at_um, p, 1.0, d, 0.0),
                     };
-                    let d = m.deviation(&csmetro_sim::SampleContext {
-                        moving: run.axis,
-                        direction: run.direction.sign(),
-                        target_x_um: tx,
-                        target_y_um: ty,
-                        time_s: 0.0,
-                    });
                     match curve.component.measured {
-                        AxisId::X => d.x_um,
-                        AxisId::Y => d.y_um,
+                        AxisId::X => v.x_um,
+                        AxisId::Y => v.y_um,
                     }
                 })
                 .collect(),

@@ -217,8 +217,6 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
         s.velocity_mm_s,
         s.acceleration_mm_s2,
     );
-    // A map carries both axes' errors at every point.
-    stage.set_planar(c.map.is_some());
     let mut sims = Vec::new();
     let mut axes: Vec<C863> = Vec::new();
     for (a, limits) in [

@@ -24,6 +24,8 @@ pub struct Curve {
     pub component: Component,
     pub positions_um: Vec<f64>,
     pub values_um: Vec<f64>,
+    /// Pointwise standard uncertainty (k = 1) of `values_um`, µm; empty when not computed.
+    pub u_um: Vec<f64>,
     pub method: String,
     pub cv_error_um: Option<f64>,
     /// Opposite-direction samples pooled in, and the degree of the difference they were
@@ -107,6 +109,7 @@ pub fn reconstruct_run(
                 component,
                 positions_um: grid.positions(),
                 values_um: r.values,
+                u_um: r.u_um,
                 method: r.method,
                 cv_error_um: r.cv_error_um,
                 pooled_with: r.pooled_with,

@@ -81,6 +81,14 @@ pub struct AxisTable {
     /// Driving-direction error e(p) = measured - target, µm, per direction when measured.
     pub forward_um: Option<Vec<f64>>,
     pub backward_um: Option<Vec<f64>>,
+    /// The other component's error while this axis moves (its straightness, µm), per
+    /// direction, when the table has it: a two-axis compensation takes it into account on the
+    /// other axis.
+    pub cross_forward_um: Option<Vec<f64>>,
+    pub cross_backward_um: Option<Vec<f64>>,
+    /// Standard uncertainty (k = 1) of the correction per direction, µm, when the table has it.
+    pub u_forward_um: Option<Vec<f64>>,
+    pub u_backward_um: Option<Vec<f64>>,
     /// Where it was read from (errors name it).
     pub origin: String,
 }
@@ -104,15 +112,19 @@ impl AxisTable {
             .map(|c| format!("{}_um", c.name()))
             .collect();
         let n = cols.len();
+        // Optional last: the corrections' uncertainty (tables written since it exists).
+        let with_u = n >= 6 && cols[n - 2] == "u_forward_um" && cols[n - 1] == "u_backward_um";
+        // `k`: the first correction column.
+        let k = if with_u { n - 4 } else { n.saturating_sub(2) };
         let well_formed = n >= 4
             && cols[0] == "position_um"
-            && cols[n - 2] == "corr_forward_um"
-            && cols[n - 1] == "corr_backward_um";
+            && cols[k] == "corr_forward_um"
+            && cols[k + 1] == "corr_backward_um";
         if !well_formed {
             return Err(err(
                 hl,
                 format!(
-                    "not a compensation table: the header must be position_um, then some of {}, then corr_forward_um,corr_backward_um",
+                    "not a compensation table: the header must be position_um, then some of {}, then corr_forward_um,corr_backward_um (and optionally u_forward_um,u_backward_um)",
                     allowed.join(",")
                 ),
             ));
@@ -120,7 +132,9 @@ impl AxisTable {
         // The error columns, in the documented order: a table of the other axis names its
         // components with the other axis first (ef_yy for y) and is refused here.
         let mut last = None;
-        for c in &cols[1..n - 2] {
+        // Which of the documented columns each error column is (2, 3: the cross component).
+        let mut kinds = Vec::new();
+        for c in &cols[1..k] {
             let Some(k) = allowed.iter().position(|a| a == c) else {
                 return Err(err(
                     hl,
@@ -134,9 +148,12 @@ impl AxisTable {
                 return Err(err(hl, format!("column {c:?} out of order or repeated")));
             }
             last = Some(k);
+            kinds.push(k);
         }
+        let mut cross: [Vec<Option<f64>>; 2] = [Vec::new(), Vec::new()];
         let mut positions = Vec::new();
         let mut corr: [Vec<Option<f64>>; 2] = [Vec::new(), Vec::new()];
+        let mut unc: [Vec<Option<f64>>; 2] = [Vec::new(), Vec::new()];
         for (ln, line) in lines {
             let line = line.trim_end_matches('\r');
             if line.trim().is_empty() {
@@ -158,15 +175,38 @@ impl AxisTable {
                     ));
                 }
             }
-            // The error columns are not used (corr is), but a table with a bad cell anywhere is
-            // not one to trust.
-            for (k, cell) in cells[1..n - 2].iter().enumerate() {
+            // The own error columns are not used (corr is), but a table with a bad cell anywhere
+            // is not one to trust; the cross columns serve two-axis moves.
+            let mut row_cross = [None, None];
+            for (j, cell) in cells[1..k].iter().enumerate() {
                 if !cell.trim().is_empty() {
-                    parse_num(cell).map_err(|m| err(ln, format!("{}: {m}", cols[k + 1])))?;
+                    let v =
+                        parse_num(cell).map_err(|m| err(ln, format!("{}: {m}", cols[j + 1])))?;
+                    if kinds[j] >= 2 && v.abs() <= MAX_CORRECTION_UM {
+                        row_cross[kinds[j] - 2] = Some(v);
+                    }
                 }
             }
+            if with_u {
+                for (d, cell) in [cells[k + 2], cells[k + 3]].into_iter().enumerate() {
+                    let name = ["u_forward_um", "u_backward_um"][d];
+                    let v = if cell.trim().is_empty() {
+                        None
+                    } else {
+                        let v = parse_num(cell).map_err(|m| err(ln, format!("{name}: {m}")))?;
+                        if !(0.0..=MAX_CORRECTION_UM).contains(&v) {
+                            return Err(err(ln, format!("{name} {v} µm is not an uncertainty (0 to {MAX_CORRECTION_UM} µm)")));
+                        }
+                        Some(v)
+                    };
+                    unc[d].push(v);
+                }
+            }
+            for (d, v) in row_cross.into_iter().enumerate() {
+                cross[d].push(v);
+            }
             positions.push(p);
-            for (d, cell) in [cells[n - 2], cells[n - 1]].into_iter().enumerate() {
+            for (d, cell) in [cells[k], cells[k + 1]].into_iter().enumerate() {
                 let name = ["corr_forward_um", "corr_backward_um"][d];
                 let v = if cell.trim().is_empty() {
                     None
@@ -207,6 +247,14 @@ impl AxisTable {
             dirs[d] = Some(corr[d].iter().map(|v| -v.unwrap_or(0.0)).collect());
         }
         let [forward_um, backward_um] = dirs;
+        // A cross column with a hole is not used (never interpolated over).
+        let [cross_forward_um, cross_backward_um] =
+            cross.map(|c| c.iter().copied().collect::<Option<Vec<f64>>>());
+        let [u_forward_um, u_backward_um] = unc.map(|c| {
+            (c.len() == positions.len())
+                .then(|| c.iter().copied().collect::<Option<Vec<f64>>>())
+                .flatten()
+        });
         if forward_um.is_none() && backward_um.is_none() {
             return Err(err(
                 0,
@@ -218,6 +266,10 @@ impl AxisTable {
             positions_um: positions,
             forward_um,
             backward_um,
+            cross_forward_um,
+            cross_backward_um,
+            u_forward_um,
+            u_backward_um,
             origin: origin.to_string(),
         })
     }
@@ -265,6 +317,43 @@ impl AxisTable {
         e[i - 1] + t * (e[i] - e[i - 1])
     }
 
+    /// The other component's error while this axis moves, at commanded `p` approached in `d`
+    /// (interpolated as [`error_at`](Self::error_at)), µm; `None` without that column or
+    /// outside the grid.
+    pub fn cross_at(&self, d: Direction, p: f64) -> Option<f64> {
+        let col = match d {
+            Direction::Forward => self.cross_forward_um.as_deref(),
+            Direction::Backward => self.cross_backward_um.as_deref(),
+        }
+        .or(self.cross_forward_um.as_deref())
+        .or(self.cross_backward_um.as_deref())?;
+        let (lo, hi) = self.range_um();
+        if !(lo - 1e-9..=hi + 1e-9).contains(&p) {
+            return None;
+        }
+        let x = &self.positions_um;
+        let i = x.partition_point(|&q| q <= p).clamp(1, x.len() - 1);
+        let t = ((p - x[i - 1]) / (x[i] - x[i - 1])).clamp(0.0, 1.0);
+        Some(col[i - 1] + t * (col[i] - col[i - 1]))
+    }
+
+    /// Standard uncertainty (k = 1, µm) of the correction at `p` approached in `d` (the column
+    /// the correction is served from), `None` when the table has none or `p` is off the grid.
+    pub fn u_at(&self, d: Direction, p: f64) -> Option<f64> {
+        let col = match self.served_direction(d) {
+            Direction::Forward => self.u_forward_um.as_deref(),
+            Direction::Backward => self.u_backward_um.as_deref(),
+        }?;
+        let (lo, hi) = self.range_um();
+        if !(lo - 1e-9..=hi + 1e-9).contains(&p) {
+            return None;
+        }
+        let x = &self.positions_um;
+        let i = x.partition_point(|&q| q <= p).clamp(1, x.len() - 1);
+        let t = ((p - x[i - 1]) / (x[i] - x[i - 1])).clamp(0.0, 1.0);
+        Some(col[i - 1] + t * (col[i] - col[i - 1]))
+    }
+
     /// The command that reaches `wanted_um` when approached in `d`: c with c + e(c) = wanted.
     pub fn command_um(&self, d: Direction, wanted_um: f64) -> Result<f64, CommandError> {
         let axis = self.axis;
@@ -280,13 +369,21 @@ impl AxisTable {
                 hi_um: hi,
             });
         }
+        self.solve(d, wanted_um, wanted_um)
+    }
+
+    /// c with c + e(c) = `aim_um` (the wanted position less any other axis's error on this
+    /// one); errors name `wanted_um`.
+    fn solve(&self, d: Direction, wanted_um: f64, aim_um: f64) -> Result<f64, CommandError> {
+        let axis = self.axis;
+        let (lo, hi) = self.range_um();
         // A wanted position at the table's edge may need a command just beyond it: the edge
         // value holds there for up to one grid step (the table's resolution), no further.
         let x = &self.positions_um;
         let (m_lo, m_hi) = (x[1] - x[0], x[x.len() - 1] - x[x.len() - 2]);
-        let mut c = wanted_um;
+        let mut c = aim_um;
         for _ in 0..MAX_STEPS {
-            let next = wanted_um - self.error_at(d, c.clamp(lo, hi));
+            let next = aim_um - self.error_at(d, c.clamp(lo, hi));
             let done = (next - c).abs() <= CONVERGED_UM;
             c = next;
             if done {
@@ -340,8 +437,23 @@ pub struct Compensation {
     pub campaign: Option<i64>,
     pub x: Option<AxisTable>,
     pub y: Option<AxisTable>,
+    /// Where the other axis stood while each table's line was measured (x's table: y, µm;
+    /// y's table: x), when the results say (`summary.json`'s `other_at_um`): a two-axis move
+    /// needs it to take that axis's own error back out (see [`Compensation::command_xy`]).
+    pub line_other_um: [Option<f64>; 2],
     /// Where it came from (a directory, a file, `campaign N`).
     pub source: String,
+}
+
+/// One axis's planned command in a two-axis compensated move.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxisCommand {
+    pub command_um: f64,
+    /// The approach direction the correction was measured for.
+    pub approach: Direction,
+    /// The other axis's error on this one taken out (µm), `None` when the tables cannot say
+    /// (one table, no cross column, no line position, or the other axis outside its table).
+    pub cross_um: Option<f64>,
 }
 
 impl Compensation {
@@ -368,6 +480,7 @@ impl Compensation {
                 campaign: None,
                 x: None,
                 y: None,
+                line_other_um: [None, None],
                 source: origin.clone(),
             };
             for axis in [AxisId::X, AxisId::Y] {
@@ -389,24 +502,26 @@ impl Compensation {
             }
             let summary = path.join("summary.json");
             if summary.exists() {
-                let (stage, id) = summary_identity(&summary)?;
+                let (stage, id, lines) = summary_identity(&summary)?;
                 c.stage = stage;
                 c.campaign = id;
+                c.line_other_um = lines;
             }
             return Ok(c);
         }
         let axis = table_axis(path)?;
         let t = AxisTable::load(axis, path)?;
         // A table inside a results directory: the directory's summary names its stage.
-        let (stage, campaign) = match path.parent().map(|d| d.join("summary.json")) {
+        let (stage, campaign, line_other_um) = match path.parent().map(|d| d.join("summary.json")) {
             Some(s) if s.is_file() => summary_identity(&s)?,
-            _ => (None, None),
+            _ => (None, None, [None, None]),
         };
         Ok(Compensation {
             stage,
             campaign,
             x: (axis == AxisId::X).then(|| t.clone()),
             y: (axis == AxisId::Y).then_some(t),
+            line_other_um,
             source: origin,
         })
     }
@@ -423,8 +538,14 @@ impl Compensation {
             campaign: Some(id),
             x: None,
             y: None,
+            line_other_um: [None, None],
             source: origin.clone(),
         };
+        if let Ok(Some((_, bytes))) = store.result(id, "summary.json") {
+            if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) {
+                c.line_other_um = line_positions(&v);
+            }
+        }
         for axis in [AxisId::X, AxisId::Y] {
             let name = format!("compensation_{axis}.csv");
             let r = store.result(id, &name).map_err(|e| TableError {
@@ -497,18 +618,104 @@ impl Compensation {
     ) -> Result<f64, CommandError> {
         let t = self.table(axis).ok_or(CommandError::NoTable { axis })?;
         let c = t.command_um(d, wanted_um)?;
-        let (lo, hi) = soft_limits_um;
-        if c < lo || c > hi {
-            return Err(CommandError::OutsideLimits {
-                axis,
-                wanted_um,
-                command_um: c,
-                lo_um: lo,
-                hi_um: hi,
-            });
-        }
+        within_limits(axis, wanted_um, c, soft_limits_um)?;
         Ok(c)
     }
+
+    /// The other axis's error on `axis` at that axis's command `other_um` approached in `d`,
+    /// relative to where it stood while `axis`'s line was measured (that part is already in
+    /// `axis`'s own table), µm. Additive errors: true_x = x + A(x) + B(y), where x's line at y₀
+    /// measured A(x) + B(y₀) and y's line measured (on x) A(x₀) + B(y); so
+    /// B(y) − B(y₀) = cross_y(y) − cross_y(y₀). `None` when the tables cannot say.
+    pub fn cross_um(&self, axis: AxisId, other_um: f64, d: Direction) -> Option<f64> {
+        let o = self.table(axis.other())?;
+        self.table(axis)?;
+        let line_at = self.line_other_um[match axis {
+            AxisId::X => 0,
+            AxisId::Y => 1,
+        }]?;
+        // The line's static axis is always approached from below (the engine's rule).
+        Some(o.cross_at(d, other_um)? - o.cross_at(Direction::Forward, line_at)?)
+    }
+
+    /// Commands for a move to `wanted` (x, y; `None`: that axis stays at its command
+    /// `now_um`), each axis approached in `dir` (or the side its table was measured from):
+    /// each axis's own error and the other axis's error on it corrected together (fixed point:
+    /// the cross terms depend on the other axis's command). Axes without a table are refused
+    /// ([`CommandError::NoTable`]) if they are to move.
+    pub fn command_xy(
+        &self,
+        wanted: [Option<f64>; 2],
+        now_um: [f64; 2],
+        dir: Direction,
+        soft_limits_um: [(f64, f64); 2],
+    ) -> Result<[Option<AxisCommand>; 2], CommandError> {
+        let axes = [AxisId::X, AxisId::Y];
+        let mut plan: [Option<AxisCommand>; 2] = [None, None];
+        for (i, &axis) in axes.iter().enumerate() {
+            if let Some(w) = wanted[i] {
+                let t = self.table(axis).ok_or(CommandError::NoTable { axis })?;
+                let approach = t.served_direction(dir);
+                plan[i] = Some(AxisCommand {
+                    command_um: t.command_um(approach, w)?,
+                    approach,
+                    cross_um: None,
+                });
+            }
+        }
+        for _ in 0..MAX_STEPS {
+            let cmd = |i: usize| plan[i].map_or(now_um[i], |p| p.command_um);
+            let dir_of = |i: usize| plan[i].map_or(dir, |p| p.approach);
+            let mut changed = 0.0f64;
+            let mut next = plan;
+            for (i, &axis) in axes.iter().enumerate() {
+                let (Some(p), Some(w)) = (plan[i], wanted[i]) else {
+                    continue;
+                };
+                let cross = self.cross_um(axis, cmd(1 - i), dir_of(1 - i));
+                let t = self.table(axis).ok_or(CommandError::NoTable { axis })?;
+                let c = t.solve(p.approach, w, w - cross.unwrap_or(0.0))?;
+                changed = changed.max((c - p.command_um).abs());
+                next[i] = Some(AxisCommand {
+                    command_um: c,
+                    approach: p.approach,
+                    cross_um: cross,
+                });
+            }
+            plan = next;
+            if changed <= CONVERGED_UM {
+                for (i, &axis) in axes.iter().enumerate() {
+                    if let (Some(p), Some(w)) = (plan[i], wanted[i]) {
+                        within_limits(axis, w, p.command_um, soft_limits_um[i])?;
+                    }
+                }
+                return Ok(plan);
+            }
+        }
+        let i = usize::from(wanted[0].is_none());
+        Err(CommandError::NoConvergence {
+            axis: axes[i],
+            wanted_um: wanted[i].unwrap_or(f64::NAN),
+        })
+    }
+}
+
+fn within_limits(
+    axis: AxisId,
+    wanted_um: f64,
+    c: f64,
+    (lo, hi): (f64, f64),
+) -> Result<(), CommandError> {
+    if c < lo || c > hi {
+        return Err(CommandError::OutsideLimits {
+            axis,
+            wanted_um,
+            command_um: c,
+            lo_um: lo,
+            hi_um: hi,
+        });
+    }
+    Ok(())
 }
 
 /// The axis of a single table file: `..._x.csv` / `..._y.csv`, else the header's components.
@@ -544,8 +751,25 @@ fn table_axis(path: &Path) -> Result<AxisId, TableError> {
     })
 }
 
-/// `stage` and `id` from a results directory's summary.json.
-fn summary_identity(path: &Path) -> Result<(Option<String>, Option<i64>), TableError> {
+/// Where each axis's line had the other axis standing (`axes[].other_at_um`).
+fn line_positions(v: &serde_json::Value) -> [Option<f64>; 2] {
+    let mut out = [None, None];
+    for a in v["axes"].as_array().into_iter().flatten() {
+        let at = a["other_at_um"].as_f64().filter(|p| p.is_finite());
+        match a["axis"].as_str() {
+            Some("x") => out[0] = at,
+            Some("y") => out[1] = at,
+            _ => {}
+        }
+    }
+    out
+}
+
+/// `stage`, `id` and the lines' static positions from a results directory's summary.json.
+#[allow(clippy::type_complexity)]
+fn summary_identity(
+    path: &Path,
+) -> Result<(Option<String>, Option<i64>, [Option<f64>; 2]), TableError> {
     let origin = path.display().to_string();
     let text = crate::tomlpos::read_bounded(path, 16 << 20).map_err(|m| TableError {
         origin: origin.clone(),
@@ -557,7 +781,11 @@ fn summary_identity(path: &Path) -> Result<(Option<String>, Option<i64>), TableE
         line: e.line(),
         message: "not a results summary (JSON)".into(),
     })?;
-    Ok((v["stage"].as_str().map(str::to_string), v["id"].as_i64()))
+    Ok((
+        v["stage"].as_str().map(str::to_string),
+        v["id"].as_i64(),
+        line_positions(&v),
+    ))
 }
 
 /// `[compensation]` of a campaign file: `from = ID` (a characterisation in the same store) or
@@ -719,6 +947,7 @@ mod tests {
             campaign: None,
             x: Some(t),
             y: None,
+            line_other_um: [None, None],
             source: "t".into(),
         };
         assert!(matches!(
@@ -784,6 +1013,7 @@ mod tests {
             campaign: Some(3),
             x: Some(t),
             y: None,
+            line_other_um: [None, None],
             source: "t".into(),
         };
         assert!(c.check_covers(AxisId::X, 0.0, 2000.0).is_ok());

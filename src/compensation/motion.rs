@@ -53,7 +53,48 @@ struct Planned {
     wanted_um: f64,
     command_um: f64,
     approach: Direction,
+    /// The other axis's error on this one taken out, µm (compensated two-axis moves).
+    cross_um: Option<f64>,
+    /// The correction's standard uncertainty (k = 1) at the target, µm, when the table has one.
+    u_um: Option<f64>,
     compute_us: f64,
+}
+
+/// (axis, wanted, command, approach, cross term, u) per wanted axis, in the request's order.
+type Commands = Vec<(AxisId, f64, f64, Direction, Option<f64>, Option<f64>)>;
+
+fn p_dir(p: &Option<super::AxisCommand>) -> Direction {
+    p.map_or(Direction::Forward, |p| p.approach)
+}
+
+/// The compensated commands of `req`: an axis that does not move stands at its present command.
+async fn plan_compensated(
+    rig: &mut Rig,
+    cmp: &Compensation,
+    req: &MoveRequest,
+) -> Result<Commands, CommandError> {
+    let mut wanted = [None, None];
+    let mut now_um = [0.0; 2];
+    let mut limits = [(0.0, 0.0); 2];
+    for (i, axis) in [AxisId::X, AxisId::Y].into_iter().enumerate() {
+        let a = rig.axis(axis);
+        limits[i] = a.soft_limits_um();
+        wanted[i] = req.wanted.iter().find(|(w, _)| *w == axis).map(|p| p.1);
+        if wanted[i].is_none() {
+            // Unknown (a failed query): the cross term is left out for this axis.
+            now_um[i] = a.position_um().await.unwrap_or(f64::NAN);
+        }
+    }
+    let plan = cmp.command_xy(wanted, now_um, req.direction, limits)?;
+    Ok(req
+        .wanted
+        .iter()
+        .filter_map(|&(axis, w)| {
+            let i = usize::from(axis == AxisId::Y);
+            let u = cmp.table(axis).and_then(|t| t.u_at(p_dir(&plan[i]), w));
+            plan[i].map(|p| (axis, w, p.command_um, p.approach, p.cross_um, u))
+        })
+        .collect())
 }
 
 async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64, String> {
@@ -120,41 +161,49 @@ pub async fn execute(
     let mut rig = rig::build(c)
         .await
         .map_err(|e| MoveError::Failed(format!("hardware: {e}")))?;
-    // Every command first (soft limits, table range): a refused one moves nothing.
+    // Every command first (soft limits, table range): a refused one moves nothing. Both axes
+    // together: the one that does not move still bends the other's path (its straightness).
     let mut planned = Vec::new();
-    for &(axis, w) in &req.wanted {
-        let limits = rig.axis(axis).soft_limits_um();
-        let t0 = Instant::now();
-        let r = match comp {
-            Some(cmp) => {
-                let approach = cmp
-                    .table(axis)
-                    .map_or(req.direction, |t| t.served_direction(req.direction));
-                cmp.command(axis, approach, w, limits)
-                    .map(|c| (c, approach))
+    let t0 = Instant::now();
+    let r = match comp {
+        Some(cmp) => plan_compensated(&mut rig, cmp, req).await,
+        None => req
+            .wanted
+            .iter()
+            .map(|&(axis, w)| {
+                let limits = rig.axis(axis).soft_limits_um();
+                if w < limits.0 || w > limits.1 {
+                    Err(CommandError::OutsideLimits {
+                        axis,
+                        wanted_um: w,
+                        command_um: w,
+                        lo_um: limits.0,
+                        hi_um: limits.1,
+                    })
+                } else {
+                    Ok((axis, w, w, req.direction, None, None))
+                }
+            })
+            .collect(),
+    };
+    let compute_us = t0.elapsed().as_secs_f64() * 1e6 / req.wanted.len().max(1) as f64;
+    match r {
+        Ok(cmds) => {
+            for (axis, wanted_um, command_um, approach, cross_um, u_um) in cmds {
+                planned.push(Planned {
+                    axis,
+                    wanted_um,
+                    command_um,
+                    approach,
+                    cross_um,
+                    u_um,
+                    compute_us,
+                });
             }
-            None if w < limits.0 || w > limits.1 => Err(CommandError::OutsideLimits {
-                axis,
-                wanted_um: w,
-                command_um: w,
-                lo_um: limits.0,
-                hi_um: limits.1,
-            }),
-            None => Ok((w, req.direction)),
-        };
-        let compute_us = t0.elapsed().as_secs_f64() * 1e6;
-        match r {
-            Ok((command_um, approach)) => planned.push(Planned {
-                axis,
-                wanted_um: w,
-                command_um,
-                approach,
-                compute_us,
-            }),
-            Err(e) => {
-                rig.close().await;
-                return Err(MoveError::Refused(e.to_string()));
-            }
+        }
+        Err(e) => {
+            rig.close().await;
+            return Err(MoveError::Refused(e.to_string()));
         }
     }
     let moves = async {
@@ -188,7 +237,7 @@ pub async fn execute(
         .map(|(p, e)| {
             json!({"axis": p.axis.as_str(), "wanted_um": p.wanted_um, "command_um": p.command_um,
                    "correction_um": p.command_um - p.wanted_um, "approach": p.approach.as_str(),
-                   "encoder_um": e, "compute_us": p.compute_us})
+                   "cross_um": p.cross_um, "u_um": p.u_um, "encoder_um": e, "compute_us": p.compute_us})
         })
         .collect();
     let mut out = json!({"compensation": comp.map(|c| c.source.clone()), "axes": axes});

@@ -4,6 +4,7 @@
 //! lookup-table baselines (`linear`, `pchip`), a physics-aware model of leadscrew stages
 //! (`physics`), and `auto`, which picks by cross-validation on the measured samples themselves and
 //! reports that cross-validated error as the estimate of the reconstruction error.
+pub mod band;
 pub mod bp;
 pub mod dct;
 pub mod interp;
@@ -164,6 +165,15 @@ pub struct Reconstruction {
     pub candidates: Vec<CvScore>,
     #[serde(skip)]
     pub values: Vec<f64>,
+    /// Pointwise standard uncertainty (k = 1) of `values`, µm ([`band`]); empty where not
+    /// computed (bp and bpdn asked for directly: their cross-validation would double the solve).
+    #[serde(skip)]
+    pub u_um: Vec<f64>,
+    /// Mean and largest of `u_um`, µm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub u_mean_um: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub u_max_um: Option<f64>,
 }
 
 /// Reconstructs the curve at every grid point from the samples.
@@ -202,11 +212,17 @@ pub fn reconstruct(
         periods_um: Vec::new(),
         candidates: Vec::new(),
         values: Vec::new(),
+        u_um: Vec::new(),
+        u_mean_um: None,
+        u_max_um: None,
     };
+    // Held-out (distance to the nearest training sample, residual) pairs of the method used.
+    let mut held: Vec<(f64, f64)> = Vec::new();
     match s.method {
         Method::Bp | Method::Bpdn => solve_bp(s.method, samples, s, &mut out),
         Method::Linear | Method::Pchip => {
             out.values = interpolate(s.method, grid, &samples.idx, &samples.values);
+            CrossValidation::new(grid, samples, s).score_interp(s.method, Some(&mut held));
         }
         Method::Physics | Method::Auto => {
             let xs: Vec<f64> = samples.idx.iter().map(|&i| grid.position(i)).collect();
@@ -265,8 +281,8 @@ pub fn reconstruct(
                         continue;
                     }
                     let e = match base {
-                        Method::Bp | Method::Bpdn => cv.score_bp(base, chosen.1),
-                        _ => cv.score_interp(base),
+                        Method::Bp | Method::Bpdn => cv.score_bp(base, chosen.1, None),
+                        _ => cv.score_interp(base, None),
                     };
                     scores.push(CvScore {
                         method: base.as_str().into(),
@@ -285,6 +301,11 @@ pub fn reconstruct(
             out.cv_error_um = Some(calibrate(chosen.1, m, n, s.noise_um));
             out.candidates = scores;
             match chosen.0 {
+                Method::Physics => cv.score_physics(&best_params, Some(&mut held)),
+                Method::Bp | Method::Bpdn => cv.score_bp(chosen.0, f64::INFINITY, Some(&mut held)),
+                m => cv.score_interp(m, Some(&mut held)),
+            };
+            match chosen.0 {
                 Method::Physics => {
                     let p = &best_params;
                     let (start, step) = (grid.start_um, grid.step_um);
@@ -300,6 +321,13 @@ pub fn reconstruct(
                 _ => out.values = interpolate(chosen.0, grid, &samples.idx, &samples.values),
             }
         }
+    }
+    let positions: Vec<f64> = (0..n).map(|i| grid.position(i)).collect();
+    let at: Vec<f64> = samples.idx.iter().map(|&i| grid.position(i)).collect();
+    out.u_um = band::pointwise_u(&positions, &at, &held, s.noise_um);
+    if !out.u_um.is_empty() {
+        out.u_mean_um = Some(out.u_um.iter().sum::<f64>() / out.u_um.len() as f64);
+        out.u_max_um = out.u_um.iter().copied().reduce(f64::max);
     }
     out.solve_ms = t0.elapsed().as_secs_f64() * 1e3;
     Ok(out)
@@ -445,7 +473,22 @@ impl<'a> CrossValidation<'a> {
         )
     }
 
-    fn score_interp(&self, method: Method) -> f64 {
+    /// Distance (µm) from held-out sample `r` to the nearest of the training grid indices
+    /// `ti` (ascending).
+    fn held_distance(&self, ti: &[usize], r: usize) -> f64 {
+        let at = self.samples.idx[r];
+        let i = ti.partition_point(|&q| q < at);
+        let mut d = usize::MAX;
+        if i < ti.len() {
+            d = d.min(ti[i] - at);
+        }
+        if i > 0 {
+            d = d.min(at - ti[i - 1]);
+        }
+        d as f64 * self.grid.step_um
+    }
+
+    fn score_interp(&self, method: Method, mut sink: Option<&mut Vec<(f64, f64)>>) -> f64 {
         let (mut sum, mut cnt) = (0.0, 0usize);
         for (train, test) in &self.folds {
             let (ti, ty) = self.subset(train);
@@ -459,8 +502,12 @@ impl<'a> CrossValidation<'a> {
                 _ => interp::pchip(&xs, &ty, &at),
             };
             for (p, &r) in pred.iter().zip(test) {
-                sum += (p - self.samples.values[r]).abs();
+                let e = p - self.samples.values[r];
+                sum += e.abs();
                 cnt += 1;
+                if let Some(k) = sink.as_deref_mut() {
+                    k.push((self.held_distance(&ti, r), e));
+                }
             }
         }
         sum / cnt as f64
@@ -502,7 +549,7 @@ impl<'a> CrossValidation<'a> {
         ne
     }
 
-    fn score_physics(&self, p: &PhysicsParams) -> f64 {
+    fn score_physics(&self, p: &PhysicsParams, mut sink: Option<&mut Vec<(f64, f64)>>) -> f64 {
         let n = self.grid.n;
         // Each fold's normal equations are the whole set's minus its held-out rows' (a fifth of
         // the work of forming them from the training rows).
@@ -542,8 +589,12 @@ impl<'a> CrossValidation<'a> {
                 return f64::INFINITY;
             };
             for (pred, &r) in fit.predict(&test_rows, &held).iter().zip(test) {
-                sum += (pred - self.samples.values[r]).abs();
+                let e = pred - self.samples.values[r];
+                sum += e.abs();
                 cnt += 1;
+                if let Some(k) = sink.as_deref_mut() {
+                    k.push((self.held_distance(&ti, r), e));
+                }
             }
         }
         sum / cnt as f64
@@ -552,7 +603,12 @@ impl<'a> CrossValidation<'a> {
     /// Bp or bpdn scored on the folds (bpdn's radius from the training-set size). Its solves are
     /// the dearest of the candidates: once two folds put its mean error 30 % above `to_beat`
     /// (the best candidate so far) it cannot plausibly win, and that partial mean is returned.
-    fn score_bp(&self, method: Method, to_beat: f64) -> f64 {
+    fn score_bp(
+        &self,
+        method: Method,
+        to_beat: f64,
+        mut sink: Option<&mut Vec<(f64, f64)>>,
+    ) -> f64 {
         let n = self.grid.n;
         let (mut sum, mut cnt) = (0.0, 0usize);
         for (f, (train, test)) in self.folds.iter().enumerate() {
@@ -576,8 +632,12 @@ impl<'a> CrossValidation<'a> {
                 })
             });
             for &r in test {
-                sum += (g[self.samples.idx[r]] - self.samples.values[r]).abs();
+                let e = g[self.samples.idx[r]] - self.samples.values[r];
+                sum += e.abs();
                 cnt += 1;
+                if let Some(k) = sink.as_deref_mut() {
+                    k.push((self.held_distance(&ti, r), e));
+                }
             }
         }
         sum / cnt as f64
@@ -626,7 +686,7 @@ impl<'a> CrossValidation<'a> {
             if !cand.periods_um.is_empty() && !cand.shrink_to(m) {
                 continue;
             }
-            let e = self.score_physics(&cand);
+            let e = self.score_physics(&cand, None);
             scores.push(CvScore {
                 method: "physics".into(),
                 cv_error_um: e,
@@ -653,7 +713,7 @@ impl<'a> CrossValidation<'a> {
                 if cand.columns() + 2 > m {
                     continue;
                 }
-                let e = self.score_physics(&cand);
+                let e = self.score_physics(&cand, None);
                 scores.push(CvScore {
                     method: "physics".into(),
                     cv_error_um: e,

@@ -4,7 +4,8 @@
 //! `eb_xx_um`, `ef_xy_um`, `eb_xy_um` (this order; y analogous), then `corr_forward_um` and
 //! `corr_backward_um`. corr = -(driving-direction error) for that direction: error = measured -
 //! target, so commanding `P + corr(P)` reaches P (to first order). A correction whose driving
-//! component is absent is left empty, as is any non-finite value.
+//! component is absent is left empty, as is any non-finite value. When the curves carry a
+//! pointwise uncertainty, `u_forward_um,u_backward_um` follow (k = 1, µm).
 use std::fmt::Write;
 
 use super::{ComponentCurve, ReportError};
@@ -95,7 +96,19 @@ pub fn compensation_csv(
     for (comp, _) in &cols {
         let _ = write!(out, ",{}_um", comp.name());
     }
-    out.push_str(",corr_forward_um,corr_backward_um\n");
+    out.push_str(",corr_forward_um,corr_backward_um");
+    // The corrections' standard uncertainty (k = 1), when the curves carry one: last, so the
+    // table's older columns keep their places.
+    let u_of = |c: Option<&&ComponentCurve>| {
+        c.filter(|c| c.u_um.len() == c.grid_um.len())
+            .map(|c| c.u_um.clone())
+    };
+    let u = [u_of(fwd), u_of(bwd)];
+    let with_u = u.iter().any(Option::is_some);
+    if with_u {
+        out.push_str(",u_forward_um,u_backward_um");
+    }
+    out.push('\n');
     for (i, &p) in first.grid_um.iter().enumerate() {
         out.push_str(&fmt_position(p));
         for (_, c) in &cols {
@@ -105,6 +118,12 @@ pub fn compensation_csv(
         for d in [fwd, bwd] {
             out.push(',');
             out.push_str(&fmt_value(d.map(|c| -c.reconstructed_um[i])));
+        }
+        if with_u {
+            for col in &u {
+                out.push(',');
+                out.push_str(&fmt_value(col.as_ref().map(|v| v[i])));
+            }
         }
         out.push('\n');
     }

@@ -326,6 +326,7 @@ mod tests {
             full_scan_um: None,
             full_scan_samples: Vec::new(),
             truth_um: None,
+            u_um: Vec::new(),
         }
     }
 

@@ -214,6 +214,7 @@ mod tests {
                 .flat_map(|&x| [(x, off + 0.1), (x, off - 0.1)])
                 .collect(),
             truth_um: None,
+            u_um: Vec::new(),
         };
         iso230_axis(
             AxisId::X,

@@ -62,6 +62,9 @@ pub struct ComponentCurve {
     pub full_scan_samples: Vec<(f64, f64)>,
     /// Simulator ground truth on the same grid, when known.
     pub truth_um: Option<Vec<f64>>,
+    /// Pointwise standard uncertainty (k = 1) of `reconstructed_um`, µm, when computed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub u_um: Vec<f64>,
 }
 
 impl ComponentCurve {
@@ -315,6 +318,7 @@ pub(crate) mod testdata {
             full_scan_um: Some(full),
             full_scan_samples: Vec::new(),
             truth_um: Some(truth),
+            u_um: Vec::new(),
         }
     }
 }

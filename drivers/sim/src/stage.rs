@@ -5,7 +5,7 @@
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use crate::model::{AxisId, SampleContext, StageModel};
+use crate::model::{AxisId, StageModel};
 
 /// Time scales a simulation accepts: [`MIN_TIME_SCALE`, `MAX_TIME_SCALE`]. Below 1e-3 one
 /// physical second is over a quarter of an hour: a reference move would last days, a campaign
@@ -329,9 +329,6 @@ impl AxisState {
 
 struct Inner {
     axes: [AxisState; 2],
-    last_moving: AxisId,
-    /// Planar truth (2D maps): both axes' errors act, see [`StageModel::deviation_2d`].
-    planar: bool,
 }
 
 /// The two-axis simulated stage (cheap to clone; clones share state).
@@ -357,11 +354,7 @@ impl SimStage {
             AxisState::new(start_mm[1], vel, acc),
         ];
         Self {
-            inner: Arc::new(Mutex::new(Inner {
-                axes,
-                last_moving: AxisId::X,
-                planar: false,
-            })),
+            inner: Arc::new(Mutex::new(Inner { axes })),
             model: Arc::new(model),
             clock: SimClock::new(time_scale),
         }
@@ -383,35 +376,17 @@ impl SimStage {
     }
 
     /// Runs `f` on one axis, brought up to date with the clock; `f` gets the physical time.
-    /// A motion started by `f` makes this axis the "moving" axis of the model.
     pub fn with_axis<R>(&self, axis: AxisId, f: impl FnOnce(&mut AxisState, f64) -> R) -> R {
         let now = self.clock.now_s();
         let mut g = self.lock();
         let a = &mut g.axes[idx(axis)];
         a.update(now);
-        let was = a.motion.map(|m| m.profile);
-        let r = f(a, now);
-        let started = a.motion.map(|m| m.profile) != was && a.motion.is_some();
-        if started {
-            g.last_moving = axis;
-        }
-        r
+        f(a, now)
     }
 
-    /// Planar truth on or off: on, the true position carries the errors of both axes, each
-    /// from its own last approach direction (a 2D map); off (the default), those of the last
-    /// moving axis only (line campaigns, the paper's model).
-    pub fn set_planar(&self, on: bool) {
-        self.lock().planar = on;
-    }
-
-    /// The carriage's in-plane rotation now, µrad: planar truth, the yaw of both axes at their
-    /// positions ([`StageModel::rotation_urad_2d`]); 0 otherwise (lines keep the camera's
-    /// fixed angle).
+    /// The carriage's in-plane rotation now, µrad: the yaw of both axes at their positions
+    /// ([`StageModel::rotation_urad_2d`]).
     pub fn rotation_urad(&self) -> f64 {
-        if !self.lock().planar {
-            return 0.0;
-        }
         let (x, y) = self.encoder_um();
         self.model.rotation_urad_2d(x, y)
     }
@@ -429,8 +404,11 @@ impl SimStage {
     }
 
     /// Where the carriage really is (x, y) in µm now: encoder positions plus the stage
-    /// model's deviation for the last moving axis and its approach direction. Noise is not
-    /// included (the camera adds it).
+    /// model's planar deviation, both axes' errors each from its own last approach direction
+    /// ([`StageModel::deviation_2d`]). One truth for line moves and map points alike: a line
+    /// campaign's static axis adds its own error at its position (a constant of the line, as the
+    /// gap contract's line offsets have it), and a two-axis move keeps the first axis's error
+    /// while the second moves. Noise is not included (the camera adds it).
     pub fn true_position_um(&self) -> (f64, f64) {
         self.true_position_at_um(None)
     }
@@ -441,32 +419,15 @@ impl SimStage {
     pub fn true_position_at_um(&self, time_s: Option<f64>) -> (f64, f64) {
         let now = self.clock.now_s();
         // One lock for a consistent snapshot of both axes.
-        let (x, y, moving, direction, planar) = {
+        let (x, y, dx, dy) = {
             let mut g = self.lock();
             for a in g.axes.iter_mut() {
                 a.update(now);
             }
             let p = |i: usize| g.axes[i].position(now) * 1000.0;
-            let planar = g.planar.then(|| (g.axes[0].last_dir, g.axes[1].last_dir));
-            (
-                p(0),
-                p(1),
-                g.last_moving,
-                g.axes[idx(g.last_moving)].last_dir,
-                planar,
-            )
+            (p(0), p(1), g.axes[0].last_dir, g.axes[1].last_dir)
         };
-        if let Some((dx, dy)) = planar {
-            let d = self.model.deviation_2d(x, y, dx, dy, time_s.unwrap_or(now));
-            return (x + d.x_um, y + d.y_um);
-        }
-        let d = self.model.deviation(&SampleContext {
-            moving,
-            direction,
-            target_x_um: x,
-            target_y_um: y,
-            time_s: time_s.unwrap_or(now),
-        });
+        let d = self.model.deviation_2d(x, y, dx, dy, time_s.unwrap_or(now));
         (x + d.x_um, y + d.y_um)
     }
 }
@@ -536,29 +497,13 @@ mod tests {
     }
 
     #[test]
-    fn true_position_adds_the_model_deviation_of_the_last_moving_axis() {
-        let stage = backlash_stage();
-        stage.with_axis(AxisId::X, |a, now| a.start(now, 0.5, 1.0, MotionKind::Move));
-        std::thread::sleep(Duration::from_millis(5));
-        let (x, y) = stage.true_position_um();
-        assert!(
-            (x - (500.0 - 1.0)).abs() < 1e-9 && (y - 1000.0).abs() < 1e-9,
-            "{x} {y}"
-        );
-        assert_eq!(stage.encoder_um(), (500.0, 1000.0));
-        stage.with_axis(AxisId::Y, |a, now| a.start(now, 2.0, 1.0, MotionKind::Move));
-        std::thread::sleep(Duration::from_millis(5));
-        let (x, y) = stage.true_position_um();
-        assert!(
-            (x - 500.0).abs() < 1e-9 && (y - 2003.0).abs() < 1e-9,
-            "{x} {y}"
-        );
-    }
-
-    #[test]
     fn planar_truth_keeps_the_error_of_the_axis_that_moved_first() {
         let stage = backlash_stage();
-        stage.set_planar(true);
+        assert_eq!(
+            stage.true_position_um(),
+            (1001.0, 1003.0),
+            "both forward at rest"
+        );
         stage.with_axis(AxisId::X, |a, now| a.start(now, 0.5, 1.0, MotionKind::Move));
         std::thread::sleep(Duration::from_millis(5));
         stage.with_axis(AxisId::Y, |a, now| a.start(now, 2.0, 1.0, MotionKind::Move));
