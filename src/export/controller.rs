@@ -413,6 +413,15 @@ fn twincat(
         })
         .collect();
     s.dedup();
+    if s.len() < 2 || s.windows(2).any(|p| p[0] >= p[1]) {
+        // A served range shorter than the 0.1 µm lattice.
+        let (lo_um, hi_um) = t.range_um();
+        return Err(ControllerError::EmptyRange {
+            origin: t.origin.clone(),
+            lo_um,
+            hi_um,
+        });
+    }
     let mut back = Bilateral {
         nominal_um: Vec::new(),
         forward_um: Vec::new(),
@@ -546,6 +555,19 @@ mod tests {
         let t = table(5.0, 600.0, false);
         let e = write(&t, Controller::Csv, 1, 0.01).unwrap_err();
         assert!(e.to_string().contains("no backward correction"), "{e}");
+    }
+
+    #[test]
+    fn corrections_beyond_the_grid_step_at_both_ends_leave_nothing_to_serve() {
+        let t = AxisTable::parse(
+            AxisId::X,
+            "position_um,ef_xx_um,eb_xx_um,corr_forward_um,corr_backward_um\n0,5,5,-5,-5\n1,5,5,-5,-5\n",
+            "steep.csv",
+        )
+        .unwrap();
+        let e = write(&t, Controller::LinuxCnc, 1, 0.01).unwrap_err();
+        assert!(matches!(e, ControllerError::EmptyRange { .. }), "{e}");
+        assert!(e.to_string().starts_with("steep.csv: "), "{e}");
     }
 
     #[test]
