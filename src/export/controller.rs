@@ -323,7 +323,7 @@ pub fn write(
 /// LinuxCNC `COMP_FILE_TYPE = 1`: one line per entry, `nominal forward_trim reverse_trim`,
 /// whitespace separated, nominal strictly ascending, in machine units (mm here: write
 /// `LINEAR_UNITS = mm` for the joint). Sources: LinuxCNC INI configuration docs, `[JOINT_n]`
-/// `COMP_FILE` / `COMP_FILE_TYPE` (linuxcnc.org/docs/html/config/ini-config.html); the loader
+/// `COMP_FILE` / `COMP_FILE_TYPE` (linuxcnc.org/docs/stable/html/config/ini-config.html); the loader
 /// `usrmotLoadComp` (src/emc/motion/usrmotintf.cc: type 0 holds actual positions and is turned
 /// into trims as nominal - actual, type 1 holds the trims); `compute_screw_comp`
 /// (src/emc/motion/control.c: the trim of the direction of `vel_cmd`, linear in `pos_cmd`
@@ -455,7 +455,7 @@ fn twincat(
     let mut text = format!(
         "# csmetro campaign {campaign}, axis {name}: bilateral leadscrew error compensation (LSEC)\n\
          # Lengths in 0.1 um (kw.ssfk.unit = 1). pos/neg: the position error at the setpoint for\n\
-         # motion in the positive/negative direction; the CNC subtracts it, interpolating linearly.\n\
+         # motion in the positive/negative direction, taken off the setpoint (linear in between).\n\
          # Served setpoints {} to {} (0.1 um); positions in the stage's own coordinates.\n\
          kopf.achs_nr                 {nr}\n\
          kopf.log_achs_name           {name}\n\
