@@ -31,12 +31,12 @@ pub fn nearest_steps(idx: &[usize], i: usize) -> usize {
 /// bytes fits.
 pub const MAX_SAMPLES_BYTES: u64 = 64 << 20;
 
-/// Reads `position_um,error_um` rows; every error is one line naming the file and line.
-pub fn read_samples_csv(path: &Path, grid: &Grid) -> Result<GridSamples, String> {
+/// Reads the samples of one error curve; every error is one line naming the file and line.
+pub fn read_samples_csv(path: &Path, grid: &Grid, sel: &Select) -> Result<GridSamples, String> {
     let name = path.display();
     let text = crate::tomlpos::read_bounded(path, MAX_SAMPLES_BYTES)
         .map_err(|e| format!("{name}: cannot read: {e}"))?;
-    parse_samples_csv(&text, grid).map_err(|(line, msg)| format!("{name}:{line}: {msg}"))
+    parse_samples_with(&text, grid, sel).map_err(|(line, msg)| format!("{name}:{line}: {msg}"))
 }
 
 /// At most 40 characters of a field for an error message (a field may be megabytes long).
@@ -47,8 +47,105 @@ fn clip(s: &str) -> String {
     }
 }
 
-/// Parses sample CSV text; errors carry the 1-based line number.
+/// The samples layout every csmetro result writes (the results' `samples.csv`,
+/// `verify/samples.csv`) and the samples readers (`csmetro reconstruct --samples`, `csmetro gap
+/// --data`) accept. The results' first fifteen columns keep their order; the others were added
+/// so that one file feeds every command (verify's and gap's names are among them). Per row, one
+/// measured target of a sweep of `axis` (the moving axis) in `direction`:
+/// `seq` commit order; `phase` cs | full | map; `cycle`; `target_x_um`, `target_y_um` the
+/// target; `meas_x_um`, `meas_y_um` the decoded position; `theta_mrad`; `encoder_um` what the
+/// controller reported; `time_s` physical time since the campaign started; `quality`,
+/// `frames`, `rejected` the decode; `pass` before | after in a verification (moved without /
+/// with the compensation), empty elsewhere; `run` the sweep number (2·cycle, + 1 for the full
+/// scan or the `after` pass); `target_um` = `position_um` the moving axis' target; `error_um` =
+/// measured - target along the moving axis. Positions and errors in µm.
+pub const LAYOUT: [&str; 20] = [
+    "seq",
+    "phase",
+    "axis",
+    "direction",
+    "cycle",
+    "target_x_um",
+    "target_y_um",
+    "meas_x_um",
+    "meas_y_um",
+    "theta_mrad",
+    "encoder_um",
+    "time_s",
+    "quality",
+    "frames",
+    "rejected",
+    "pass",
+    "run",
+    "target_um",
+    "position_um",
+    "error_um",
+];
+
+/// The header line of [`LAYOUT`].
+pub fn layout_header() -> String {
+    let mut h = LAYOUT.join(",");
+    h.push('\n');
+    h
+}
+
+/// One row of [`LAYOUT`]; `after`: `Some` in a verification (the pass), `None` elsewhere.
+pub fn layout_row(r: &crate::types::SampleRecord, after: Option<bool>) -> String {
+    let t = &r.target;
+    let k = t.run;
+    let extra = after.unwrap_or(k.phase == crate::types::Phase::Full);
+    format!(
+        "{},{},{},{},{},{},{},{:.6},{:.6},{:.5},{:.6},{:.3},{:.4},{},{},{},{},{},{},{:.6}\n",
+        t.seq,
+        k.phase.as_str(),
+        k.axis.as_str(),
+        k.direction.as_str(),
+        k.cycle,
+        t.target_x_um,
+        t.target_y_um,
+        r.meas_x_um,
+        r.meas_y_um,
+        r.theta_mrad,
+        r.encoder_um,
+        r.time_s,
+        r.quality,
+        r.frames,
+        r.rejected,
+        match after {
+            Some(true) => "after",
+            Some(false) => "before",
+            None => "",
+        },
+        2 * u64::from(k.cycle) + u64::from(extra),
+        t.target_um(),
+        t.target_um(),
+        r.error_um(k.axis)
+    )
+}
+
+/// Which curve of a samples file in [`LAYOUT`] to read (ignored for `position_um,error_um`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Select {
+    pub axis: Option<crate::types::AxisId>,
+    pub direction: Option<crate::types::Direction>,
+    pub phase: Option<crate::types::Phase>,
+}
+
+/// Parses `position_um,error_um` sample CSV text; errors carry the 1-based line number.
 pub fn parse_samples_csv(text: &str, grid: &Grid) -> Result<GridSamples, (usize, String)> {
+    parse_samples_with(text, grid, &Select::default())
+}
+
+/// Parses sample CSV text: `position_um,error_um` (one sample per position), or [`LAYOUT`]
+/// (one curve picked by `sel`: the moving axis' error in one direction, `after` rows of a
+/// verification left out since they were moved with the compensation; repeated cycles of a
+/// position averaged). Errors carry the 1-based line number.
+pub fn parse_samples_with(
+    text: &str,
+    grid: &Grid,
+    sel: &Select,
+) -> Result<GridSamples, (usize, String)> {
+    use crate::types::{AxisId, Direction, Phase};
     let mut lines = text
         .lines()
         .enumerate()
@@ -61,9 +158,8 @@ pub fn parse_samples_csv(text: &str, grid: &Grid) -> Result<GridSamples, (usize,
         .split(',')
         .map(|c| c.trim().trim_start_matches('\u{feff}').to_string())
         .collect();
-    let pos_col = cols.iter().position(|c| c == "position_um");
-    let err_col = cols.iter().position(|c| c == "error_um");
-    let (pc, ec) = match (pos_col, err_col) {
+    let col = |n: &str| cols.iter().position(|c| c == n);
+    let (pc, ec) = match (col("position_um"), col("error_um")) {
         (Some(p), Some(e)) => (p, e),
         _ => {
             return Err((
@@ -75,8 +171,15 @@ pub fn parse_samples_csv(text: &str, grid: &Grid) -> Result<GridSamples, (usize,
             ))
         }
     };
-    let mut rows: Vec<(usize, f64, usize)> = Vec::new();
-    let mut seen = vec![0usize; grid.n];
+    // The full layout: rows of several curves and cycles.
+    let layout = match (col("axis"), col("direction"), col("cycle")) {
+        (Some(a), Some(d), Some(c)) => Some((a, d, c, col("phase"), col("pass"))),
+        _ => None,
+    };
+    // Per grid position: (error sum, count, first line, cycles seen).
+    type Slot = (f64, u32, usize, Vec<u64>);
+    let mut at: Vec<Option<Slot>> = vec![None; grid.n];
+    let mut curves: Vec<(AxisId, Direction)> = Vec::new();
     for (i, line) in lines {
         let lineno = i + 1;
         let fields: Vec<&str> = line.split(',').map(str::trim).collect();
@@ -98,6 +201,73 @@ pub fn parse_samples_csv(text: &str, grid: &Grid) -> Result<GridSamples, (usize,
             }
             Ok(v)
         };
+        let mut cycle = None;
+        if let Some((ac, dc, cc, phc, pac)) = layout {
+            if pac.is_some_and(|c| fields[c] == "after") {
+                continue;
+            }
+            let axis = AxisId::parse(fields[ac]).ok_or_else(|| {
+                (
+                    lineno,
+                    format!("axis {:?}: must be x or y", clip(fields[ac])),
+                )
+            })?;
+            let dir = match fields[dc] {
+                "forward" => Direction::Forward,
+                "backward" => Direction::Backward,
+                s => {
+                    return Err((
+                        lineno,
+                        format!("direction {:?}: must be forward or backward", clip(s)),
+                    ))
+                }
+            };
+            let phase = match phc {
+                Some(c) => Some(Phase::parse(fields[c]).ok_or_else(|| {
+                    (
+                        lineno,
+                        format!("phase {:?}: must be cs, full or map", clip(fields[c])),
+                    )
+                })?),
+                None => None,
+            };
+            if phase == Some(Phase::Map) {
+                return Err((
+                    lineno,
+                    "samples of an XY map campaign: use csmetro reconstruct2d".into(),
+                ));
+            }
+            if sel.axis.is_some_and(|a| a != axis)
+                || sel.direction.is_some_and(|d| d != dir)
+                || (sel.phase.is_some() && phase != sel.phase)
+            {
+                continue;
+            }
+            if !curves.contains(&(axis, dir)) {
+                curves.push((axis, dir));
+                if curves.len() > 1 {
+                    let names: Vec<String> = curves
+                        .iter()
+                        .map(|(a, d)| format!("{} {}", a.as_str(), d.as_str()))
+                        .collect();
+                    return Err((
+                        lineno,
+                        format!(
+                            "a second curve ({}): choose one with --axis and --direction",
+                            names.join(", ")
+                        ),
+                    ));
+                }
+            }
+            let c: u64 = fields[cc].parse().map_err(|_| {
+                (
+                    lineno,
+                    format!("cycle {:?} is not a whole number", clip(fields[cc])),
+                )
+            })?;
+            // A full scan repeats the CS targets in the same cycle: its own sweep.
+            cycle = Some(2 * c + u64::from(phase == Some(Phase::Full)));
+        }
         let p = num(fields[pc], "position_um")?;
         let e = num(fields[ec], "error_um")?;
         let k = grid.index_of(p).ok_or_else(|| {
@@ -106,16 +276,27 @@ pub fn parse_samples_csv(text: &str, grid: &Grid) -> Result<GridSamples, (usize,
                 format!("position {p} µm is not on the grid {grid} (tolerance 1e-6 µm)"),
             )
         })?;
-        if seen[k] != 0 {
-            return Err((
-                lineno,
-                format!("duplicate position {p} µm (first at line {})", seen[k]),
-            ));
+        match (&mut at[k], cycle) {
+            (slot @ None, _) => *slot = Some((e, 1, lineno, cycle.into_iter().collect())),
+            // Another cycle of the same target: a repeat, averaged.
+            (Some((sum, n, _, seen)), Some(c)) if !seen.contains(&c) => {
+                *sum += e;
+                *n += 1;
+                seen.push(c);
+            }
+            (Some((_, _, first, _)), _) => {
+                return Err((
+                    lineno,
+                    format!("duplicate position {p} µm (first at line {first})"),
+                ))
+            }
         }
-        seen[k] = lineno;
-        rows.push((k, e, lineno));
     }
-    rows.sort_by_key(|r| r.0);
+    let rows: Vec<(usize, f64)> = at
+        .iter()
+        .enumerate()
+        .filter_map(|(k, s)| s.as_ref().map(|(sum, n, _, _)| (k, sum / f64::from(*n))))
+        .collect();
     let m = rows.len();
     if m < 2 {
         return Err((
@@ -169,5 +350,47 @@ mod tests {
         assert!(e.1.contains("header"));
         let e = parse_samples_csv("position_um,error_um\n0,1\n", &g).unwrap_err();
         assert!(e.1.contains("at least 2"));
+    }
+
+    #[test]
+    fn the_layout_picks_one_curve_and_averages_repeated_cycles() {
+        use crate::types::{AxisId, Direction};
+        let g = grid();
+        let h = layout_header();
+        let row = |phase: &str, dir: &str, cycle: u32, pass: &str, p: f64, e: f64| {
+            format!(
+                "0,{phase},x,{dir},{cycle},{p},0,{},0,0,{p},0,1,1,0,{pass},0,{p},{p},{e}\n",
+                p + e
+            )
+        };
+        let text = format!(
+            "{h}{}{}{}{}{}",
+            row("cs", "forward", 0, "", 10.0, 1.0),
+            row("cs", "forward", 1, "", 10.0, 2.0),
+            row("cs", "forward", 0, "", 20.0, 3.0),
+            row("cs", "backward", 0, "", 10.0, 9.0),
+            row("full", "forward", 0, "after", 5.0, 7.0),
+        );
+        // Two curves: one must be chosen.
+        let e = parse_samples_csv(&text, &g).unwrap_err();
+        assert!(e.1.contains("x forward, x backward") && e.0 == 5, "{e:?}");
+        let fwd = Select {
+            axis: Some(AxisId::X),
+            direction: Some(Direction::Forward),
+            phase: None,
+        };
+        let s = parse_samples_with(&text, &g, &fwd).unwrap();
+        // 10 µm: cycles 0 and 1 averaged; the `after` row is left out.
+        assert_eq!(s.idx, vec![2, 4]);
+        assert_eq!(s.values, vec![1.5, 3.0]);
+        // The same cycle twice is a copied row.
+        let dup = format!("{text}{}", row("cs", "forward", 1, "", 10.0, 2.0));
+        let e = parse_samples_with(&dup, &g, &fwd).unwrap_err();
+        assert!(e.1.contains("duplicate") && e.0 == 7, "{e:?}");
+        let bad = format!("{h}{}", row("cs", "sideways", 0, "", 10.0, 1.0));
+        assert!(parse_samples_with(&bad, &g, &fwd)
+            .unwrap_err()
+            .1
+            .contains("direction"));
     }
 }

@@ -635,29 +635,10 @@ pub fn build(
         "text/plain".into(),
         table.clone().into_bytes(),
     ));
-    let mut sc = String::from(
-        "seq,phase,axis,direction,cycle,target_x_um,target_y_um,meas_x_um,meas_y_um,theta_mrad,encoder_um,time_s,quality,frames,rejected\n",
-    );
+    // One layout for every samples file (crate::samples::LAYOUT): any command reads it.
+    let mut sc = crate::samples::layout_header();
     for s in samples {
-        let t = &s.target;
-        sc.push_str(&format!(
-            "{},{},{},{},{},{},{},{:.6},{:.6},{:.5},{:.6},{:.3},{:.4},{},{}\n",
-            t.seq,
-            t.run.phase.as_str(),
-            t.run.axis.as_str(),
-            t.run.direction.as_str(),
-            t.run.cycle,
-            t.target_x_um,
-            t.target_y_um,
-            s.meas_x_um,
-            s.meas_y_um,
-            s.theta_mrad,
-            s.encoder_um,
-            s.time_s,
-            s.quality,
-            s.frames,
-            s.rejected
-        ));
+        sc.push_str(&crate::samples::layout_row(s, None));
     }
     files.push(("samples.csv".into(), "text/csv".into(), sc.into_bytes()));
     Report {

@@ -9,9 +9,19 @@ use crate::samples;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Samples, CSV with header `position_um,error_um` (positions on the grid).
+    /// Samples, CSV with header `position_um,error_um` (positions on the grid), or a results'
+    /// `samples.csv` / `verify/samples.csv` (one curve: see --axis, --direction, --phase).
     #[arg(long)]
     samples: PathBuf,
+    /// In a results' samples file: the moving axis of the curve (x or y).
+    #[arg(long)]
+    axis: Option<String>,
+    /// In a results' samples file: the approach direction of the curve (forward or backward).
+    #[arg(long)]
+    direction: Option<String>,
+    /// In a results' samples file: only the CS sample (cs) or the full scan (full); default both.
+    #[arg(long)]
+    phase: Option<String>,
     /// Grid START:STEP:END in µm, e.g. 0:5:9500.
     // A travel may start below zero: `--grid -20:5:20` is a grid, not a flag.
     #[arg(long, allow_hyphen_values = true)]
@@ -68,7 +78,8 @@ pub fn run(a: Args) -> CliResult {
     // Before reading the samples: a grid too large for the method is refused at once.
     crate::recon::limits::check_solve_size(method, solver, grid.n, 2)
         .map_err(|e| CliError::input(format!("--grid: {e}")))?;
-    let s = samples::read_samples_csv(&a.samples, &grid).map_err(CliError::input)?;
+    let sel = select(&a)?;
+    let s = samples::read_samples_csv(&a.samples, &grid, &sel).map_err(CliError::input)?;
     crate::recon::limits::check_solve_size(method, solver, grid.n, s.len())
         .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
     if s.len() > grid.n {
@@ -106,4 +117,37 @@ pub fn run(a: Args) -> CliResult {
         outln!("{v}");
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--axis`, `--direction`, `--phase` as a selection of one curve.
+fn select(a: &Args) -> Result<samples::Select, CliError> {
+    use crate::types::{AxisId, Direction, Phase};
+    let axis = match a.axis.as_deref() {
+        Some(s) => {
+            Some(AxisId::parse(s).ok_or_else(|| CliError::input(format!("--axis {s:?}: x or y")))?)
+        }
+        None => None,
+    };
+    let direction = match a.direction.as_deref() {
+        None => None,
+        Some("forward") => Some(Direction::Forward),
+        Some("backward") => Some(Direction::Backward),
+        Some(s) => {
+            return Err(CliError::input(format!(
+                "--direction {s:?}: forward or backward"
+            )))
+        }
+    };
+    let phase = match a.phase.as_deref() {
+        None => None,
+        Some(s) => match Phase::parse(s) {
+            Some(p @ (Phase::Cs | Phase::Full)) => Some(p),
+            _ => return Err(CliError::input(format!("--phase {s:?}: cs or full"))),
+        },
+    };
+    Ok(samples::Select {
+        axis,
+        direction,
+        phase,
+    })
 }

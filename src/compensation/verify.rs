@@ -754,22 +754,12 @@ pub fn json(v: &Verdict) -> Value {
     serde_json::to_value(v).unwrap_or(Value::Null)
 }
 
-/// Raw samples of both passes as CSV.
+/// Raw samples of both passes as CSV, in the layout of every samples file
+/// ([`crate::samples::LAYOUT`]; `pass` before | after).
 pub fn samples_csv(v: &Verdict) -> String {
-    let mut s = String::from("pass,axis,direction,cycle,target_um,meas_x_um,meas_y_um,error_um\n");
+    let mut s = crate::samples::layout_header();
     for (after, r) in &v.raw {
-        let a = r.target.run.axis;
-        s.push_str(&format!(
-            "{},{},{},{},{},{:.6},{:.6},{:.6}\n",
-            if *after { "after" } else { "before" },
-            a.as_str(),
-            r.target.run.direction.as_str(),
-            r.target.run.cycle,
-            r.target.target_um(),
-            r.meas_x_um,
-            r.meas_y_um,
-            r.error_um(a)
-        ));
+        s.push_str(&crate::samples::layout_row(r, Some(*after)));
     }
     s
 }

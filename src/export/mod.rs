@@ -1,11 +1,14 @@
 //! Results in the forms a facility uses: `csmetro export ID --format nexus` writes one NeXus
-//! (HDF5) file per campaign through the HDF5 library's own bindings (`--features nexus`).
+//! (HDF5) file per campaign through the HDF5 library's own bindings (`--features nexus`);
+//! `--format linuxcnc|twincat-lsec|csv --axis x|y` one axis's compensation as a table a motion
+//! controller loads ([`controller`]).
 //!
 //! [`Export`] gathers what a campaign holds in the store (its file, rig identity, every result
 //! artifact) without knowing the format; [`table`] reads the result CSVs into columns, so the
 //! file holds exactly the values of the CSV results.
 use crate::store::{Store, StoreError};
 
+pub mod controller;
 #[cfg(feature = "nexus")]
 pub mod nexus;
 

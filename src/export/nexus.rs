@@ -155,10 +155,14 @@ fn json_into(parent: &h5::Group, name: &str, v: &Value) -> H5Result<()> {
     }
 }
 
-/// `samples.csv` plus the moving axis's target (`position_um`) and error (`error_um`).
+/// `samples.csv` plus the moving axis's target (`position_um`) and error (`error_um`), which
+/// the samples layout (`crate::samples::LAYOUT`) has had since it became one for every file.
 fn with_errors(mut t: Vec<(String, Column)>) -> Vec<(String, Column)> {
     let col =
         |t: &[(String, Column)], n: &str| t.iter().find(|(c, _)| c == n).map(|(_, c)| c.clone());
+    if col(&t, "position_um").is_some() || col(&t, "error_um").is_some() {
+        return t;
+    }
     let (Some(Column::Text(axis)), Some(Column::Numbers(tx)), Some(Column::Numbers(ty))) = (
         col(&t, "axis"),
         col(&t, "target_x_um"),

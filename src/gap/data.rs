@@ -289,6 +289,9 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
     // One sample per (run, axis, direction, targets, time): a second is a copied row, which
     // would pass for a repeat and shrink the repeatability σ.
     let mut seen: HashMap<(i64, AxisId, bool, [u64; 3]), usize> = HashMap::new();
+    // csmetro's samples layout (crate::samples::LAYOUT): a verification's `after` rows were
+    // moved with the compensation, so their targets are not what the stage was commanded.
+    let pass = names.iter().position(|n| n == "pass");
     for (i, line) in lines {
         let ln = i + 1;
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
@@ -298,6 +301,9 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
                 f.len(),
                 names.len()
             ));
+        }
+        if pass.is_some_and(|c| f[c].eq_ignore_ascii_case("after")) {
+            continue;
         }
         let num = |k: usize| -> Result<f64, String> {
             let s = f[idx[k]];
