@@ -551,8 +551,18 @@ fn results_are_never_overwritten_and_each_campaign_has_its_report() {
     let ja = json_of(&oa);
     assert_eq!(ja["state"], "done");
     let err = String::from_utf8_lossy(&oa.stderr);
-    let last = err.lines().last().unwrap_or("");
-    assert!(last.starts_with("results: "), "{err}");
+    // The results line, then what to type next: the verification, a compensated move, the
+    // controller export (this campaign has compensation tables).
+    let results_line = err.lines().position(|l| l.starts_with("results: "));
+    assert!(results_line.is_some(), "{err}");
+    let next: Vec<&str> = err.lines().skip(results_line.unwrap() + 1).collect();
+    assert!(
+        next.first() == Some(&"next:")
+            && next.iter().any(|l| l.contains("csmetro verify 1"))
+            && next.iter().any(|l| l.contains("--compensation"))
+            && next.iter().any(|l| l.contains("csmetro export 1")),
+        "{err}"
+    );
     assert!(
         !err.contains("resume"),
         "a finished run offers no resume: {err}"

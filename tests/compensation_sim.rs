@@ -19,7 +19,8 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
     M.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// The characterisation: x over [1000, 3000] µm on a 5 µm grid, 120 random targets per
+/// The characterisation: x over [1000, 3000] µm on a 5 µm grid with y at 0 µm (where a
+/// move's simulated rig has it: the x table holds y's own error there), 120 random targets per
 /// direction, two cycles. Run once for every test of this file.
 fn characterised() -> &'static (PathBuf, PathBuf) {
     static ONCE: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
@@ -29,7 +30,7 @@ fn characterised() -> &'static (PathBuf, PathBuf) {
             &dir,
             "char",
             "",
-            "[axes.x]\nrange_um = [1000.0, 3000.0]\nstep_um = 5.0\nother_at_um = 2100.0\nm = 120\n\n\
+            "[axes.x]\nrange_um = [1000.0, 3000.0]\nstep_um = 5.0\nother_at_um = 0.0\nm = 120\n\n\
              [sampling]\ndesign = \"random\"\nseed = 11\n\n\
              [acquisition]\ndirections = [\"forward\", \"backward\"]\ncycles = 2\nsettle_s = 2.0\n\
              dwell_s = 0.5\n\n[reconstruction]\nnoise_um = 0.01",
@@ -233,7 +234,7 @@ fn a_compensated_move_lands_where_asked_and_refuses_rather_than_clips() {
         let camp = results.parent().unwrap().join("char.toml");
         let plain = mv(&[
             "--x-um",
-            "2222.2",
+            "2500.3",
             "--direction",
             dir,
             "--measure",
@@ -242,7 +243,7 @@ fn a_compensated_move_lands_where_asked_and_refuses_rather_than_clips() {
         ]);
         let comp = mv(&[
             "--x-um",
-            "2222.2",
+            "2500.3",
             "--direction",
             dir,
             "--measure",
@@ -254,9 +255,12 @@ fn a_compensated_move_lands_where_asked_and_refuses_rather_than_clips() {
             c["hardware"].as_str().unwrap().contains("campaign 1"),
             "{c}"
         );
-        let err = |v: &Value| v["measured_x_um"].as_f64().unwrap() - 2222.2;
+        let err = |v: &Value| v["measured_x_um"].as_f64().unwrap() - 2500.3;
         assert!(err(&p).abs() > 0.5, "{dir}: uncompensated {p}");
         assert!(err(&c).abs() < 0.3, "{dir}: compensated {c}");
+        // y stands where x's line was measured (0 µm, where a move's simulated rig starts):
+        // the x table holds y's error there, nothing to note.
+        assert!(c["notes"].is_null(), "{c}");
         let ax = &c["axes"][0];
         assert_eq!(ax["approach"], dir);
         assert!(ax["correction_um"].as_f64().unwrap().abs() > 0.5, "{ax}");
@@ -300,7 +304,7 @@ fn compensated_campaign(section: &str) -> PathBuf {
         dir,
         "comp",
         "",
-        "[axes.x]\nrange_um = [1500.0, 2500.0]\nstep_um = 25.0\nother_at_um = 2100.0\n\n\
+        "[axes.x]\nrange_um = [1500.0, 2500.0]\nstep_um = 25.0\nother_at_um = 0.0\n\n\
          [sampling]\ndesign = \"full\"\n\n\
          [acquisition]\ndirections = [\"forward\", \"backward\"]\nsettle_s = 2.0",
         section,

@@ -189,6 +189,9 @@ pub fn run(a: Args) -> CliResult {
         } else if let Some(e) = out["measure_error"].as_str() {
             outln!("measured: no position ({e})");
         }
+        for n in out["notes"].as_array().into_iter().flatten() {
+            outln!("note: {}", n.as_str().unwrap_or_default());
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

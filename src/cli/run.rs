@@ -100,7 +100,7 @@ pub fn run(a: Args) -> CliResult {
         truth_log: a.truth_log,
         origin: Some(origin),
     };
-    foreground(store, id, c, a.json, a.quiet, opts)
+    foreground(store, id, c, a.json, a.quiet, opts, &a.db)
 }
 
 pub fn resume(a: ResumeArgs) -> CliResult {
@@ -130,7 +130,7 @@ pub fn resume(a: ResumeArgs) -> CliResult {
         truth_log: a.truth_log,
         origin: Some(origin),
     };
-    foreground(store, a.id, c, a.json, a.quiet, opts)
+    foreground(store, a.id, c, a.json, a.quiet, opts, &a.db)
 }
 
 /// The pre-flight of `csmetro check` (the stage already taken), before the campaign is
@@ -161,6 +161,29 @@ fn preflight(c: &Campaign, db: &std::path::Path, not_done: &str) -> Result<(), C
     })
 }
 
+/// What an operator does with a finished characterisation: the commands to type (on stderr,
+/// after the results line), for the axes that have a compensation table.
+fn next_steps(id: i64, stage: &str, dir: &std::path::Path, db_arg: &str) -> String {
+    let axes: Vec<&str> = ["x", "y"]
+        .into_iter()
+        .filter(|a| dir.join(format!("compensation_{a}.csv")).is_file())
+        .collect();
+    let Some(first) = axes.first() else {
+        return String::new();
+    };
+    let target = if axes == ["x"] {
+        "--x-um X"
+    } else {
+        "--x-um X --y-um Y"
+    };
+    format!(
+        "next:\n  csmetro verify {id}{db_arg}    # the compensation proved: before/after at targets never visited\n  \
+         csmetro move --stage {stage} {target} --compensation {}{db_arg}    # a compensated move\n  \
+         csmetro export {id} --format linuxcnc --axis {first} --out {first}.comp{db_arg}    # the table for a controller (also twincat-lsec, csv)\n",
+        dir.display()
+    )
+}
+
 fn foreground(
     store: SharedStore,
     id: i64,
@@ -168,7 +191,14 @@ fn foreground(
     json: bool,
     quiet: bool,
     opts: session::Options,
+    db: &std::path::Path,
 ) -> CliResult {
+    let stage = c.spec.campaign.stage.clone();
+    let db_arg = if db == std::path::Path::new(DEFAULT_DB) {
+        String::new()
+    } else {
+        format!(" --db {}", db.display())
+    };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -247,6 +277,9 @@ fn foreground(
                 "results: {} (report.html and the files; also in the store, campaign {id})",
                 d.display()
             );
+            if fin.state == CampaignState::Done {
+                eprint!("{}", next_steps(id, &stage, d, &db_arg));
+            }
         }
         Ok(match fin.state {
             CampaignState::Done => ExitCode::SUCCESS,

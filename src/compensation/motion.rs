@@ -60,8 +60,14 @@ struct Planned {
     compute_us: f64,
 }
 
-/// (axis, wanted, command, approach, cross term, u) per wanted axis, in the request's order.
-type Commands = Vec<(AxisId, f64, f64, Direction, Option<f64>, Option<f64>)>;
+/// Notes, the computation's time (µs, per axis; the hardware queries before it excluded),
+/// then (axis, wanted, command, approach, cross term, u) per wanted axis, in the request's
+/// order.
+type Commands = (
+    Vec<String>,
+    f64,
+    Vec<(AxisId, f64, f64, Direction, Option<f64>, Option<f64>)>,
+);
 
 fn p_dir(p: &Option<super::AxisCommand>) -> Direction {
     p.map_or(Direction::Forward, |p| p.approach)
@@ -85,16 +91,48 @@ async fn plan_compensated(
             now_um[i] = a.position_um().await.unwrap_or(f64::NAN);
         }
     }
+    let t0 = Instant::now();
     let plan = cmp.command_xy(wanted, now_um, req.direction, limits)?;
-    Ok(req
-        .wanted
-        .iter()
-        .filter_map(|&(axis, w)| {
-            let i = usize::from(axis == AxisId::Y);
-            let u = cmp.table(axis).and_then(|t| t.u_at(p_dir(&plan[i]), w));
-            plan[i].map(|p| (axis, w, p.command_um, p.approach, p.cross_um, u))
-        })
-        .collect())
+    let compute_us = t0.elapsed().as_secs_f64() * 1e6 / req.wanted.len().max(1) as f64;
+    Ok((
+        notes(cmp, &plan, wanted, now_um),
+        compute_us,
+        req.wanted
+            .iter()
+            .filter_map(|&(axis, w)| {
+                let i = usize::from(axis == AxisId::Y);
+                let u = cmp.table(axis).and_then(|t| t.u_at(p_dir(&plan[i]), w));
+                plan[i].map(|p| (axis, w, p.command_um, p.approach, p.cross_um, u))
+            })
+            .collect(),
+    ))
+}
+
+/// What the operator should know about a compensated move the tables cannot fully correct: an
+/// axis's table holds the other axis's error where that axis stood during its line, so away
+/// from there, without the other axis's table to give its straightness, the landing carries
+/// the difference.
+fn notes(
+    cmp: &Compensation,
+    plan: &[Option<super::AxisCommand>; 2],
+    wanted: [Option<f64>; 2],
+    now_um: [f64; 2],
+) -> Vec<String> {
+    let mut out = Vec::new();
+    for (i, axis) in [AxisId::X, AxisId::Y].into_iter().enumerate() {
+        let (Some(p), Some(line_at)) = (plan[i], cmp.line_other_um[i]) else {
+            continue;
+        };
+        let other_at = plan[1 - i].map_or(now_um[1 - i], |q| q.command_um);
+        let far = (other_at - line_at).abs() > 1.0 || other_at.is_nan();
+        if p.cross_um.is_none() && far && wanted[i].is_some() {
+            out.push(format!(
+                "{axis} corrected as measured with {o} at {line_at} µm; {o} is at {other_at:.3} µm, where the tables do not give {o}'s straightness (no {o} table covering it): the landing may be off by it",
+                o = axis.other()
+            ));
+        }
+    }
+    out
 }
 
 async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64, String> {
@@ -164,6 +202,7 @@ pub async fn execute(
     // Every command first (soft limits, table range): a refused one moves nothing. Both axes
     // together: the one that does not move still bends the other's path (its straightness).
     let mut planned = Vec::new();
+    let move_notes;
     let t0 = Instant::now();
     let r = match comp {
         Some(cmp) => plan_compensated(&mut rig, cmp, req).await,
@@ -184,11 +223,15 @@ pub async fn execute(
                     Ok((axis, w, w, req.direction, None, None))
                 }
             })
-            .collect(),
+            .collect::<Result<Vec<_>, _>>()
+            .map(|c| {
+                let us = t0.elapsed().as_secs_f64() * 1e6 / req.wanted.len().max(1) as f64;
+                (Vec::new(), us, c)
+            }),
     };
-    let compute_us = t0.elapsed().as_secs_f64() * 1e6 / req.wanted.len().max(1) as f64;
     match r {
-        Ok(cmds) => {
+        Ok((n, compute_us, cmds)) => {
+            move_notes = n;
             for (axis, wanted_um, command_um, approach, cross_um, u_um) in cmds {
                 planned.push(Planned {
                     axis,
@@ -241,6 +284,9 @@ pub async fn execute(
         })
         .collect();
     let mut out = json!({"compensation": comp.map(|c| c.source.clone()), "axes": axes});
+    if !move_notes.is_empty() {
+        out["notes"] = json!(move_notes);
+    }
     match &measured {
         Some(Ok((x, y))) => {
             out["measured_x_um"] = json!(x);
@@ -385,4 +431,40 @@ pub fn api_prepare(
         None => None,
     };
     Ok((c, comp, req, lock))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::compensation::{AxisCommand, AxisTable};
+
+    #[test]
+    fn a_move_away_from_the_line_without_the_other_table_is_noted() {
+        let text = "position_um,ef_xx_um,corr_forward_um,corr_backward_um\n0,1,-1,\n100,1,-1,\n";
+        let t = AxisTable::parse(AxisId::X, text, "x.csv").unwrap();
+        let cmp = Compensation {
+            stage: None,
+            campaign: None,
+            x: Some(t),
+            y: None,
+            line_other_um: [Some(2100.0), None],
+            source: "test".into(),
+        };
+        let plan = [
+            Some(AxisCommand {
+                command_um: 49.0,
+                approach: Direction::Forward,
+                cross_um: None,
+            }),
+            None,
+        ];
+        let n = notes(&cmp, &plan, [Some(50.0), None], [0.0, 0.0]);
+        assert_eq!(n.len(), 1, "{n:?}");
+        assert!(
+            n[0].contains("y at 2100 µm") && n[0].contains("0.000 µm"),
+            "{n:?}"
+        );
+        // At the line's y: nothing to say.
+        assert!(notes(&cmp, &plan, [Some(50.0), None], [0.0, 2100.0]).is_empty());
+    }
 }

@@ -571,7 +571,8 @@ pub async fn run(
                     let e =
                         3.0 * t.u_at(d, x.target_um).unwrap_or(f64::NAN) + repeat.unwrap_or(0.0);
                     let margin = e - x.deviation_um.abs();
-                    if worst.is_none_or(|w| !(margin >= w.0)) {
+                    // A target without u (NaN) is the worst: it fails the verdict.
+                    if worst.is_none_or(|w| !w.0.is_nan() && (margin.is_nan() || margin < w.0)) {
                         worst = Some((margin, e, x.target_um));
                     }
                 }

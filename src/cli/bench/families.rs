@@ -45,6 +45,11 @@ pub(super) struct FamilyRow {
     pub(super) dominant_found: f64,
     pub(super) picks: std::collections::BTreeMap<String, usize>,
     pub(super) median_auto_ms: f64,
+    /// `auto`'s pointwise band: share of the grid with |g − f| ≤ 2u (mean over seeds, and the
+    /// lowest seed), and sharpness mean(2u) / mean |g − f| (mean over seeds).
+    pub(super) band_coverage: f64,
+    pub(super) band_coverage_min: f64,
+    pub(super) band_sharpness: f64,
 }
 
 fn mean_abs(g: &[f64], f: &[f64]) -> f64 {
@@ -60,6 +65,7 @@ pub(super) fn run(seeds: u64, ms: &[usize], families: &[String]) -> Result<Vec<F
         for &m_ref in ms {
             let mut acc = [0.0f64; 5];
             let (mut ratios, mut times) = (Vec::new(), Vec::new());
+            let (mut cover, mut sharp) = (Vec::new(), Vec::new());
             let (mut detected, mut dominant) = (0usize, 0usize);
             let mut picks = std::collections::BTreeMap::new();
             let mut n_fam = 0;
@@ -85,6 +91,18 @@ pub(super) fn run(seeds: u64, ms: &[usize], families: &[String]) -> Result<Vec<F
                 };
                 let auto = run(Method::Auto, None)?;
                 let e_auto = mean_abs(&auto.values, truth);
+                if auto.u_um.len() == truth.len() {
+                    let inside = auto
+                        .values
+                        .iter()
+                        .zip(truth)
+                        .zip(&auto.u_um)
+                        .filter(|((g, f), u)| (*g - *f).abs() <= 2.0 * *u)
+                        .count();
+                    cover.push(inside as f64 / truth.len() as f64);
+                    let mean_u = auto.u_um.iter().sum::<f64>() / truth.len() as f64;
+                    sharp.push(2.0 * mean_u / e_auto);
+                }
                 // With no period to tell, physics is told nothing (its own search).
                 let told = run(Method::Physics, periods.first().copied())?;
                 let bp = run(Method::Bp, None)?;
@@ -126,6 +144,9 @@ pub(super) fn run(seeds: u64, ms: &[usize], families: &[String]) -> Result<Vec<F
                 dominant_found: dominant as f64 / k,
                 picks,
                 median_auto_ms: super::median(&mut times),
+                band_coverage: cover.iter().sum::<f64>() / cover.len().max(1) as f64,
+                band_coverage_min: cover.iter().copied().fold(f64::NAN, f64::min),
+                band_sharpness: sharp.iter().sum::<f64>() / sharp.len().max(1) as f64,
             });
         }
     }
