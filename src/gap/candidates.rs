@@ -22,6 +22,10 @@ pub(super) enum Spec {
     },
     Yaw {
         offset_um: f64,
+        /// The Abbe arm's zero (the other axis' position where the yaw moves nothing) is not
+        /// known: a third coefficient shifts it (`Some(travel)` of the moving axis, over which
+        /// `s` runs). The model's own yaw fixes it (`None`).
+        free: Option<[f64; 2]>,
     },
     Squareness,
     CamRot,
@@ -51,6 +55,7 @@ impl Spec {
     pub(super) fn n_params(&self) -> usize {
         match self {
             Spec::Cyclic { h, .. } => 2 * h,
+            Spec::Yaw { free: Some(_), .. } => 3,
             Spec::Hysteresis | Spec::Yaw { .. } | Spec::Thermal { .. } => 2,
             Spec::Straightness { k } => *k,
             _ => 1,
@@ -92,7 +97,26 @@ impl Spec {
             Spec::Straightness { .. } => EffectKind::Straightness {
                 legendre_um: c.to_vec(),
             },
-            Spec::Yaw { offset_um } => EffectKind::YawAbbe {
+            Spec::Yaw {
+                offset_um,
+                free: Some([lo, hi]),
+            } if c[2] != 0.0 => {
+                // c[2] is the deviation (µm) the arm's shift adds at the travel end: a shift of
+                // the zero by Δ moves the axis by e1·1e-6·Δ·s. Alone (a design column), that
+                // term is a scale about mid-travel.
+                if c[1] == 0.0 {
+                    EffectKind::Scale {
+                        ppm: c[2] * 2e6 / (hi - lo),
+                        ref_um: 0.5 * (lo + hi),
+                    }
+                } else {
+                    EffectKind::YawAbbe {
+                        yaw_urad: [c[0], c[1]],
+                        offset_um: offset_um + c[2] / (c[1] * 1e-6),
+                    }
+                }
+            }
+            Spec::Yaw { offset_um, .. } => EffectKind::YawAbbe {
                 yaw_urad: [c[0], c[1]],
                 offset_um: *offset_um,
             },
@@ -224,11 +248,23 @@ pub(super) fn candidate_groups(
             _ => 3,
         };
         push(Spec::Straightness { k }, a, tr("straightness"));
-        let offset_um = match existing("yaw_abbe", a).map(|e| &e.kind) {
-            Some(EffectKind::YawAbbe { offset_um, .. }) => *offset_um,
-            _ => 0.0,
+        let (offset_um, free) = match existing("yaw_abbe", a).map(|e| &e.kind) {
+            Some(EffectKind::YawAbbe { offset_um, .. }) => (*offset_um, None),
+            _ => (0.0, Some(tr("yaw_abbe").unwrap_or(model.travel(a)))),
         };
-        push(Spec::Yaw { offset_um }, a, tr("yaw_abbe"));
+        push(
+            Spec::Yaw {
+                offset_um,
+                free: None,
+            },
+            a,
+            tr("yaw_abbe"),
+        );
+        // Without the model's own yaw, the arm's zero is also fitted (same family: one of the
+        // two is picked, the fixed one when the data cannot tell them apart).
+        if free.is_some() {
+            push(Spec::Yaw { offset_um, free }, a, tr("yaw_abbe"));
+        }
         if a == AxisId::Y {
             push(Spec::Squareness, a, None);
         }
@@ -261,9 +297,27 @@ pub(super) fn candidate_groups(
     out
 }
 
-/// `big` generalises `small` (same axis): a tie between them is not a confound.
+/// `big` generalises `small` (same axis): a tie between them is not a confound. A yaw whose
+/// Abbe arm has a free zero holds a scale of its axis (the arm's shift).
 pub(super) fn generalises(big: &Group, small: &Group) -> bool {
-    big.axis == small.axis && matches!((&big.spec, &small.spec), (Spec::Hysteresis, Spec::Backlash))
+    big.axis == small.axis
+        && matches!(
+            (&big.spec, &small.spec),
+            (Spec::Hysteresis, Spec::Backlash)
+                | (Spec::Yaw { free: Some(_), .. }, Spec::Scale { .. })
+        )
+}
+
+/// One of the two generalises the other and these data tell them apart (a yaw whose arm's zero
+/// is free is the same columns as the scale of its axis on a single line: then they tie).
+pub(super) fn nested(a: &Group, b: &Group) -> bool {
+    let span = |g: &Group| {
+        let mut v = g.col_set();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    (generalises(a, b) || generalises(b, a)) && span(a) != span(b)
 }
 
 /// Adds a fitted effect to the model: into the existing effect of the same kind and axis (same

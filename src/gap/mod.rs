@@ -23,6 +23,7 @@ pub mod data;
 mod design;
 pub mod drift;
 mod localise;
+mod period;
 mod report;
 pub mod saturated;
 mod search;

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use csmetro_sim::{AxisId, Effect, StageModel};
 use nalgebra::{DMatrix, DVector};
 
-use super::candidates::{candidate_groups, generalises, merge_into, Group};
+use super::candidates::{candidate_groups, merge_into, nested, Group};
 use super::design::{build_columns, paired_t, paired_t_on, solve, union, Cv, Design, Rows};
 use super::drift::drift_test;
 use super::localise::{
@@ -55,7 +55,7 @@ pub fn diagnose(
     // smooth curve (an ISO 230-2 grid of 9 targets 5 mm apart). Needed: 4 distinct targets per
     // coefficient, at least 12.
     let mut cyclic_notes = Vec::new();
-    groups.retain(|g| {
+    groups.retain_mut(|g| {
         let super::candidates::Spec::Cyclic { period_um, h, .. } = g.spec else {
             return true;
         };
@@ -66,6 +66,32 @@ pub fn diagnose(
             .collect();
         t.sort_unstable();
         t.dedup();
+        // Fewer leadscrew harmonics where the targets resolve fewer: 4 targets per coefficient
+        // and targets closer than the shortest period fitted (a period far shorter than the
+        // spacing is sampled at random phases, and its columns fit anything at few targets).
+        let h = if g.spec.kind_name() == "leadscrew_cyclic" && t.len() < 8 * h && t.len() >= 12 {
+            let lines = samples
+                .iter()
+                .filter(|s| s.moving == g.axis)
+                .map(|s| (s.run, super::design::key_um(s.target(g.axis.other()))))
+                .collect::<std::collections::BTreeSet<_>>()
+                .len()
+                .max(1);
+            let span = (t[t.len() - 1] - t[0]) as f64 / 100.0;
+            // Mean spacing on one line (the lines may hold different targets).
+            let per_line = (samples.iter().filter(|s| s.moving == g.axis).count() / lines / 2).max(2);
+            let spacing = span / (per_line - 1) as f64;
+            let by_spacing = (period_um / spacing).floor() as usize;
+            match h.min(t.len() / 8).min(by_spacing) {
+                0 => h,
+                fewer => fewer,
+            }
+        } else {
+            h
+        };
+        if let super::candidates::Spec::Cyclic { h: hh, .. } = &mut g.spec {
+            *hh = h;
+        }
         let need = (4 * 2 * h).max(12);
         if t.len() < need {
             cyclic_notes.push(format!(
@@ -78,6 +104,26 @@ pub fn diagnose(
         }
         t.len() >= need
     });
+    // A motor period the model does not give is read from the data (see `period`).
+    for g in groups.iter_mut() {
+        let axis = g.axis;
+        if let super::candidates::Spec::Cyclic {
+            motor: true,
+            period_um,
+            ..
+        } = &mut g.spec
+        {
+            let known = model
+                .effects
+                .iter()
+                .any(|e| e.axis == axis && e.kind.name() == "motor_cyclic");
+            if !known {
+                let (p, note) = super::period::motor_period(samples, &rows, axis, *period_um);
+                *period_um = p;
+                cyclic_notes.extend(note);
+            }
+        }
+    }
     let (cols, scale) = build_columns(samples, model, &rows, &mut groups);
     groups.retain(|g| g.cols.iter().any(Option::is_some));
     let design = Design::new(&rows, cols, scale);
@@ -187,7 +233,7 @@ pub fn diagnose(
             .filter(|e| e.0 != pick.0)
             .filter(|e| {
                 let g = &groups[e.0];
-                !generalises(g, pg) && !generalises(pg, g) && g.family() != pg.family()
+                !nested(g, pg) && g.family() != pg.family()
             })
             .map(|e| Tie {
                 members: vec![(groups[e.0].kind().into(), groups[e.0].axis_label())],
@@ -233,8 +279,7 @@ pub fn diagnose(
                 gi != pick.0
                     && !chosen.contains(&gi)
                     && groups[gi].family() != pg.family()
-                    && !generalises(&groups[gi], pg)
-                    && !generalises(pg, &groups[gi])
+                    && !nested(&groups[gi], pg)
                     && !groups[gi].col_set().iter().all(|j| current.contains(j))
             })
             .collect();
@@ -255,6 +300,7 @@ pub fn diagnose(
                 });
             }
         }
+        let mut pair_ties: Vec<(usize, usize)> = Vec::new();
         for (x, &gi) in others.iter().enumerate() {
             for &gj in &others[x + 1..] {
                 if single_ties.contains(&gi)
@@ -264,13 +310,39 @@ pub fn diagnose(
                     continue;
                 }
                 if reproduces(&union(&groups[gi].col_set(), &groups[gj].col_set())) {
-                    ties.push(Tie {
-                        members: vec![label_of(gi), label_of(gj)],
-                        heldout_rms_um: None,
-                        reason: "span",
-                    });
+                    pair_ties.push((gi, gj));
                 }
             }
+        }
+        // A pair that only swaps a member for a larger group holding it (a yaw with a free arm
+        // for the scale it holds) says nothing the smaller pair does not.
+        let covers = |big: usize, small: usize| {
+            big == small || super::candidates::generalises(&groups[big], &groups[small])
+        };
+        for &(gi, gj) in &pair_ties {
+            let redundant = pair_ties.iter().any(|&(gk, gl)| {
+                (gk, gl) != (gi, gj)
+                    && ((covers(gi, gk) && covers(gj, gl)) || (covers(gi, gl) && covers(gj, gk)))
+            });
+            if !redundant {
+                ties.push(Tie {
+                    members: vec![label_of(gi), label_of(gj)],
+                    heldout_rms_um: None,
+                    reason: "span",
+                });
+            }
+        }
+        // A yaw whose arm's zero was fitted is, on these data, the same as a yaw about zero
+        // plus a scale of its axis: say so.
+        if let super::candidates::Spec::Yaw { free: Some(_), .. } = pg.spec {
+            ties.push(Tie {
+                members: vec![
+                    ("yaw_abbe".into(), pg.axis_label()),
+                    ("scale".into(), pg.axis_label()),
+                ],
+                heldout_rms_um: None,
+                reason: "Abbe arm's zero",
+            });
         }
         used_families.push(pg.family());
         chosen.push(pick.0);

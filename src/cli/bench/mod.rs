@@ -7,6 +7,7 @@ use serde::Serialize;
 use serde_json::json;
 
 mod families;
+mod gap;
 mod kernels;
 mod speed;
 
@@ -83,6 +84,14 @@ enum What {
         /// Right-hand sides of the block solve (a multiple of 8, as the lab scripts use).
         #[arg(long, default_value_t = 32)]
         rhs: usize,
+    },
+    /// The gap diagnosis: the real MUTS X ISO 230-2 table (backlash value ± SE, drift), and
+    /// the independent generator tests/common/othergen.rs (every library kind alone on its four
+    /// designs, pairs, nulls, effects outside the library): rates named, runtime.
+    Gap {
+        /// Seeds per design (each: 15 singles, 6 pairs, 2 nulls, 1 outside the library).
+        #[arg(long, default_value_t = 3)]
+        seeds: u64,
     },
     /// One orthonormal DCT pair (inverse + forward), µs: the real-FFT (Makhoul) path against
     /// rustdct, and the real-FFT path in f32, at the sizes the solvers meet.
@@ -226,6 +235,12 @@ pub fn run(a: Args) -> CliResult {
                 "{}",
                 json!({"benchmark": "families", "n": 1901, "rows": rows})
             );
+        }
+        What::Gap { seeds } => {
+            if seeds == 0 {
+                return Err(CliError::input("--seeds at least 1"));
+            }
+            outln!("{}", gap::run(seeds).map_err(CliError::failure)?);
         }
         What::Dct { repeat } => outln!("{}", dct_pairs(repeat.max(1))),
         What::Chol { repeat, m, rhs } => {
