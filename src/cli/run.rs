@@ -179,7 +179,7 @@ fn next_steps(id: i64, stage: &str, dir: &std::path::Path, db_arg: &str) -> Stri
     format!(
         "next:\n  csmetro verify {id}{db_arg}    # the compensation proved: before/after at targets never visited\n  \
          csmetro move --stage {stage} {target} --compensation {}{db_arg}    # a compensated move\n  \
-         csmetro export {id} --format linuxcnc --axis {first} --out {first}.comp{db_arg}    # the table for a controller (also twincat-lsec, csv)\n",
+         csmetro export {id} --format csv --axis {first} --out compensation-{first}.csv{db_arg}    # the table for a controller (also linuxcnc, twincat-lsec)\n",
         dir.display()
     )
 }
