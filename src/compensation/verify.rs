@@ -212,9 +212,9 @@ impl<F: FnMut(&str, &Value) + Send> Sink for Progress<F> {
 }
 
 /// Keeps the samples; commits them and the events to the sink.
-struct Collect<'a> {
-    samples: Vec<SampleRecord>,
-    sink: &'a mut dyn Sink,
+pub(crate) struct Collect<'a> {
+    pub(crate) samples: Vec<SampleRecord>,
+    pub(crate) sink: &'a mut dyn Sink,
 }
 
 impl Recorder for Collect<'_> {
@@ -571,7 +571,7 @@ pub async fn run(
                     let e =
                         3.0 * t.u_at(d, x.target_um).unwrap_or(f64::NAN) + repeat.unwrap_or(0.0);
                     let margin = e - x.deviation_um.abs();
-                    if worst.is_none_or(|w| !(margin >= w.0)) {
+                    if worst.is_none_or(|w| margin.partial_cmp(&w.0).is_none_or(|o| o.is_lt())) {
                         worst = Some((margin, e, x.target_um));
                     }
                 }
