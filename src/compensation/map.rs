@@ -2,8 +2,8 @@
 //! (`x_um,y_um,corr_x_um,corr_y_um` at every grid point, x fastest, corr = −error when the point
 //! is approached in `<dir>` on both axes, see [`crate::campaign::map::compensation_map_csv`]).
 //!
-//! Both axes are corrected together: e(x, y) = (e_x, e_y) is interpolated bilinearly between the
-//! grid points, and the commands c = (c_x, c_y) with c + e(c) = wanted are found by fixed-point
+//! Both axes are corrected together: e(x, y) = (e_x, e_y) is interpolated between the grid
+//! points (bicubic, see [`MapTable::error_at`]), and the commands c = (c_x, c_y) with c + e(c) = wanted are found by fixed-point
 //! steps c ← wanted − e(c) (a contraction: the map's slopes are ≪ 1). A wanted point outside the
 //! map's rectangle is refused, never clipped.
 use std::path::Path;
@@ -142,6 +142,19 @@ impl MapTable {
             ey.push(-r[3]);
         }
         debug_assert!(increasing(&ys));
+        // Evenly spaced (the cubic interpolation's weights assume it), as a map grid is.
+        for (name, v, row_of) in [("x_um", &xs, 0usize), ("y_um", &ys, 1)] {
+            let h = v[1] - v[0];
+            if let Some(k) =
+                (2..v.len()).find(|&k| ((v[k] - v[k - 1]) - h).abs() > 1e-6 * h.abs().max(1.0))
+            {
+                let r = if row_of == 0 { k } else { k * nx };
+                return Err(err(
+                    rows[r].0,
+                    format!("{name} {} breaks the grid's even spacing of {h} µm", v[k]),
+                ));
+            }
+        }
         Ok(MapTable {
             direction,
             xs,
@@ -171,20 +184,60 @@ impl MapTable {
         ]
     }
 
-    /// (e_x, e_y) at commanded (x, y), bilinear; positions outside the grid take the edge.
+    /// (e_x, e_y) at commanded (x, y): bicubic (Catmull-Rom, separable, on the 4 × 4 grid
+    /// points around (x, y); beyond an edge the grid is continued linearly); positions outside
+    /// the grid take the edge. Bilinear interpolation would lose up to 30 % of a leadscrew
+    /// harmonic of 4 grid steps' period between the grid points; the cubic loses about 12 %
+    /// (and under 1 % of one of 8 steps).
     pub fn error_at(&self, x: f64, y: f64) -> (f64, f64) {
         let cell = |v: &[f64], p: f64| {
             let i = v.partition_point(|&q| q <= p).clamp(1, v.len() - 1);
             let t = ((p - v[i - 1]) / (v[i] - v[i - 1])).clamp(0.0, 1.0);
             (i - 1, t)
         };
+        // Catmull-Rom weights of points i-1, i, i+1, i+2 at fraction t of cell [i, i+1].
+        let w = |t: f64| {
+            let (t2, t3) = (t * t, t * t * t);
+            [
+                0.5 * (-t3 + 2.0 * t2 - t),
+                0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
+                0.5 * (-3.0 * t3 + 4.0 * t2 + t),
+                0.5 * (t3 - t2),
+            ]
+        };
         let (i, tx) = cell(&self.xs, x);
         let (j, ty) = cell(&self.ys, y);
-        let nx = self.xs.len();
+        let (wx, wy) = (w(tx), w(ty));
+        let (nx, ny) = (self.xs.len() as isize, self.ys.len() as isize);
         let at = |f: &[f64]| {
-            let k = j * nx + i;
-            let (a, b, c, d) = (f[k], f[k + 1], f[k + nx], f[k + nx + 1]);
-            (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
+            // f at grid (a, b), continued linearly beyond the edges.
+            let row = |a: isize, b: usize| -> f64 {
+                let g = |a: isize| f[b * nx as usize + a as usize];
+                if a < 0 {
+                    2.0 * g(0) - g(1)
+                } else if a >= nx {
+                    2.0 * g(nx - 1) - g(nx - 2)
+                } else {
+                    g(a)
+                }
+            };
+            let along_x = |b: usize| {
+                (0..4)
+                    .map(|k| wx[k] * row(i as isize - 1 + k as isize, b))
+                    .sum::<f64>()
+            };
+            let col = |b: isize| -> f64 {
+                if b < 0 {
+                    2.0 * along_x(0) - along_x(1)
+                } else if b >= ny {
+                    2.0 * along_x(ny as usize - 1) - along_x(ny as usize - 2)
+                } else {
+                    along_x(b as usize)
+                }
+            };
+            (0..4)
+                .map(|k| wy[k] * col(j as isize - 1 + k as isize))
+                .sum::<f64>()
         };
         (at(&self.ex), at(&self.ey))
     }
@@ -240,9 +293,11 @@ impl MapTable {
         })
     }
 
-    /// Bound on the bilinear interpolation's own error between grid points, per axis (e_x,
-    /// e_y), µm: |f − bilinear| ≤ (h_x² max|f_xx| + h_y² max|f_yy|) / 8 per cell, with the
-    /// second derivatives taken from the map's second differences (the largest over the map).
+    /// Bound on the interpolation's own error between grid points, per axis (e_x, e_y), µm:
+    /// the bilinear one, |f − bilinear| ≤ (h_x² max|f_xx| + h_y² max|f_yy|) / 8 per cell, with
+    /// the second derivatives taken from the map's second differences (the largest over the
+    /// map). The cubic interpolation used does better on every period the grid resolves (see
+    /// [`MapTable::error_at`]): a conservative bound.
     pub fn interpolation_bound_um(&self) -> [f64; 2] {
         let (nx, ny) = (self.xs.len(), self.ys.len());
         [&self.ex, &self.ey].map(|f| {
