@@ -334,6 +334,9 @@ pub struct MapCompensation {
     pub forward: Option<MapTable>,
     pub backward: Option<MapTable>,
     pub cv_error_um: [Option<f64>; 2],
+    /// The map's own ISO 230-1 squareness per direction (whole grid, `map.runs[].iso230_1`),
+    /// µrad, when the results say.
+    pub squareness_urad: [Option<f64>; 2],
 }
 
 impl MapCompensation {
@@ -376,11 +379,16 @@ impl MapCompensation {
     pub fn read_summary(&mut self, v: &serde_json::Value) {
         for r in v["map"]["runs"].as_array().into_iter().flatten() {
             let cv = r["cv_error_um"].as_f64().filter(|c| c.is_finite());
-            match r["direction"].as_str() {
-                Some("forward") => self.cv_error_um[0] = cv,
-                Some("backward") => self.cv_error_um[1] = cv,
-                _ => {}
-            }
+            let sq = r["iso230_1"]["squareness_urad"]
+                .as_f64()
+                .filter(|c| c.is_finite());
+            let k = match r["direction"].as_str() {
+                Some("forward") => 0,
+                Some("backward") => 1,
+                _ => continue,
+            };
+            self.cv_error_um[k] = cv;
+            self.squareness_urad[k] = sq;
         }
     }
 
