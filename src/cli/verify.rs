@@ -13,6 +13,7 @@ use crate::campaign::engine::Control;
 use crate::campaign::session;
 use crate::campaign::stagelock;
 use crate::compensation::verify::{self, prior_from_summary, Prior, VerifyOptions};
+use crate::compensation::verify_map;
 use crate::compensation::Compensation;
 use crate::store::Store;
 use crate::types::{AxisId, CampaignState};
@@ -38,6 +39,10 @@ pub struct Args {
     /// Random targets between grid points (never visited by the characterisation).
     #[arg(long, default_value_t = 10)]
     unvisited: usize,
+    /// A map campaign: never-visited XY points measured (a lattice of random columns x rows
+    /// with at least this many points).
+    #[arg(long, default_value_t = 20)]
+    points: usize,
     /// Seed of the target choice.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -104,6 +109,16 @@ pub fn run(a: Args) -> CliResult {
     let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&samples, ax));
     let shared = Arc::new(Mutex::new(store));
     let c = session::load_stored(&shared, a.id).map_err(CliError::failure)?;
+    if c.map.is_some() {
+        let opts = verify_map::MapVerifyOptions {
+            points: a.points,
+            cycles: a.cycles,
+            seed: a.seed,
+            expected_um: a.expected_um,
+            measured_span_um: verify_map::measured_span(&samples),
+        };
+        return run_map(&a, &row.stage, &shared, &c, comp, &opts);
+    }
     for ax in &c.axes {
         comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| CliError::input(e.to_string()))?;
@@ -173,6 +188,115 @@ pub fn run(a: Args) -> CliResult {
         outln!("{}", verify::json(&v));
     } else {
         out!("{}", verify::table(&v));
+    }
+    if written && !a.quiet {
+        eprintln!(
+            "results: {} (and in the store, campaign {})",
+            dir.join("verify").display(),
+            a.id
+        );
+    }
+    Ok(if v.passed {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
+
+/// Runs `body` on a runtime with Ctrl-C / SIGTERM turned into an abort of the verification.
+fn with_abort<T>(
+    body: impl FnOnce(
+        watch::Receiver<Control>,
+    ) -> std::pin::Pin<Box<dyn std::future::Future<Output = T>>>,
+) -> Result<T, CliError> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::failure(e.to_string()))?;
+    Ok(rt.block_on(async {
+        let (tx, rx) = watch::channel(Control::Run);
+        tokio::spawn(async move {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {},
+                _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending::<()>().await } } => {},
+            }
+            let _ = tx.send(Control::Abort);
+        });
+        body(rx).await
+    }))
+}
+
+/// Stores the verification's files with the campaign's results (store and output directory);
+/// whether the directory was written.
+fn keep_files(
+    shared: &Arc<Mutex<Store>>,
+    c: &crate::campaign::spec::Campaign,
+    id: i64,
+    files: &[(String, String, Vec<u8>)],
+) -> (bool, PathBuf) {
+    {
+        let s = shared.lock().unwrap_or_else(|e| e.into_inner());
+        for (name, ctype, bytes) in files {
+            if let Err(e) = s.put_result(id, name, ctype, bytes) {
+                eprintln!("warning: {name} not stored: {e}");
+            }
+        }
+    }
+    let dir = crate::campaign::results::out_dir(c, id);
+    let mut written = true;
+    for (name, _, bytes) in files {
+        let p = dir.join(name);
+        let ok = p
+            .parent()
+            .map_or(Ok(()), std::fs::create_dir_all)
+            .and_then(|()| std::fs::write(&p, bytes));
+        written &= ok.is_ok();
+    }
+    (written, dir)
+}
+
+/// `csmetro verify ID` of a map campaign (see [`verify_map`]).
+fn run_map(
+    a: &Args,
+    stage: &str,
+    shared: &Arc<Mutex<Store>>,
+    c: &crate::campaign::spec::Campaign,
+    comp: Compensation,
+    opts: &verify_map::MapVerifyOptions,
+) -> CliResult {
+    if comp.map.is_none() {
+        return Err(CliError::input(format!(
+            "{}: campaign {} is a map campaign: verify it with its map (compensation_map_<direction>.csv)",
+            comp.source, a.id
+        )));
+    }
+    let _stage = stagelock::try_lock(&a.db, stage).map_err(|e| CliError::failure(e.to_string()))?;
+    let quiet = a.quiet;
+    let id = a.id;
+    let comp = Arc::new(comp);
+    let c2 = c.clone();
+    let opts2 = opts.clone();
+    let verdict = with_abort(move |rx| {
+        Box::pin(async move {
+            let mut progress = verify::Progress(move |kind: &str, data: &serde_json::Value| {
+                if !quiet && matches!(kind, "pass" | "frame_rejected" | "point_failed") {
+                    eprintln!("{kind}: {data}");
+                }
+            });
+            verify_map::run(id, &c2, comp, &opts2, rx, &mut progress).await
+        })
+    })?;
+    let v = verdict.map_err(|e| match e {
+        verify::VerifyError::Refused(m) => CliError::input(m),
+        e => CliError::failure(e.to_string()),
+    })?;
+    let (written, dir) = keep_files(shared, c, a.id, &verify_map::files(&v));
+    if a.json {
+        outln!("{}", verify_map::json(&v));
+    } else {
+        out!("{}", verify_map::table(&v));
     }
     if written && !a.quiet {
         eprintln!(

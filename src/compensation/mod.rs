@@ -14,8 +14,10 @@ use crate::report::compensation_columns;
 use crate::types::{AxisId, Direction};
 
 pub mod campaign;
+pub mod map;
 pub mod motion;
 pub mod verify;
+pub mod verify_map;
 
 /// Largest compensation table read, bytes (1 M grid points at ~60 bytes a row).
 pub const MAX_TABLE_BYTES: u64 = 64 << 20;
@@ -70,6 +72,10 @@ pub enum CommandError {
     NoConvergence { axis: AxisId, wanted_um: f64 },
     #[error("axis {axis}: {wanted_um} is not a finite position")]
     NotFinite { axis: AxisId, wanted_um: f64 },
+    #[error(
+        "a map compensation corrects x and y together: give both positions (--x-um and --y-um)"
+    )]
+    MapNeedsBoth,
 }
 
 /// The compensation of one moving axis: error curves per approach direction on one grid.
@@ -441,6 +447,9 @@ pub struct Compensation {
     /// y's table: x), when the results say (`summary.json`'s `other_at_um`): a two-axis move
     /// needs it to take that axis's own error back out (see [`Compensation::command_xy`]).
     pub line_other_um: [Option<f64>; 2],
+    /// An XY map's compensation (a `[map]` campaign's `compensation_map_<dir>.csv`): then `x`
+    /// and `y` are `None` and every move corrects both axes from the map.
+    pub map: Option<map::MapCompensation>,
     /// Where it came from (a directory, a file, `campaign N`).
     pub source: String,
 }
@@ -481,6 +490,7 @@ impl Compensation {
                 x: None,
                 y: None,
                 line_other_um: [None, None],
+                map: None,
                 source: origin.clone(),
             };
             for axis in [AxisId::X, AxisId::Y] {
@@ -494,11 +504,22 @@ impl Compensation {
                 }
             }
             if c.x.is_none() && c.y.is_none() {
-                return Err(TableError {
-                    origin,
-                    line: 0,
-                    message: "no compensation_x.csv or compensation_y.csv in this directory".into(),
-                });
+                // A map campaign's results: its maps, one per measured direction.
+                let mut m = map::MapCompensation::default();
+                for d in [Direction::Forward, Direction::Backward] {
+                    let f = path.join(format!("compensation_map_{}.csv", d.as_str()));
+                    if f.exists() {
+                        m.set(map::MapTable::load(d, &f)?);
+                    }
+                }
+                if m.is_empty() {
+                    return Err(TableError {
+                        origin,
+                        line: 0,
+                        message: "no compensation_x.csv, compensation_y.csv or compensation_map_<direction>.csv in this directory".into(),
+                    });
+                }
+                c.map = Some(m);
             }
             let summary = path.join("summary.json");
             if summary.exists() {
@@ -506,8 +527,32 @@ impl Compensation {
                 c.stage = stage;
                 c.campaign = id;
                 c.line_other_um = lines;
+                if let Some(m) = c.map.as_mut() {
+                    m.read_summary(&summary_json(&summary)?);
+                }
             }
             return Ok(c);
+        }
+        if map::is_map_file(path) {
+            let mut m = map::MapCompensation::default();
+            m.set(map::MapTable::load(map::direction_of_file(path), path)?);
+            let (stage, campaign) = match path.parent().map(|d| d.join("summary.json")) {
+                Some(s) if s.is_file() => {
+                    let (stage, id, _) = summary_identity(&s)?;
+                    m.read_summary(&summary_json(&s)?);
+                    (stage, id)
+                }
+                _ => (None, None),
+            };
+            return Ok(Compensation {
+                stage,
+                campaign,
+                x: None,
+                y: None,
+                line_other_um: [None, None],
+                map: Some(m),
+                source: origin,
+            });
         }
         let axis = table_axis(path)?;
         let t = AxisTable::load(axis, path)?;
@@ -522,6 +567,7 @@ impl Compensation {
             x: (axis == AxisId::X).then(|| t.clone()),
             y: (axis == AxisId::Y).then_some(t),
             line_other_um,
+            map: None,
             source: origin,
         })
     }
@@ -539,6 +585,7 @@ impl Compensation {
             x: None,
             y: None,
             line_other_um: [None, None],
+            map: None,
             source: origin.clone(),
         };
         if let Ok(Some((_, bytes))) = store.result(id, "summary.json") {
@@ -567,11 +614,37 @@ impl Compensation {
             }
         }
         if c.x.is_none() && c.y.is_none() {
-            return Err(TableError {
-                origin,
-                line: 0,
-                message: "has no compensation table (a finished characterisation writes compensation_x|y.csv)".into(),
-            });
+            // A map campaign: its maps.
+            let mut m = map::MapCompensation::default();
+            for d in [Direction::Forward, Direction::Backward] {
+                let name = format!("compensation_map_{}.csv", d.as_str());
+                let r = store.result(id, &name).map_err(|e| TableError {
+                    origin: origin.clone(),
+                    line: 0,
+                    message: e.to_string(),
+                })?;
+                if let Some((_, bytes)) = r {
+                    let text = String::from_utf8(bytes).map_err(|_| TableError {
+                        origin: format!("{origin}/{name}"),
+                        line: 0,
+                        message: "not UTF-8 text".into(),
+                    })?;
+                    m.set(map::MapTable::parse(d, &text, &format!("{origin}/{name}"))?);
+                }
+            }
+            if m.is_empty() {
+                return Err(TableError {
+                    origin,
+                    line: 0,
+                    message: "has no compensation table (a finished characterisation writes compensation_x|y.csv, a map campaign compensation_map_<direction>.csv)".into(),
+                });
+            }
+            if let Ok(Some((_, bytes))) = store.result(id, "summary.json") {
+                if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) {
+                    m.read_summary(&v);
+                }
+            }
+            c.map = Some(m);
         }
         Ok(c)
     }
@@ -638,6 +711,26 @@ impl Compensation {
         Some(o.cross_at(d, other_um)? - o.cross_at(Direction::Forward, line_at)?)
     }
 
+    /// Commands (x, y) for a point `wanted` of an XY map's compensation, both axes approached
+    /// in the returned direction (`dir`, or the side the map was measured from), inside the
+    /// soft limits. [`CommandError::NoTable`] without a map.
+    pub fn command_point(
+        &self,
+        dir: Direction,
+        wanted: [f64; 2],
+        soft_limits_um: [(f64, f64); 2],
+    ) -> Result<([f64; 2], Direction), CommandError> {
+        let m = self
+            .map
+            .as_ref()
+            .ok_or(CommandError::NoTable { axis: AxisId::X })?;
+        let t = m.served(dir);
+        let c = t.command(wanted)?;
+        within_limits(AxisId::X, wanted[0], c[0], soft_limits_um[0])?;
+        within_limits(AxisId::Y, wanted[1], c[1], soft_limits_um[1])?;
+        Ok((c, t.direction))
+    }
+
     /// Commands for a move to `wanted` (x, y; `None`: that axis stays at its command
     /// `now_um`), each axis approached in `dir` (or the side its table was measured from):
     /// each axis's own error and the other axis's error on it corrected together (fixed point:
@@ -650,6 +743,19 @@ impl Compensation {
         dir: Direction,
         soft_limits_um: [(f64, f64); 2],
     ) -> Result<[Option<AxisCommand>; 2], CommandError> {
+        if self.map.is_some() {
+            let (Some(x), Some(y)) = (wanted[0], wanted[1]) else {
+                return Err(CommandError::MapNeedsBoth);
+            };
+            let (c, approach) = self.command_point(dir, [x, y], soft_limits_um)?;
+            return Ok(c.map(|command_um| {
+                Some(AxisCommand {
+                    command_um,
+                    approach,
+                    cross_um: None,
+                })
+            }));
+        }
         let axes = [AxisId::X, AxisId::Y];
         let mut plan: [Option<AxisCommand>; 2] = [None, None];
         for (i, &axis) in axes.iter().enumerate() {
@@ -763,6 +869,21 @@ fn line_positions(v: &serde_json::Value) -> [Option<f64>; 2] {
         }
     }
     out
+}
+
+/// A results directory's summary.json as JSON.
+fn summary_json(path: &Path) -> Result<serde_json::Value, TableError> {
+    let origin = path.display().to_string();
+    let text = crate::tomlpos::read_bounded(path, 16 << 20).map_err(|m| TableError {
+        origin: origin.clone(),
+        line: 0,
+        message: format!("cannot read: {m}"),
+    })?;
+    serde_json::from_str(&text).map_err(|e| TableError {
+        origin,
+        line: e.line(),
+        message: "not a results summary (JSON)".into(),
+    })
 }
 
 /// `stage`, `id` and the lines' static positions from a results directory's summary.json.
@@ -948,6 +1069,7 @@ mod tests {
             x: Some(t),
             y: None,
             line_other_um: [None, None],
+            map: None,
             source: "t".into(),
         };
         assert!(matches!(
@@ -1014,6 +1136,7 @@ mod tests {
             x: Some(t),
             y: None,
             line_other_um: [None, None],
+            map: None,
             source: "t".into(),
         };
         assert!(c.check_covers(AxisId::X, 0.0, 2000.0).is_ok());

@@ -448,6 +448,7 @@ mod tests {
             x: Some(t),
             y: None,
             line_other_um: [Some(2100.0), None],
+            map: None,
             source: "test".into(),
         };
         let plan = [

@@ -212,9 +212,9 @@ impl<F: FnMut(&str, &Value) + Send> Sink for Progress<F> {
 }
 
 /// Keeps the samples; commits them and the events to the sink.
-struct Collect<'a> {
-    samples: Vec<SampleRecord>,
-    sink: &'a mut dyn Sink,
+pub(crate) struct Collect<'a> {
+    pub(crate) samples: Vec<SampleRecord>,
+    pub(crate) sink: &'a mut dyn Sink,
 }
 
 impl Recorder for Collect<'_> {

@@ -2,7 +2,8 @@
 //! run's direction (forward: +x and +y) by at least `approach_um`, so the backlash state of every
 //! point is known. Where the path goes the other way on an axis (a band's start in x, y stepping
 //! back inside a band), that axis first goes to the overshoot pre-position `target − sign ·
-//! approach_um`. Moves are sequential (y, then x); their time is the sum.
+//! approach_um`. Moves are sequential (y, then x); their time is the sum. With a map's
+//! compensation (a map verification) the commands are the compensated ones.
 
 use super::{Engine, EngineError};
 use crate::types::{AxisId, RunKey, Target};
@@ -36,8 +37,26 @@ impl Engine<'_> {
     /// Moves the stage onto map target `t` (see the module doc); physical time, s.
     pub(super) async fn map_move(&mut self, t: &Target) -> Result<f64, EngineError> {
         let sign = t.run.direction.sign();
-        let y = self.map_axis(AxisId::Y, t.target_y_um, sign).await?;
-        let x = self.map_axis(AxisId::X, t.target_x_um, sign).await?;
+        // With an XY map's compensation (a map verification's compensated pass): the commands
+        // reaching the wanted point, both axes approached in the run's direction (the map's).
+        let (cx, cy) = match self.compensation.clone() {
+            None => (t.target_x_um, t.target_y_um),
+            Some(c) => {
+                let limits = [AxisId::X, AxisId::Y].map(|a| self.rig.axis(a).soft_limits_um());
+                let (cmd, approach) = c
+                    .command_point(t.run.direction, [t.target_x_um, t.target_y_um], limits)
+                    .map_err(|e| EngineError::Other(format!("compensation: {e}")))?;
+                if approach != t.run.direction {
+                    return Err(EngineError::Other(format!(
+                        "compensation: no {} map",
+                        t.run.direction.as_str()
+                    )));
+                }
+                (cmd[0], cmd[1])
+            }
+        };
+        let y = self.map_axis(AxisId::Y, cy, sign).await?;
+        let x = self.map_axis(AxisId::X, cx, sign).await?;
         Ok(x + y)
     }
 
