@@ -167,12 +167,7 @@ impl MapTable {
 
     /// Reads and parses a table file (regular file, bounded size).
     pub fn load(direction: Direction, path: &Path) -> Result<MapTable, TableError> {
-        let origin = path.display().to_string();
-        let text = crate::tomlpos::read_bounded(path, MAX_TABLE_BYTES).map_err(|m| TableError {
-            origin: origin.clone(),
-            line: 0,
-            message: format!("cannot read: {m}"),
-        })?;
+        let (origin, text) = super::read_table_file(path)?;
         MapTable::parse(direction, &text, &origin)
     }
 

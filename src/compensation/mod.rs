@@ -242,18 +242,8 @@ impl Compensation {
         }
         for axis in [AxisId::X, AxisId::Y] {
             let name = format!("compensation_{axis}.csv");
-            let r = store.result(id, &name).map_err(|e| TableError {
-                origin: origin.clone(),
-                line: 0,
-                message: e.to_string(),
-            })?;
-            if let Some((_, bytes)) = r {
-                let text = String::from_utf8(bytes).map_err(|_| TableError {
-                    origin: format!("{origin}/{name}"),
-                    line: 0,
-                    message: "not UTF-8 text".into(),
-                })?;
-                let t = AxisTable::parse(axis, &text, &format!("{origin}/{name}"))?;
+            if let Some((text, at)) = stored_text(store, id, &origin, &name)? {
+                let t = AxisTable::parse(axis, &text, &at)?;
                 match axis {
                     AxisId::X => c.x = Some(t),
                     AxisId::Y => c.y = Some(t),
@@ -265,18 +255,8 @@ impl Compensation {
             let mut m = map::MapCompensation::default();
             for d in [Direction::Forward, Direction::Backward] {
                 let name = format!("compensation_map_{}.csv", d.as_str());
-                let r = store.result(id, &name).map_err(|e| TableError {
-                    origin: origin.clone(),
-                    line: 0,
-                    message: e.to_string(),
-                })?;
-                if let Some((_, bytes)) = r {
-                    let text = String::from_utf8(bytes).map_err(|_| TableError {
-                        origin: format!("{origin}/{name}"),
-                        line: 0,
-                        message: "not UTF-8 text".into(),
-                    })?;
-                    m.set(map::MapTable::parse(d, &text, &format!("{origin}/{name}"))?);
+                if let Some((text, at)) = stored_text(store, id, &origin, &name)? {
+                    m.set(map::MapTable::parse(d, &text, &at)?);
                 }
             }
             if m.is_empty() {
@@ -483,12 +463,7 @@ fn table_axis(path: &Path) -> Result<AxisId, TableError> {
     if name.ends_with("_y") {
         return Ok(AxisId::Y);
     }
-    let origin = path.display().to_string();
-    let text = crate::tomlpos::read_bounded(path, MAX_TABLE_BYTES).map_err(|m| TableError {
-        origin: origin.clone(),
-        line: 0,
-        message: format!("cannot read: {m}"),
-    })?;
+    let (origin, text) = read_table_file(path)?;
     let header = text.lines().next().unwrap_or_default();
     for axis in [AxisId::X, AxisId::Y] {
         let own = format!("_{axis}{axis}_um");
@@ -502,6 +477,42 @@ fn table_axis(path: &Path) -> Result<AxisId, TableError> {
         message: "cannot tell the axis: name the file compensation_x.csv or compensation_y.csv"
             .into(),
     })
+}
+
+/// A table file's text (regular file, at most [`MAX_TABLE_BYTES`]) and its origin for messages.
+fn read_table_file(path: &Path) -> Result<(String, String), TableError> {
+    let origin = path.display().to_string();
+    let text = crate::tomlpos::read_bounded(path, MAX_TABLE_BYTES).map_err(|m| TableError {
+        origin: origin.clone(),
+        line: 0,
+        message: format!("cannot read: {m}"),
+    })?;
+    Ok((origin, text))
+}
+
+/// Result file `name` of stored campaign `id` as text, with its origin for messages
+/// (`campaign N/name`); `None` when the campaign has no such file.
+fn stored_text(
+    store: &crate::store::Store,
+    id: i64,
+    origin: &str,
+    name: &str,
+) -> Result<Option<(String, String)>, TableError> {
+    let at = format!("{origin}/{name}");
+    let Some((_, bytes)) = store.result(id, name).map_err(|e| TableError {
+        origin: origin.to_string(),
+        line: 0,
+        message: e.to_string(),
+    })?
+    else {
+        return Ok(None);
+    };
+    let text = String::from_utf8(bytes).map_err(|_| TableError {
+        origin: at.clone(),
+        line: 0,
+        message: "not UTF-8 text".into(),
+    })?;
+    Ok(Some((text, at)))
 }
 
 /// Where each axis's line had the other axis standing (`axes[].other_at_um`).

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use super::{
-    CommandError, TableError, CONVERGED_UM, MAX_CORRECTION_UM, MAX_STEPS, MAX_TABLE_BYTES,
+    read_table_file, CommandError, TableError, CONVERGED_UM, MAX_CORRECTION_UM, MAX_STEPS,
 };
 use crate::report::compensation_columns;
 use crate::types::{AxisId, Direction};
@@ -212,12 +212,7 @@ impl AxisTable {
 
     /// Reads and parses a table file (regular file, bounded size).
     pub fn load(axis: AxisId, path: &Path) -> Result<AxisTable, TableError> {
-        let origin = path.display().to_string();
-        let text = crate::tomlpos::read_bounded(path, MAX_TABLE_BYTES).map_err(|m| TableError {
-            origin: origin.clone(),
-            line: 0,
-            message: format!("cannot read: {m}"),
-        })?;
+        let (origin, text) = read_table_file(path)?;
         AxisTable::parse(axis, &text, &origin)
     }
 
@@ -246,11 +241,24 @@ impl AxisTable {
             Direction::Backward => self.backward_um.as_deref(),
         }
         .expect("a table has at least one direction");
+        self.interpolate(e, p)
+    }
+
+    /// Column `col` (one value per grid point) at `p`, linear between grid points, the end
+    /// values held beyond them.
+    fn interpolate(&self, col: &[f64], p: f64) -> f64 {
         let x = &self.positions_um;
         let i = x.partition_point(|&q| q <= p).clamp(1, x.len() - 1);
-        let (x0, x1) = (x[i - 1], x[i]);
-        let t = ((p - x0) / (x1 - x0)).clamp(0.0, 1.0);
-        e[i - 1] + t * (e[i] - e[i - 1])
+        let t = ((p - x[i - 1]) / (x[i] - x[i - 1])).clamp(0.0, 1.0);
+        col[i - 1] + t * (col[i] - col[i - 1])
+    }
+
+    /// `col` at `p` when `p` is on the grid (to rounding), else `None`.
+    fn on_grid(&self, col: &[f64], p: f64) -> Option<f64> {
+        let (lo, hi) = self.range_um();
+        (lo - 1e-9..=hi + 1e-9)
+            .contains(&p)
+            .then(|| self.interpolate(col, p))
     }
 
     /// The other component's error while this axis moves, at commanded `p` approached in `d`
@@ -263,14 +271,7 @@ impl AxisTable {
         }
         .or(self.cross_forward_um.as_deref())
         .or(self.cross_backward_um.as_deref())?;
-        let (lo, hi) = self.range_um();
-        if !(lo - 1e-9..=hi + 1e-9).contains(&p) {
-            return None;
-        }
-        let x = &self.positions_um;
-        let i = x.partition_point(|&q| q <= p).clamp(1, x.len() - 1);
-        let t = ((p - x[i - 1]) / (x[i] - x[i - 1])).clamp(0.0, 1.0);
-        Some(col[i - 1] + t * (col[i] - col[i - 1]))
+        self.on_grid(col, p)
     }
 
     /// Standard uncertainty (k = 1, µm) of the correction at `p` approached in `d` (the column
@@ -280,14 +281,7 @@ impl AxisTable {
             Direction::Forward => self.u_forward_um.as_deref(),
             Direction::Backward => self.u_backward_um.as_deref(),
         }?;
-        let (lo, hi) = self.range_um();
-        if !(lo - 1e-9..=hi + 1e-9).contains(&p) {
-            return None;
-        }
-        let x = &self.positions_um;
-        let i = x.partition_point(|&q| q <= p).clamp(1, x.len() - 1);
-        let t = ((p - x[i - 1]) / (x[i] - x[i - 1])).clamp(0.0, 1.0);
-        Some(col[i - 1] + t * (col[i] - col[i - 1]))
+        self.on_grid(col, p)
     }
 
     /// The command that reaches `wanted_um` when approached in `d`: c with c + e(c) = wanted.
