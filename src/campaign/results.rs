@@ -578,7 +578,11 @@ pub fn build(
     // Plots, compensation tables and ISO 230-2 figures; a report failure leaves the rest intact.
     let mut iso = Value::Null;
     let mut report_error = None;
-    let opts = ReportOptions::default();
+    let opts = ReportOptions {
+        // Checked at validation; a stored campaign of an older csmetro has the defaults.
+        budget: c.spec.uncertainty.inputs().unwrap_or_default(),
+        ..ReportOptions::default()
+    };
     let mut iso_figures = Vec::new();
     match report_files(&report_curves, &opts) {
         Ok((rf, figures)) => {

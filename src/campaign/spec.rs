@@ -41,6 +41,9 @@ pub struct CampaignSpec {
     /// `[map]`: an XY workspace map (see [`map`]).
     #[serde(default)]
     pub map: Option<MapSpec>,
+    /// `[uncertainty]`: the ISO 230-2 uncertainty budget's inputs.
+    #[serde(default)]
+    pub uncertainty: UncertaintySpec,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -861,6 +864,7 @@ fn validate(
     if r.pitch_um.is_some_and(|p| !pos(p)) {
         return Err(fail("reconstruction.pitch_um", "must be > 0 µm".into()));
     }
+    spec.uncertainty.inputs().map_err(|(k, m)| fail(k, m))?;
     if spec.outputs.nexus && !cfg!(feature = "nexus") {
         return Err(fail(
             "outputs.nexus",
@@ -1011,7 +1015,9 @@ fn validate(
 pub mod map;
 pub use map::{MapPlan, MapSpec};
 mod paths;
+mod uncertainty;
 use paths::{check_submitted_outputs, load_model, probe_outputs};
+pub use uncertainty::UncertaintySpec;
 
 #[cfg(test)]
 mod tests;

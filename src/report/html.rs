@@ -141,6 +141,9 @@ pub fn report_html(r: &HtmlReport<'_>) -> String {
             "</table>\n<p class=\"note\">{} targets, at least {} approach(es) per target and direction.</p>\n",
             s.targets, s.min_approaches
         ));
+        if let Some(u) = &f.uncertainty {
+            h.push_str(&budget_table(u));
+        }
         for n in &f.notes {
             h.push_str(&format!("<p class=\"note\">{}</p>\n", esc(n)));
         }
@@ -194,6 +197,45 @@ pub fn report_html(r: &HtmlReport<'_>) -> String {
         ));
     }
     h.push_str("</ul>\n</body></html>\n");
+    h
+}
+
+/// The ISO 230-2 figures with their expanded uncertainty and the budget behind each.
+fn budget_table(u: &crate::iso_uncertainty::IsoUncertainty) -> String {
+    let sources = ["data", "pitch", "thermal", "misalignment"];
+    let mut h = format!(
+        "<h4>Uncertainty (k = {}), budget of standard uncertainties over {:.0} µm</h4>\n<table><tr><th>figure</th><th>value ± U / µm</th>",
+        u.e.k, u.length_um
+    );
+    for s in sources {
+        h.push_str(&format!("<th>u {s} / µm</th>"));
+    }
+    h.push_str("<th>u combined / µm</th></tr>\n");
+    for (name, b) in [
+        ("A", Some(&u.a)),
+        ("B", u.b.as_ref()),
+        ("E", Some(&u.e)),
+        ("M", u.m.as_ref()),
+        ("R", u.r.as_ref()),
+    ] {
+        let Some(b) = b else { continue };
+        h.push_str(&format!(
+            "<tr><td>{name}</td><td class=\"num\">{}</td>",
+            esc(&b.display())
+        ));
+        for s in sources {
+            let v = b.contributions.iter().find(|c| c.source == s);
+            h.push_str(&format!(
+                "<td class=\"num\">{}</td>",
+                v.map_or("—".to_string(), |c| format!("{:.4}", c.u_um))
+            ));
+        }
+        h.push_str(&format!("<td class=\"num\">{:.4}</td></tr>\n", b.u_um));
+    }
+    h.push_str("</table>\n");
+    for n in &u.notes {
+        h.push_str(&format!("<p class=\"note\">{}</p>\n", esc(n)));
+    }
     h
 }
 

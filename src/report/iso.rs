@@ -19,6 +19,9 @@ use serde::Serialize;
 
 use super::{ComponentCurve, ReportError};
 use crate::iso230::{evaluate, Approach, Iso230Summary, TargetRow};
+use crate::iso_uncertainty::{
+    curve_row_u, iso_uncertainty, measured_row_u, BudgetInputs, IsoUncertainty,
+};
 use crate::types::{AxisId, Component, Direction};
 
 /// ISO 230-2 figures of one moving axis.
@@ -42,6 +45,10 @@ pub struct AxisIso230 {
     pub source_label: String,
     /// What was left out and why, and departures from ISO 230-2's test conditions.
     pub notes: Vec<String>,
+    /// Expanded uncertainty of the reported figures and its budget
+    /// ([`crate::iso_uncertainty`]); absent for a reconstruction without a band.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<IsoUncertainty>,
     /// Per-target figures of `source` (the chart's points).
     #[serde(skip)]
     pub chart_rows: Vec<TargetRow>,
@@ -94,6 +101,19 @@ pub fn iso_text(figures: &[AxisIso230]) -> String {
         if r.r_um.is_none() {
             t.push_str("  R n/a: one approach per target and direction (no repeated cycles)\n");
         }
+        if let Some(u) = &f.uncertainty {
+            let figs: Vec<String> = [
+                ("A", Some(&u.a)),
+                ("B", u.b.as_ref()),
+                ("E", Some(&u.e)),
+                ("M", u.m.as_ref()),
+                ("R", u.r.as_ref()),
+            ]
+            .into_iter()
+            .filter_map(|(n, b)| b.map(|b| format!("{n} = {}", b.display())))
+            .collect();
+            t.push_str(&format!("  with U: {}\n", figs.join(", ")));
+        }
     }
     t
 }
@@ -106,6 +126,16 @@ pub fn iso230_axis(
     axis: AxisId,
     curves: &[ComponentCurve],
     tol_um: f64,
+) -> Result<Option<AxisIso230>, ReportError> {
+    iso230_axis_with(axis, curves, tol_um, &BudgetInputs::default())
+}
+
+/// [`iso230_axis`] with the uncertainty budget's inputs (sensor, pitch, temperature, alignment).
+pub fn iso230_axis_with(
+    axis: AxisId,
+    curves: &[ComponentCurve],
+    tol_um: f64,
+    budget: &BudgetInputs,
 ) -> Result<Option<AxisIso230>, ReportError> {
     let find = |direction| {
         let comp = Component {
@@ -197,6 +227,38 @@ pub fn iso230_axis(
             recon_rows,
         )
     };
+    let reported = match source {
+        IsoSource::FullScan => full_scan.as_ref(),
+        IsoSource::Measured => measured.as_ref(),
+        IsoSource::Reconstructed => Some(&reconstructed),
+    };
+    let row_u = match source {
+        IsoSource::Reconstructed => {
+            let band = |forward: bool| {
+                let c = if forward { fwd } else { bwd }?;
+                (c.u_um.len() == c.grid_um.len()).then_some(c)
+            };
+            let banded = used.iter().all(|&(_, f)| band(f).is_some());
+            banded.then(|| {
+                curve_row_u(&chart_rows, |forward, p| {
+                    let c = band(forward)?;
+                    let i = c
+                        .grid_um
+                        .iter()
+                        .position(|&q| (q - p).abs() <= tol_um.max(crate::grid::ON_GRID_TOL_UM))?;
+                    Some(c.u_um[i].hypot(local_misfit(c, p)))
+                })
+            })
+        }
+        _ => Some(measured_row_u(&chart_rows, budget.sensor_u_um)),
+    };
+    let uncertainty = match (reported, row_u) {
+        (Some(r), Some(ru)) => Some(iso_uncertainty(r, &chart_rows, &ru, budget)),
+        _ => {
+            notes.push("no pointwise band for the reconstruction: U not computed".into());
+            None
+        }
+    };
     Ok(Some(AxisIso230 {
         axis: axis.as_str().into(),
         forward_component: fwd.map(|c| c.component.clone()),
@@ -207,8 +269,41 @@ pub fn iso230_axis(
         source,
         source_label,
         notes,
+        uncertainty,
         chart_rows,
     }))
+}
+
+/// How far the curve misses the samples on either side of `p` (the larger of the two
+/// residuals, µm; 0 without samples). The band is calibrated over the whole curve; at a peak a
+/// smooth model rounds off, the samples there show the miss the band averages away, and a
+/// range figure (E, M) is made of peaks.
+fn local_misfit(c: &ComponentCurve, p: f64) -> f64 {
+    let at = |x: f64| {
+        let i = c
+            .grid_um
+            .partition_point(|&q| q < x)
+            .min(c.grid_um.len() - 1);
+        let j = i.saturating_sub(1);
+        let nearest = if (c.grid_um[j] - x).abs() < (c.grid_um[i] - x).abs() {
+            j
+        } else {
+            i
+        };
+        c.reconstructed_um[nearest]
+    };
+    let residual = |s: Option<&(f64, f64)>| s.map_or(0.0, |&(x, e)| (e - at(x)).abs());
+    let left = c
+        .samples
+        .iter()
+        .filter(|s| s.0 <= p && s.1.is_finite())
+        .max_by(|a, b| a.0.total_cmp(&b.0));
+    let right = c
+        .samples
+        .iter()
+        .filter(|s| s.0 >= p && s.1.is_finite())
+        .min_by(|a, b| a.0.total_cmp(&b.0));
+    residual(left).max(residual(right))
 }
 
 /// Figures from the full scan's measurements of every direction present; `None` without a full

@@ -31,7 +31,7 @@ use serde::Serialize;
 use crate::types::{AxisId, Component};
 
 pub use compensation::{compensation_columns, compensation_csv};
-pub use iso::{iso230_axis, iso_text, AxisIso230, IsoSource};
+pub use iso::{iso230_axis, iso230_axis_with, iso_text, AxisIso230, IsoSource};
 pub use isoplot::{iso_chart_png, iso_chart_svg};
 pub use plot::{plot_png, plot_svg, register_fonts, PlotOptions, FONT_FAMILY};
 pub use table::{
@@ -158,6 +158,8 @@ pub struct ReportOptions {
     pub plot: PlotOptions,
     /// Targets closer than this are the same ISO 230-2 target, µm.
     pub iso_tol_um: f64,
+    /// The ISO 230-2 uncertainty budget's inputs (campaign `[uncertainty]`).
+    pub budget: crate::iso_uncertainty::BudgetInputs,
 }
 
 impl Default for ReportOptions {
@@ -165,6 +167,7 @@ impl Default for ReportOptions {
         Self {
             plot: PlotOptions::default(),
             iso_tol_um: 1e-3,
+            budget: Default::default(),
         }
     }
 }
@@ -230,7 +233,7 @@ pub fn report_files(
                 bytes: csv.into_bytes(),
             });
         }
-        if let Some(fig) = iso230_axis(axis, curves, opts.iso_tol_um)? {
+        if let Some(fig) = iso230_axis_with(axis, curves, opts.iso_tol_um, &opts.budget)? {
             iso.insert(axis.as_str().to_string(), serde_json::to_value(&fig)?);
             figures.push(fig);
         }

@@ -246,7 +246,10 @@ fn draw<DB: DrawingBackend>(
         .copied();
     let (y0, y1) = padded_range(ys);
     // Head-room for the legend box (upper right) so it does not hide the curves.
-    let legend_rows = 2 + usize::from(c.full_scan_um.is_some()) + usize::from(c.truth_um.is_some());
+    let legend_rows = 2
+        + usize::from(c.full_scan_um.is_some())
+        + usize::from(c.truth_um.is_some())
+        + usize::from(c.u_um.len() == c.grid_um.len());
     let y1 = y1 + (y1 - y0) * 0.08 * legend_rows as f64;
     let x_labels = ((root.dim_in_pixel().0 / 110) as usize).max(3);
 
@@ -290,6 +293,18 @@ fn draw<DB: DrawingBackend>(
             .label("truth")
             .legend(legend_line(TRUTH, 1));
     }
+    if let Some(band) = band_polygon(grid, &c.reconstructed_um, &c.u_um) {
+        chart
+            .draw_series(std::iter::once(Polygon::new(
+                band,
+                RECON.mix(0.22).filled(),
+            )))
+            .map_err(|e| err(&e))?
+            .label("±2u (k = 2)")
+            .legend(|(x, y)| {
+                Rectangle::new([(x, y - 4), (x + 20, y + 4)], RECON.mix(0.22).filled())
+            });
+    }
     chart
         .draw_series(LineSeries::new(
             finite_points(grid, &c.reconstructed_um),
@@ -319,7 +334,14 @@ fn draw<DB: DrawingBackend>(
         .map_err(|e| err(&e))?;
 
     if let (Some(lower), Some((res, against))) = (lower, residual) {
-        let (r0, r1) = padded_range(res.iter().copied().chain([0.0]));
+        let zeros = vec![0.0; grid.len()];
+        let band = band_polygon(grid, &zeros, &c.u_um);
+        let (r0, r1) = padded_range(
+            res.iter()
+                .copied()
+                .chain([0.0])
+                .chain(band.iter().flatten().map(|p| p.1)),
+        );
         let mut chart = ChartBuilder::on(&lower)
             .margin(12)
             .margin_right(small * 2)
@@ -351,6 +373,14 @@ fn draw<DB: DrawingBackend>(
                 RGBColor(120, 120, 120).stroke_width(1),
             ))
             .map_err(|e| err(&e))?;
+        if let Some(band) = band {
+            chart
+                .draw_series(std::iter::once(Polygon::new(
+                    band,
+                    RECON.mix(0.22).filled(),
+                )))
+                .map_err(|e| err(&e))?;
+        }
         chart
             .draw_series(LineSeries::new(
                 finite_points(grid, &res),
@@ -359,6 +389,23 @@ fn draw<DB: DrawingBackend>(
             .map_err(|e| err(&e))?;
     }
     Ok(())
+}
+
+/// The outline of `center ± 2u` (upper edge forward, lower edge back), finite points only;
+/// `None` without a band of the grid's length.
+fn band_polygon(grid: &[f64], center: &[f64], u: &[f64]) -> Option<Vec<(f64, f64)>> {
+    if u.len() != grid.len() || center.len() != grid.len() {
+        return None;
+    }
+    let ok: Vec<usize> = (0..grid.len())
+        .filter(|&i| grid[i].is_finite() && center[i].is_finite() && u[i].is_finite())
+        .collect();
+    if ok.len() < 2 {
+        return None;
+    }
+    let upper = ok.iter().map(|&i| (grid[i], center[i] + 2.0 * u[i]));
+    let lower = ok.iter().rev().map(|&i| (grid[i], center[i] - 2.0 * u[i]));
+    Some(upper.chain(lower).collect())
 }
 
 #[cfg(test)]
@@ -379,6 +426,22 @@ mod tests {
         assert!(svg.contains("residual: reconstruction − full scan"));
         assert!(svg.contains("<circle"), "sample markers missing");
         assert!(svg.contains("<polyline"), "lines missing");
+    }
+
+    #[test]
+    fn the_band_is_drawn_when_the_curve_has_one() {
+        let mut c = curve("ef_xx", 0.5);
+        let plain = plot_svg(&c, &PlotOptions::default()).unwrap();
+        assert!(!plain.contains("±2u"));
+        c.u_um = vec![0.05; c.grid_um.len()];
+        let svg = plot_svg(&c, &PlotOptions::default()).unwrap();
+        assert!(svg.contains("±2u (k = 2)"), "legend entry missing");
+        // Two filled outlines: around the curve and around the residual's zero.
+        assert!(
+            svg.matches("<polygon").count() >= 2,
+            "band outlines missing"
+        );
+        assert!(!plot_png(&c, &PlotOptions::default()).unwrap().is_empty());
     }
 
     #[test]

@@ -396,3 +396,29 @@ fn a_camera_backend_this_build_lacks_is_refused_at_validation_naming_the_feature
         assert!(e.message.contains("--features"), "{e}");
     }
 }
+
+/// `[uncertainty]`: the budget's inputs are checked at validation (file:line of the key) and a
+/// temperature brings the thermal contribution.
+#[test]
+fn uncertainty_inputs_are_checked_and_reach_the_budget() {
+    let c = parse(GOOD).unwrap();
+    let d = c.spec.uncertainty.inputs().unwrap();
+    assert!(d.thermal.is_none() && d.k == 2.0);
+
+    let t = format!("{GOOD}\n[uncertainty]\ntemperature_c = 22.5\npitch_u_ppm = 5\n");
+    let b = parse(&t).unwrap().spec.uncertainty.inputs().unwrap();
+    assert_eq!(b.pitch_u_ppm, 5.0);
+    assert_eq!(b.thermal.map(|t| t.temperature_c), Some(22.5));
+
+    let t = format!("{GOOD}\n[uncertainty]\nk = 0.5\n");
+    let e = parse(&t).unwrap_err();
+    assert_eq!(
+        (e.key.as_str(), e.line),
+        ("uncertainty.k", line(&t, "k = 0.5")),
+        "{e}"
+    );
+    let t = format!("{GOOD}\n[uncertainty]\nsensor_u_um = -1\n");
+    assert_eq!(parse(&t).unwrap_err().key, "uncertainty.sensor_u_um");
+    let t = format!("{GOOD}\n[uncertainty]\ncoverage = 2\n");
+    assert!(parse(&t).is_err(), "unknown keys are refused");
+}

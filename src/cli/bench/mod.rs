@@ -10,6 +10,7 @@ mod families;
 mod gap;
 mod kernels;
 mod speed;
+mod uncertainty;
 
 use super::{CliError, CliResult};
 use crate::grid::Grid;
@@ -92,6 +93,22 @@ enum What {
         /// Seeds per design (each: 15 singles, 6 pairs, 2 nulls, 1 outside the library).
         #[arg(long, default_value_t = 3)]
         seeds: u64,
+    },
+    /// ISO 230-2 figures with U (k = 2) against the simulator's truth over simulated
+    /// characterisations: the CS path (random design, `auto` and its band) and ISO 230-2 cycles
+    /// (11 targets, 5 approaches per direction): coverage of E, A, B, M by their U.
+    Uncertainty {
+        #[arg(long, default_value_t = 50)]
+        seeds: u64,
+        /// CS measurements per direction (of 1,901 grid points).
+        #[arg(long, default_value_t = 300)]
+        m: usize,
+        /// Measurement noise σ, µm.
+        #[arg(long, default_value_t = 0.05)]
+        noise_um: f64,
+        /// Only one path: `cs` or `cycles` (cycles alone needs no reconstruction: seconds).
+        #[arg(long)]
+        only: Option<String>,
     },
     /// One orthonormal DCT pair (inverse + forward), µs: the real-FFT (Makhoul) path against
     /// rustdct, and the real-FFT path in f32, at the sizes the solvers meet.
@@ -241,6 +258,31 @@ pub fn run(a: Args) -> CliResult {
                 return Err(CliError::input("--seeds at least 1"));
             }
             outln!("{}", gap::run(seeds).map_err(CliError::failure)?);
+        }
+        What::Uncertainty {
+            seeds,
+            m,
+            noise_um,
+            only,
+        } => {
+            let (cs, cycles) = match only.as_deref() {
+                None => (true, true),
+                Some("cs") => (true, false),
+                Some("cycles") => (false, true),
+                Some(o) => {
+                    return Err(CliError::input(format!("--only {o:?}: cs or cycles")));
+                }
+            };
+            if seeds == 0 || !(2..=1901).contains(&m) || !(noise_um.is_finite() && noise_um > 0.0) {
+                return Err(CliError::input(
+                    "--seeds at least 1, --m in 2..=1901, --noise-um > 0",
+                ));
+            }
+            let r = uncertainty::run(seeds, m, noise_um, cs, cycles).map_err(CliError::failure)?;
+            outln!(
+                "{}",
+                json!({"benchmark": "uncertainty", "n": 1901, "report": r})
+            );
         }
         What::Dct { repeat } => outln!("{}", dct_pairs(repeat.max(1))),
         What::Chol { repeat, m, rhs } => {
