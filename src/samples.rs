@@ -3,29 +3,9 @@ use std::path::Path;
 
 use crate::grid::Grid;
 
-/// Samples of an error curve on a grid: grid indices (ascending) and errors (µm).
-#[derive(Debug, Clone, PartialEq)]
-pub struct GridSamples {
-    pub idx: Vec<usize>,
-    pub values: Vec<f64>,
-}
-
-impl GridSamples {
-    pub fn len(&self) -> usize {
-        self.idx.len()
-    }
-    pub fn is_empty(&self) -> bool {
-        self.idx.is_empty()
-    }
-}
-
-/// Grid steps from `i` to the nearest of the ascending indices `idx` (`usize::MAX` when empty).
-pub fn nearest_steps(idx: &[usize], i: usize) -> usize {
-    let j = idx.partition_point(|&x| x < i);
-    let above = idx.get(j).map(|&x| x - i);
-    let below = j.checked_sub(1).map(|j| i - idx[j]);
-    above.into_iter().chain(below).min().unwrap_or(usize::MAX)
-}
+// The reconstruction's input type lives with the mathematics; re-exported so the readers'
+// callers keep their paths.
+pub use csmetro_metrology::samples::{nearest_steps, GridSamples};
 
 /// Largest samples file read: a full grid of [`crate::grid::MAX_GRID_POINTS`] rows of ~40
 /// bytes fits.

@@ -2,7 +2,7 @@
 //! paper-like axis (a backlash added; 11 targets, 5 approaches per direction, σ = 0.05 µm), the
 //! expanded uncertainty U (k = 2) of E and A covers the simulator's truth at least 90 % of the
 //! time without being trivially wide. (The budget's arithmetic is checked against a hand
-//! computation in src/iso_uncertainty.rs; the CS path's coverage, which needs a reconstruction
+//! computation in crates/metrology/src/iso_uncertainty.rs; the CS path's coverage, which needs a reconstruction
 //! per direction and seed, is `csmetro bench uncertainty` in BENCHMARKS.md.)
 mod common;
 

@@ -1,12 +1,11 @@
 //! Period detection and `auto` on curves the simulator did not make: the generator shared with
-//! `bench families` (tests/common/curves.rs: trend + cyclic terms with envelopes and harmonics +
+//! `bench families` (crates/testcurves: trend + cyclic terms with envelopes and harmonics +
 //! correlated roughness + white noise + defects), independent of csmetro's own models.
 use csmetro::grid::Grid;
 use csmetro::recon::{periods, reconstruct, Method, ReconSettings};
 use csmetro::samples::GridSamples;
 
-#[path = "common/curves.rs"]
-mod curves;
+use csmetro_testcurves as curves;
 use curves::{pick, Rng, Spec};
 
 /// A curve on n points of `step` µm: bow and tilt, cyclic terms (period, amplitude) each with

@@ -1,6 +1,6 @@
 //! The candidate library: which effect groups the diagnosis may add (each kind on each axis,
 //! with the structure fixed from the model), and how a fitted group joins the model.
-use csmetro_sim::{AxisId, Effect, EffectKind, StageModel};
+use csmetro_effects::{AxisId, Effect, EffectKind, StageModel};
 
 use super::Options;
 

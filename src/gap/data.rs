@@ -4,7 +4,7 @@ use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-use csmetro_sim::{AxisId, Deviation, SampleContext, StageModel};
+use csmetro_effects::{AxisId, Deviation, SampleContext, StageModel};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};

@@ -3,7 +3,7 @@
 //! column subset cheap.
 use std::collections::HashMap;
 
-use csmetro_sim::{AxisId, Effect, SampleContext, StageModel};
+use csmetro_effects::{AxisId, Effect, SampleContext, StageModel};
 use nalgebra::{DMatrix, DVector};
 
 use super::candidates::Group;
@@ -97,7 +97,7 @@ impl Rows {
                 line_run.push(run);
             }
             let (px, py) = model.predict(&s.context());
-            let u = csmetro_sim::map_to_unit(s.target(s.moving), model.travel(s.moving));
+            let u = csmetro_effects::map_to_unit(s.target(s.moving), model.travel(s.moving));
             let block =
                 (((u + 1.0) / 2.0 * BLOCKS as f64).floor().max(0.0) as usize).min(BLOCKS - 1);
             for comp in [AxisId::X, AxisId::Y] {

@@ -3,7 +3,7 @@
 //! removed) is regressed, per measured component, on the time since the mean visit of each
 //! target, uniformly and growing along the moving axis' travel (thermal expansion). A steady
 //! drift of the line offsets themselves is reported beside it (a per-line constant is not a gap).
-use csmetro_sim::{map_to_unit, AxisId, StageModel};
+use csmetro_effects::{map_to_unit, AxisId, StageModel};
 use nalgebra::{DMatrix, DVector};
 
 use super::design::Rows;

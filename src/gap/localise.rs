@@ -2,7 +2,7 @@
 //! time maps, the other-axis map and the periodogram of the residual.
 use std::collections::BTreeMap;
 
-use csmetro_sim::{AxisId, StageModel};
+use csmetro_effects::{AxisId, StageModel};
 
 use super::design::{demean, key_um, Rows};
 use super::report::{OtherAxis, Peak, Where};

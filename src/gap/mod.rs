@@ -30,7 +30,7 @@ mod search;
 pub mod selftest;
 mod stats;
 
-use csmetro_sim::{AxisId, StageModel};
+use csmetro_effects::{AxisId, StageModel};
 
 pub use data::Sample;
 use design::Rows;
@@ -185,7 +185,7 @@ pub fn describe_iso230(axis: AxisId, static_um: f64, f: &crate::iso230::Iso230Su
 mod tests {
     use super::data::{simulate_campaign, CampaignSpec};
     use super::*;
-    use csmetro_sim::{AxisId, Component, Effect, EffectKind};
+    use csmetro_effects::{AxisId, Component, Effect, EffectKind};
 
     fn base() -> StageModel {
         StageModel::default()

@@ -10,7 +10,7 @@
 //! the nominal period is right or there is no motor error). The search adds a few hundred
 //! trial periods: the nested test the group must then pass (z 5, p < 1e-6 per trial) stays far
 //! above what the largest of them reaches on noise.
-use csmetro_sim::AxisId;
+use csmetro_effects::AxisId;
 
 use super::design::Rows;
 use super::Sample;

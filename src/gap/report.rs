@@ -1,6 +1,6 @@
 //! What the diagnosis reports: accepted effects with their ties, where the gap lies, and the
 //! JSON and text forms of the result.
-use csmetro_sim::{AxisId, Effect, StageModel};
+use csmetro_effects::{AxisId, Effect, StageModel};
 use serde_json::{json, Value as Json};
 
 /// One tie: a candidate (or set) the data cannot tell apart from the pick.

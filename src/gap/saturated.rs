@@ -14,7 +14,7 @@
 //! once, so a drift between cycles counts). What is left (position structure the targets cannot
 //! resolve, irregular reversals, cycle offsets off the trend) is said plainly, with what to
 //! measure to resolve it.
-use csmetro_sim::{map_to_unit, AxisId, Effect, EffectKind, StageModel};
+use csmetro_effects::{map_to_unit, AxisId, Effect, EffectKind, StageModel};
 use nalgebra::{DMatrix, DVector};
 use serde_json::{json, Value as Json};
 

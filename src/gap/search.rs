@@ -3,7 +3,7 @@
 //! with ties.
 use std::collections::HashMap;
 
-use csmetro_sim::{AxisId, Effect, StageModel};
+use csmetro_effects::{AxisId, Effect, StageModel};
 use nalgebra::{DMatrix, DVector};
 
 use super::candidates::{candidate_groups, merge_into, nested, Group};
@@ -23,10 +23,10 @@ pub fn diagnose(
 ) -> Result<Diagnosis, GapError> {
     if let Some(ks) = &opts.kinds {
         for k in ks {
-            if k == "noise" || !csmetro_sim::LIBRARY_KINDS.contains(&k.as_str()) {
+            if k == "noise" || !csmetro_effects::LIBRARY_KINDS.contains(&k.as_str()) {
                 return Err(GapError(format!(
                     "unknown candidate kind `{k}` (library: {})",
-                    csmetro_sim::LIBRARY_KINDS
+                    csmetro_effects::LIBRARY_KINDS
                         .iter()
                         .filter(|k| **k != "noise")
                         .copied()

@@ -4,7 +4,7 @@
 //! `backlash` is allowed). Seeded; every case draws its own effect shape, amplitude and data.
 use std::f64::consts::PI;
 
-use csmetro_sim::{AxisId, Component, Deviation, Effect, EffectKind, StageModel};
+use csmetro_effects::{AxisId, Component, Deviation, Effect, EffectKind, StageModel};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::{json, Value as Json};
@@ -270,7 +270,7 @@ struct Case {
 
 fn run_case(c: &Case) -> Diagnosis {
     let drift = c.extra.map(|(comp, amp, period, phase)| {
-        move |ctx: &csmetro_sim::SampleContext| {
+        move |ctx: &csmetro_effects::SampleContext| {
             let v = amp * (2.0 * PI * ctx.time_s / period + phase).sin();
             let mut d = Deviation::default();
             match comp {
@@ -552,7 +552,7 @@ pub fn run(o: &SelftestOptions) -> Json {
                 );
                 let (peak, _, _) = visible(&shape, &spec);
                 opts_c.kinds = Some(
-                    csmetro_sim::LIBRARY_KINDS
+                    csmetro_effects::LIBRARY_KINDS
                         .iter()
                         .filter(|k| !matches!(**k, "hysteresis" | "noise"))
                         .map(|k| k.to_string())

@@ -1,5 +1,5 @@
 //! A rough stacked XY stage for the 2D map tests, written from the physics of the stage (not from
-//! csmetro_sim, not from src/recon2d): X carries Y; each axis has a scale error, a leadscrew cyclic
+//! csmetro_sim, not from recon2d): X carries Y; each axis has a scale error, a leadscrew cyclic
 //! error (pitch 200–1000 µm, 2nd and 3rd harmonics, an amplitude that varies slowly along the
 //! travel), a bow; each axis's straightness shows in the other component; squareness; and each
 //! carriage's yaw (slow + a cyclic part at its leadscrew pitch) times its Abbe offset.

@@ -4,7 +4,6 @@
 // Modules are private; the curated list below is the crate's API.
 mod camera;
 mod controller;
-mod model;
 mod reference;
 mod stage;
 
@@ -14,7 +13,8 @@ pub use controller::{
     remove_stale_links, Controller, ControllerConfig, Endpoint, Exchange, Fault, FaultCounts,
     FaultSpec, Outcome, RandomFaults, SimController, AXIS, GARBAGE, MAX_RANDOM_FAULT_MS, TRACE_ENV,
 };
-pub use model::{
+// The stage model is its own crate (csmetro-effects, shared with `csmetro gap`); re-exported.
+pub use csmetro_effects::{
     legendre, map_to_unit, AxisId, Component, Deviation, Direction, Effect, EffectKind, ModelError,
     SampleContext, StageModel, LIBRARY_KINDS, MAX_EFFECTS, MAX_TERMS, MAX_TRAVEL_UM,
     SIM_ONLY_KINDS,

@@ -3,11 +3,10 @@
 //! model's effects so that the generator, the simulated devices and the gap diagnosis share one model.
 use std::f64::consts::PI;
 
+use csmetro_effects::{AxisId, Component, Effect, EffectKind, SampleContext, StageModel};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-
-use crate::model::{AxisId, Component, Effect, EffectKind, SampleContext, StageModel};
 
 /// Recipe of a paper-like X-forward driving error; every amplitude in µm. The defaults give curves
 /// of the paper's Fig. 6 scale (a few µm peak-to-peak, 400 µm leadscrew period).

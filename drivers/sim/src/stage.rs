@@ -5,7 +5,7 @@
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use crate::model::{AxisId, StageModel};
+use csmetro_effects::{AxisId, StageModel};
 
 /// Time scales a simulation accepts: [`MIN_TIME_SCALE`, `MAX_TIME_SCALE`]. Below 1e-3 one
 /// physical second is over a quarter of an hour: a reference move would last days, a campaign
@@ -435,7 +435,7 @@ impl SimStage {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::{Effect, EffectKind};
+    use csmetro_effects::{Effect, EffectKind};
 
     #[test]
     fn trapezoid_reaches_target_in_the_textbook_time() {

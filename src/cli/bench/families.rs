@@ -1,6 +1,6 @@
 //! `bench families`: `auto` on error curves the stage simulator did not make.
 //!
-//! The curves come from the generator the tests share (tests/common/curves.rs: not
+//! The curves come from the generator the tests share (crates/testcurves: not
 //! `csmetro_sim`'s model, not the recon code): trend, cyclic terms of periods drawn anywhere in
 //! 80–2,000 µm with harmonics and slowly varying envelopes, correlated roughness and white noise,
 //! steps and defects, and two families shaped like real leadscrew and noisy axes (4,303 points at
@@ -13,8 +13,7 @@ use crate::grid::Grid;
 use crate::recon::{self, Method, ReconSettings};
 use crate::samples::GridSamples;
 
-#[path = "../../../tests/common/curves.rs"]
-mod curves;
+use csmetro_testcurves as curves;
 
 pub(super) use curves::FAMILIES;
 

@@ -12,6 +12,8 @@ use crate::gap::data::{self, Sample};
 use crate::gap::{diagnose, Diagnosis, Options};
 use csmetro_sim::{AxisId, StageModel};
 
+// Included, not a crate: othergen calls `diagnose` and builds `gap::data::Sample`, both of
+// this crate; a crate of its own would depend on csmetro (a cycle) or copy the code under test.
 #[path = "../../../tests/common/othergen.rs"]
 mod othergen;
 

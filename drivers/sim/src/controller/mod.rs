@@ -8,6 +8,7 @@ use std::collections::VecDeque;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use csmetro_effects::AxisId;
 use csmetro_gcs::error::*;
 use csmetro_gcs::{encode_reply, Request, RequestBody};
 use csmetro_gcs::{
@@ -17,7 +18,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::model::AxisId;
 use crate::stage::{AxisState, MotionKind, SimStage};
 
 // The FFI boundary with the pseudo-terminal: the only module of this crate allowed `unsafe`.

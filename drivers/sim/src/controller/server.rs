@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use bytes::BytesMut;
+use csmetro_effects::AxisId;
 use csmetro_gcs::ServerCodec;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpSocket};
@@ -18,7 +19,6 @@ use tracing::{debug, info, warn};
 
 use super::pty::Pty;
 use super::{Controller, ControllerConfig, Fault};
-use crate::model::AxisId;
 use crate::stage::SimStage;
 
 /// Where a simulated controller listens.

@@ -11,6 +11,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use bytes::BytesMut;
+use csmetro_effects::{AxisId, StageModel};
 use csmetro_gcs::encode_reply;
 use csmetro_gcs::{AxisQuery, Command, ControlByte};
 use csmetro_gcs::{C863Config, LinkStats, RefMode, C863};
@@ -20,7 +21,6 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use super::{Controller, ControllerConfig, Exchange, FaultCounts, RandomFaults, SimController};
-use crate::model::{AxisId, StageModel};
 use crate::stage::SimStage;
 
 /// What to run.

@@ -10,7 +10,7 @@
 //! correlating most join it, and the round repeats (measured at n = 1901 on paper-like curves:
 //! a few rounds at m = 600 from ~100 ADMM iterations, ten or so at m = 300).
 //!
-//! G comes from the Gram table (one DCT, [`super::gram`]) and is Cholesky-factored by faer at each
+//! G comes from the Gram table (one DCT, `super::gram`) and is Cholesky-factored by faer at each
 //! round. Nothing is taken from the factorization on trust: every round's θ is checked against
 //! the transforms (its residual norm by an inverse DCT), and its dual point y = r / ||Aᵀr||∞ (dual
 //! feasible by construction) gives the bound hᵀy − ε||y|| ≤ optimum ≤ ||θ||₁ that the caller

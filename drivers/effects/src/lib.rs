@@ -1,25 +1,6 @@
-//! The stage model: one effect library for the error-curve generator, the simulated controller
-//! and camera, and `csmetro gap`: a sample is the model's deviation at its target, direction and
-//! time (see [`StageModel`]).
-//!
-//! A model is a list of effects, each an `[[effect]]` table in a TOML file:
-//!
-//! ```toml
-//! [stage]
-//! travel_x_um = [0.0, 9500.0]
-//! travel_y_um = [0.0, 4200.0]
-//!
-//! [[effect]]
-//! kind = "leadscrew_cyclic"
-//! axis = "x"
-//! period_um = 400.0
-//! cos_um = [1.0]
-//! sin_um = [0.0]
-//! ```
-//!
-//! Measured position = target + Σ deviations of the effects that act on the sample (+ noise).
-//! An effect acts on a sample when its `axis` is the moving axis, except the global kinds
-//! (`camera_rotation`, `camera_scale`, `thermal_drift`), which act on every sample.
+#![doc = include_str!("../README.md")]
+// Lints: the workspace wall (Cargo.toml `[workspace.lints]`), plus docs on everything public.
+#![warn(missing_docs)]
 mod effect;
 mod file;
 

@@ -1,6 +1,6 @@
 //! The model-file reader and writer: lines in errors, bounds, defaults, round trips.
 use super::*;
-use crate::model::{Component, SampleContext};
+use crate::{Component, SampleContext};
 
 fn ctx(moving: AxisId, d: f64, x: f64, y: f64) -> SampleContext {
     SampleContext {

@@ -18,7 +18,7 @@
 //! The anchor B₀ is factored in one of three ways. Up to `gram_min_m` samples, as an f32 LU (half
 //! the memory traffic of f64, twice the SIMD width; refinement against the f64 transforms removes
 //! its ~1e-4 rounding, and a second f32 anchor or an f64 one takes over when it cannot). From
-//! there on, through its Gram matrix ([`Gram`]): one DCT gives B₀ᵀB₀ without forming B₀, and its
+//! there on, through its Gram matrix (`Gram`): one DCT gives B₀ᵀB₀ without forming B₀, and its
 //! f64 Cholesky costs about what the f32 LU does (m³/3 flops at half the rate) with ~1e-9 error,
 //! so the anchors that f32 could not certify (1-3 curves in 20 at m = 600, 10-16 ms each) do not
 //! occur. Last, an f64 LU.

@@ -1,10 +1,4 @@
-//! Error curves nobody on the project modelled: the one generator shared by `csmetro bench
-//! families` (included with `#[path]`) and the tests of `auto` and the period search. It depends
-//! on nothing of csmetro (not the reconstruction, not `csmetro_sim`'s stage model): trend, cyclic
-//! terms with harmonics, slowly varying envelopes and optional chirp, correlated roughness, steps
-//! and local defects, in named families. All lengths µm.
-// Each includer uses part of it.
-#![allow(dead_code, unreachable_pub)]
+#![doc = include_str!("../README.md")]
 use std::f64::consts::TAU;
 
 /// Family names, in the bench's default order.
@@ -22,6 +16,8 @@ pub const FAMILIES: [&str; 8] = [
 /// SplitMix64 (independent of the project's generators).
 pub struct Rng(pub u64);
 impl Rng {
+    /// A uniform draw in [0, 1): an endless stream, not an `Iterator`.
+    #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> f64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;

@@ -5,7 +5,6 @@
 //! coupling terms linear in the other coordinate); `bp`, 2D DCT basis pursuit denoising with fast
 //! operators (for comparison); and `linear`, linear interpolation on a Delaunay triangulation of
 //! the samples (the baseline). `auto` picks the one with the smallest cross-validation error.
-use std::path::Path;
 use std::str::FromStr;
 use std::time::Instant;
 
@@ -20,8 +19,6 @@ pub mod physics;
 
 /// Most points a map grid may have (nx·ny): 4 M, over twice the 1901 × 841 map.
 pub const MAX_MAP_POINTS: usize = 4_000_000;
-/// Largest samples file read: a few % of a full map is a few MB; 4 M rows of ~60 bytes fit.
-pub const MAX_MAP_SAMPLES_BYTES: u64 = 256 << 20;
 /// Folds of the cross-validation that picks the knot spacing and the method.
 pub const CV_FOLDS: usize = 5;
 /// Iteration cap of a basis-pursuit solve (each iteration is two 2D DCTs of the whole grid).
@@ -470,14 +467,6 @@ fn clip(s: &str) -> String {
     }
 }
 
-/// Reads `x_um,y_um,ex_um,ey_um[,theta_urad]`; every error is one line naming file and line.
-pub fn read_map_samples_csv(path: &Path, g: &Grid2) -> Result<MapSamples, String> {
-    let name = path.display();
-    let text = crate::tomlpos::read_bounded(path, MAX_MAP_SAMPLES_BYTES)
-        .map_err(|e| format!("{name}: cannot read: {e}"))?;
-    parse_map_samples_csv(&text, g).map_err(|(line, msg)| format!("{name}:{line}: {msg}"))
-}
-
 /// Parses map sample CSV text; errors carry the 1-based line number.
 pub fn parse_map_samples_csv(text: &str, g: &Grid2) -> Result<MapSamples, (usize, String)> {
     const HEADER: &str = "x_um,y_um,ex_um,ey_um[,theta_urad]";
@@ -570,13 +559,6 @@ pub fn parse_map_samples_csv(text: &str, g: &Grid2) -> Result<MapSamples, (usize
 }
 
 /// Writes the map with the samples' header at every grid point, x fastest.
-pub fn write_map_csv(path: &Path, g: &Grid2, map: &Map) -> std::io::Result<()> {
-    use std::io::Write;
-    let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
-    write_map(&mut w, g, map)?;
-    w.flush()
-}
-
 pub fn write_map(w: &mut impl std::io::Write, g: &Grid2, map: &Map) -> std::io::Result<()> {
     match map.theta {
         Some(_) => writeln!(w, "x_um,y_um,ex_um,ey_um,theta_urad")?,
