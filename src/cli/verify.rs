@@ -123,8 +123,12 @@ pub fn run(a: Args) -> CliResult {
         comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| CliError::input(e.to_string()))?;
     }
-    let _stage =
-        stagelock::try_lock(&a.db, &row.stage).map_err(|e| CliError::failure(e.to_string()))?;
+    let _stage = stagelock::try_lock_scoped(
+        &a.db,
+        &row.stage,
+        stagelock::Scope::of(c.spec.hardware.kind),
+    )
+    .map_err(|e| CliError::failure(e.to_string()))?;
     let opts = VerifyOptions {
         cycles: a.cycles,
         iso_targets: a.targets,
@@ -272,7 +276,9 @@ fn run_map(
             comp.source, a.id
         )));
     }
-    let _stage = stagelock::try_lock(&a.db, stage).map_err(|e| CliError::failure(e.to_string()))?;
+    let _stage =
+        stagelock::try_lock_scoped(&a.db, stage, stagelock::Scope::of(c.spec.hardware.kind))
+            .map_err(|e| CliError::failure(e.to_string()))?;
     let quiet = a.quiet;
     let id = a.id;
     let comp = Arc::new(comp);
