@@ -521,6 +521,31 @@ fn the_page_follows_a_campaign_live_pauses_it_and_shows_its_results() {
     let shot = output_dir().join("web_page.png");
     b.screenshot(&shot);
     eprintln!("web page: screenshot in {}", shot.display());
+
+    // Its verification (`[campaign] verify = ID`): the page shows the before/after table and
+    // the charts with the pass line.
+    let ver = common::sim_header("ver", "s1", "ideal.toml", 100.0, 7).replace(
+        "stage = \"s1\"\n",
+        &format!("stage = \"s1\"\nverify = {id}\n"),
+    ) + "\n[acquisition]\ncycles = 2\nsettle_s = 0.2\n";
+    let vid = srv.submit(&ver);
+    srv.wait_for(vid, 180.0, |s| {
+        s["state"] == "done" || s["state"] == "failed"
+    });
+    b.js(&format!("select({vid}); return true"));
+    let row = b.wait(
+        "the verification's before/after table",
+        30.0,
+        "const r = document.querySelector('#verification-body .verify-table tr[data-axis=x]'); \
+         return !document.getElementById('verification').hidden && r && r.children.length",
+    );
+    assert_eq!(row, 8, "axis, E, E, mean, mean, max, expected, verdict");
+    b.wait(
+        "the verification chart",
+        20.0,
+        "const i = [...document.querySelectorAll('#verification-body img')]; \
+         return i.length === 1 && i.every(x => x.complete && x.naturalWidth > 0)",
+    );
     let (errors, handled) = b.console_errors();
     assert!(errors.is_empty(), "console errors: {errors:?}");
     // The log was really read: the tokenless first load's 401s and the refused file's 400 are in it.

@@ -909,7 +909,7 @@ pub fn report_html(v: &Verdict, id: i64, name: &str, text: &str, origin: &str) -
         esc(&v.compensation)
     ));
     h.push_str(&format!(
-        "<h2>Before / after (ISO 230-2)</h2>\n<pre>{}</pre>\n",
+        "<h2>Before / after (ISO 230-2)</h2>\n<p><a href=\"{REPORT_FILE}\">Each target against its pass line</a>.</p>\n<pre>{}</pre>\n",
         esc(&table(v))
     ));
     for a in &v.axes {

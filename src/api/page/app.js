@@ -189,6 +189,8 @@ function select(id) {
   $('map-count').textContent = '';
   $('iso2301').hidden = true;
   $('iso2301-body').replaceChildren();
+  $('verification').hidden = true;
+  $('verification-body').replaceChildren();
   $('events').replaceChildren();
   $('results').replaceChildren(el('li', { class: 'note' }, 'none yet'));
   $('iso').hidden = true;
@@ -621,6 +623,44 @@ async function loadResults(sel) {
   const maps = names.map((n) => /^map_(forward|backward)\.csv$/.exec(n)).filter(Boolean);
   for (const m of maps) loadMapGrid(sel, m[1], m[0]);
   if (maps.length && names.includes('summary.json')) showIso2301(sel);
+  if (names.includes('verify/verify.json')) showVerification(sel, names);
+}
+
+// The last `csmetro verify` of this campaign (GET /campaigns/{id}/verification): the verdict,
+// the before/after table per axis and its charts (verify/verify_<axis>.svg, pass line drawn).
+async function showVerification(sel, names) {
+  const key = names.filter((n) => n.startsWith('verify/')).join('\n');
+  if (key === sel.verifyKey) return;
+  sel.verifyKey = key;
+  let v;
+  try {
+    v = await getJson(`/campaigns/${sel.id}/verification`);
+  } catch (e) {
+    if (!(e instanceof AuthNeeded)) notice(`Verification: ${e.message}`);
+    return;
+  }
+  if (S.sel !== sel || !v || typeof v !== 'object') return;
+  const kids = [el('p', { class: v.passed ? 'state-done' : 'state-failed', 'data-passed': String(!!v.passed) },
+    `Verification ${v.passed ? 'passed' : 'FAILED'}${v.kind === 'map' ? ' (map)' : ''}`)];
+  const axes = Array.isArray(v.axes) ? v.axes.filter((a) => a && a.before && a.after) : [];
+  if (axes.length) {
+    kids.push(el('table', { class: 'verify-table' },
+      el('thead', {}, el('tr', {}, ...['axis', 'E before', 'E after', 'mean |e| before', 'mean |e| after',
+        'max |after|', 'expected', 'verdict'].map((h, i) => el('th', { class: i ? 'num' : '' }, h)))),
+      el('tbody', {}, ...axes.map((a) => el('tr', { 'data-axis': a.axis },
+        el('td', {}, String(a.axis)),
+        ...[a.before.e_um, a.after.e_um, a.mean_abs_before_um, a.mean_abs_after_um, a.max_abs_after_um,
+          a.expected_um].map((x) => el('td', { class: 'num' }, fmt(x))),
+        el('td', { class: a.passed ? 'state-done' : 'state-failed' }, a.passed ? 'pass' : 'FAIL'))))));
+    kids.push(el('p', { class: 'note' }, 'µm; every compensated approach must stay within ±expected (the pass line on the charts).'));
+  }
+  for (const n of names.filter((x) => /^verify\/verify_[a-z]+\.svg$/.test(x))) {
+    const url = await blobUrl(sel, n);
+    if (url) kids.push(el('figure', {}, el('figcaption', {}, n), el('img', { src: url, alt: `verification chart ${n}` })));
+  }
+  if (S.sel !== sel) return;
+  $('verification-body').replaceChildren(...kids);
+  $('verification').hidden = false;
 }
 
 // With a token a plain link cannot authenticate: fetch the file, then open it.
