@@ -137,6 +137,31 @@ fn verification_shows_the_compensation_removing_the_systematic_error() {
     assert!(svg.starts_with("<svg") && svg.contains("after, backward"));
     let store = csmetro::store::Store::open(&characterised().0).unwrap();
     assert!(store.result(1, "verify/verify.json").unwrap().is_some());
+    // The pass line on the chart (SVG and PNG), each target against it in the JSON and on the
+    // page, and the characterisation's report linking to the page (file and store).
+    assert!(svg.contains("pass line ±expected"), "no pass line");
+    let png = std::fs::read(results.join("verify/verify_x.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG"));
+    let checks = only_json(&strict)["axes"][0]["per_target"].clone();
+    let checks = checks.as_array().expect("per_target");
+    assert!(!checks.is_empty() && checks.iter().any(|t| t["passed"] == false));
+    assert!(checks.iter().all(|t| t["expected_um"] == 0.05));
+    let page = std::fs::read_to_string(results.join("verify/report.html")).unwrap();
+    assert!(
+        page.contains("E before") && page.contains("max |after|"),
+        "{page}"
+    );
+    assert!(page.contains("<td class=\"fail\">FAIL</td>") && page.contains("verify_x.svg"));
+    assert!(page.contains("href=\"../report.html\""));
+    let link = "href=\"verify/report.html\"";
+    let report = std::fs::read_to_string(results.join("report.html")).unwrap();
+    assert_eq!(
+        report.matches(link).count(),
+        1,
+        "one link after three verifications"
+    );
+    let stored = store.result(1, "report.html").unwrap().unwrap().1;
+    assert!(String::from_utf8(stored).unwrap().contains(link));
 }
 
 /// Copies the characterisation's results to a fresh directory, `edit` changes it.

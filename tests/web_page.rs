@@ -521,6 +521,31 @@ fn the_page_follows_a_campaign_live_pauses_it_and_shows_its_results() {
     let shot = output_dir().join("web_page.png");
     b.screenshot(&shot);
     eprintln!("web page: screenshot in {}", shot.display());
+
+    // Its verification (`[campaign] verify = ID`): the page shows the before/after table and
+    // the charts with the pass line.
+    let ver = common::sim_header("ver", "s1", "ideal.toml", 100.0, 7).replace(
+        "stage = \"s1\"\n",
+        &format!("stage = \"s1\"\nverify = {id}\n"),
+    ) + "\n[acquisition]\ncycles = 2\nsettle_s = 0.2\n";
+    let vid = srv.submit(&ver);
+    srv.wait_for(vid, 180.0, |s| {
+        s["state"] == "done" || s["state"] == "failed"
+    });
+    b.js(&format!("select({vid}); return true"));
+    let row = b.wait(
+        "the verification's before/after table",
+        30.0,
+        "const r = document.querySelector('#verification-body .verify-table tr[data-axis=x]'); \
+         return !document.getElementById('verification').hidden && r && r.children.length",
+    );
+    assert_eq!(row, 8, "axis, E, E, mean, mean, max, expected, verdict");
+    b.wait(
+        "the verification chart",
+        20.0,
+        "const i = [...document.querySelectorAll('#verification-body img')]; \
+         return i.length === 1 && i.every(x => x.complete && x.naturalWidth > 0)",
+    );
     let (errors, handled) = b.console_errors();
     assert!(errors.is_empty(), "console errors: {errors:?}");
     // The log was really read: the tokenless first load's 401s and the refused file's 400 are in it.
@@ -602,4 +627,113 @@ fn the_page_adds_little_to_a_campaigns_wall_time() {
     );
     // The target is 5 %; a shared machine's noise gets twice that before this fails.
     assert!(p / a - 1.0 < 0.10, "{without:?} {with:?}");
+}
+
+/// A `[map]` campaign: stage "s1", both axes moving to random XY points (as in map_service).
+const MAP: &str = r#"[campaign]
+name = "page-map"
+stage = "s1"
+
+[hardware]
+kind = "sim"
+optics = { width = 640, height = 640 }
+
+[hardware.sim]
+model = "demo_xy.toml"
+time_scale = 100
+transport = "pty"
+frame_time_s = 0.1
+seed = 4
+
+[map]
+x_range_um = [2000.0, 2950.0]
+y_range_um = [1000.0, 1450.0]
+step_um = [50.0, 50.0]
+m = 40
+design = "random"
+seed = 5
+method = "linear"
+
+[acquisition]
+settle_s = 2.0
+dwell_s = 0.5
+
+[outputs]
+dir = "page-map-{id}"
+"#;
+
+/// A map campaign is drawn over XY, not as 1-D scatter against one axis: heat maps of e_x and
+/// e_y (the samples while it runs, the reconstructed grid at its end) and the ISO 230-1
+/// figures of the map.
+#[test]
+fn a_map_campaign_shows_heat_maps_and_its_iso230_1_figures() {
+    let Some((chrome, driver)) = browser_or_skip() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let srv = Server::start(dir.path(), None);
+    let b = Browser::start(&chrome, &driver, &dir.path().join("chromium-profile"));
+    let id = srv.submit(MAP);
+    b.goto(&format!("{}/#{id}", srv.url));
+    b.wait(
+        "the samples over XY",
+        60.0,
+        "const c = document.querySelector('#map-body canvas[data-map=\"forward-ex\"]'); \
+         return c !== null && Number(c.dataset.samples) > 0",
+    );
+    let st = srv.wait_for(id, 180.0, |s| {
+        s["state"] == "done" || s["state"] == "failed"
+    });
+    assert_eq!(st["state"], "done", "{st}");
+    let maps = b.wait(
+        "the reconstructed heat maps",
+        30.0,
+        "const c = [...document.querySelectorAll('#map-body canvas')]; \
+         return c.length >= 2 && c.every(x => Number(x.dataset.cells) > 0 && Number(x.dataset.samples) === 40) && \
+         c.map(x => [x.dataset.map, Number(x.dataset.cells)])",
+    );
+    let names: Vec<&str> = maps
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m[0].as_str().unwrap())
+        .collect();
+    assert!(
+        names.contains(&"forward-ex") && names.contains(&"forward-ey"),
+        "{maps}"
+    );
+    // 20 x 10 grid points of the [map] (950 x 450 µm at 50 µm).
+    assert!(maps[0][1].as_u64() >= Some(200), "{maps}");
+    // Non-trivial content: many colours (the cells' scale and the colour bar), not a blank.
+    for key in ["forward-ex", "forward-ey"] {
+        let colours = b.js(&format!(
+            "const c = document.querySelector('#map-body canvas[data-map=\"{key}\"]'); \
+             const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data; \
+             const s = new Set(); for (let i = 0; i < d.length; i += 4) s.add((d[i] << 16) | (d[i + 1] << 8) | d[i + 2]); \
+             return s.size"
+        ));
+        assert!(colours.as_u64() > Some(30), "{key}: {colours} colours");
+    }
+    // No 1-D scatter of a map against one axis.
+    let lines = b.js(
+        "return [document.querySelectorAll('#plots canvas').length, document.getElementById('lines').hidden]",
+    );
+    assert_eq!(lines, json!([0, true]), "{lines}");
+    let sq = b.wait(
+        "the ISO 230-1 figures",
+        20.0,
+        "const t = document.querySelector('#iso2301-body tr[data-figure=squareness_urad] td.num'); \
+         return !document.getElementById('iso2301').hidden && t && t.textContent",
+    );
+    assert!(
+        sq.as_str()
+            .unwrap()
+            .parse::<f64>()
+            .is_ok_and(f64::is_finite),
+        "{sq}"
+    );
+    b.js("document.getElementById('maps').scrollIntoView(); return true");
+    b.screenshot(&output_dir().join("web_page_map.png"));
+    let (errors, _) = b.console_errors();
+    assert!(errors.is_empty(), "console errors: {errors:?}");
 }

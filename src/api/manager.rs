@@ -239,10 +239,10 @@ impl Manager {
             // Running or paused in a process that is still alive (a foreground `csmetro run` on
             // this store): that process owns it; do not drive the stage a second time.
             if row.state.is_in_progress() {
-                if let Some(e) = db_path
-                    .as_deref()
-                    .and_then(|p| stagelock::held_elsewhere(p, &row.stage))
-                {
+                if let Some(e) = db_path.as_deref().and_then(|p| {
+                    let scope = stagelock::Scope::of_spec_toml(&row.spec_toml);
+                    stagelock::held_elsewhere_scoped(p, &row.stage, scope)
+                }) {
                     tracing::warn!(campaign = row.id, error = %e, "left to the process that runs it");
                     continue;
                 }
@@ -320,7 +320,8 @@ impl Manager {
             // look again later). The lock is kept while the state is read again and changed: no
             // process can take the campaign up in between, and one that finished it released
             // the stage only after storing its final state.
-            let Ok(_stage) = stagelock::try_lock(db_path, &row.stage) else {
+            let scope = stagelock::Scope::of_spec_toml(&row.spec_toml);
+            let Ok(_stage) = stagelock::try_lock_scoped(db_path, &row.stage, scope) else {
                 continue;
             };
             self.mark_orphan(row.id);
@@ -548,7 +549,11 @@ impl Manager {
             }
         }
         let db_path = self.db().path().map(Path::to_path_buf);
-        let _lock = match db_path.as_deref().map(|p| stagelock::try_lock(p, stage)) {
+        let scope = stagelock::Scope::of(c.spec.hardware.kind);
+        let _lock = match db_path
+            .as_deref()
+            .map(|p| stagelock::try_lock_scoped(p, stage, scope))
+        {
             Some(Err(_)) => return Ok(()),
             Some(Ok(l)) => Some(l),
             None => None,
@@ -581,6 +586,18 @@ impl Manager {
                 return;
             }
             let db_path = self.db().path().map(Path::to_path_buf);
+            // The head's lock scope (its hardware kind), read before `inner` is taken: the store
+            // is never locked inside it. A head that changed meanwhile locks machine-wide.
+            let head = self
+                .inner()
+                .queues
+                .get(stage)
+                .and_then(|q| q.front().copied());
+            let head_scope = head
+                .and_then(|id| self.db().campaign(id).ok().flatten())
+                .map_or(stagelock::Scope::Machine, |r| {
+                    stagelock::Scope::of_spec_toml(&r.spec_toml)
+                });
             let (id, rx, locked) = {
                 let mut inner = self.inner();
                 if inner.running.contains_key(stage) {
@@ -589,7 +606,15 @@ impl Manager {
                 let Some(&id) = inner.queues.get(stage).and_then(|q| q.front()) else {
                     return;
                 };
-                let lock = match db_path.as_deref().map(|p| stagelock::try_lock(p, stage)) {
+                let scope = if head == Some(id) {
+                    head_scope
+                } else {
+                    stagelock::Scope::Machine
+                };
+                let lock = match db_path
+                    .as_deref()
+                    .map(|p| stagelock::try_lock_scoped(p, stage, scope))
+                {
                     None => None,
                     Some(Ok(l)) => Some(l),
                     Some(Err(StageLockError::Io { path, source })) => {

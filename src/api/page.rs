@@ -1,5 +1,7 @@
 //! The operator's web page at `/`: the queue and history of campaigns with progress and ETA, a
-//! live plot of each campaign's samples with its reconstructions, the ISO 230-2 figures, the
+//! live plot of each campaign's samples with its reconstructions (a `[map]` campaign: heat maps
+//! of e_x and e_y over XY, its samples live, then the reconstructed grid from `map_<dir>.csv`,
+//! and the ISO 230-1 figures from `summary.json`), the ISO 230-2 figures, the
 //! control buttons, campaign submission and the result files. Plain HTML, CSS and JavaScript
 //! embedded in the binary (works offline, no build step); everything it shows comes from the
 //! JSON routes, with the token (when the service needs one) in the `Authorization` header.

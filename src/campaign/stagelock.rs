@@ -13,6 +13,10 @@
 //! directory when `/run/lock` cannot be written (a sandboxed service: give it
 //! `ReadWritePaths=/run/lock` so it shares the lock with local users; the per-store lock still
 //! guards its own store).
+//!
+//! A simulated stage ([`Scope::Store`]) drives no hardware: two users' simulated demos named
+//! `sim-xy` share nothing but the name, so it is locked in its store only. Real ports
+//! ([`Scope::Machine`], and whenever the kind is unknown) keep the machine-wide lock.
 use std::fs::{File, OpenOptions, TryLockError};
 use std::io::{ErrorKind, Read, Seek, SeekFrom, Write};
 use std::os::unix::fs::OpenOptionsExt;
@@ -21,8 +25,42 @@ use std::path::{Path, PathBuf};
 /// Held for as long as a campaign drives the stage; dropping it releases the stage.
 #[derive(Debug)]
 pub struct StageLock {
-    _machine: File,
+    _machine: Option<File>,
     _store: File,
+}
+
+/// Where a stage is locked: see the module's documentation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scope {
+    /// The store's lock only (simulated stages).
+    Store,
+    /// Machine-wide and the store's (real hardware).
+    Machine,
+}
+
+impl Scope {
+    pub fn of(kind: crate::campaign::spec::HardwareKind) -> Self {
+        match kind {
+            crate::campaign::spec::HardwareKind::Sim => Self::Store,
+            crate::campaign::spec::HardwareKind::Real => Self::Machine,
+        }
+    }
+
+    /// The scope of a stored campaign's TOML (`[hardware] kind`); machine-wide when it cannot
+    /// be read, since a real stage locked per store could be driven twice.
+    pub fn of_spec_toml(text: &str) -> Self {
+        let sim = text.parse::<toml::Table>().ok().is_some_and(|t| {
+            t.get("hardware")
+                .and_then(|h| h.get("kind"))
+                .and_then(toml::Value::as_str)
+                == Some("sim")
+        });
+        if sim {
+            Self::Store
+        } else {
+            Self::Machine
+        }
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -134,11 +172,17 @@ fn take(path: PathBuf, file: (File, bool), stage: &str) -> Result<File, StageLoc
     Ok(file)
 }
 
-/// Takes the stage machine-wide in the first of `dirs` that can hold the lock file, then in
-/// the store; [`StageLockError::Busy`] names the holder's pid.
+/// Takes the stage machine-wide in the first of `dirs` that can hold the lock file (no `dirs`:
+/// store only), then in the store; [`StageLockError::Busy`] names the holder's pid.
 fn try_lock_in(dirs: &[PathBuf], store: &Path, stage: &str) -> Result<StageLock, StageLockError> {
     let mut last = None;
     let mut machine = None;
+    if dirs.is_empty() {
+        return Ok(StageLock {
+            _machine: None,
+            _store: lock_store(store, stage)?,
+        });
+    }
     for d in dirs {
         let path = machine_lock_path(d, stage);
         match open_lock(&path) {
@@ -155,26 +199,46 @@ fn try_lock_in(dirs: &[PathBuf], store: &Path, stage: &str) -> Result<StageLock,
             source: std::io::Error::other("no lock directory"),
         }));
     };
+    Ok(StageLock {
+        _machine: Some(machine),
+        _store: lock_store(store, stage)?,
+    })
+}
+
+fn lock_store(store: &Path, stage: &str) -> Result<File, StageLockError> {
     let path = lock_path(store, stage);
     let file = open_lock(&path).map_err(|source| StageLockError::Io {
         path: path.clone(),
         source,
     })?;
-    let store = take(path, file, stage)?;
-    Ok(StageLock {
-        _machine: machine,
-        _store: store,
-    })
+    take(path, file, stage)
 }
 
-/// Takes the stage without waiting; [`StageLockError::Busy`] names the holder's pid.
+/// Takes a real stage without waiting; [`StageLockError::Busy`] names the holder's pid.
 pub fn try_lock(store: &Path, stage: &str) -> Result<StageLock, StageLockError> {
-    try_lock_in(&machine_dirs(), store, stage)
+    try_lock_scoped(store, stage, Scope::Machine)
+}
+
+/// Takes the stage in `scope` without waiting.
+pub fn try_lock_scoped(
+    store: &Path,
+    stage: &str,
+    scope: Scope,
+) -> Result<StageLock, StageLockError> {
+    match scope {
+        Scope::Machine => try_lock_in(&machine_dirs(), store, stage),
+        Scope::Store => try_lock_in(&[], store, stage),
+    }
 }
 
 /// Whether another process holds the stage (the lock is taken and released at once).
 pub fn held_elsewhere(store: &Path, stage: &str) -> Option<StageLockError> {
     try_lock(store, stage).err()
+}
+
+/// [`held_elsewhere`] in `scope`.
+pub fn held_elsewhere_scoped(store: &Path, stage: &str, scope: Scope) -> Option<StageLockError> {
+    try_lock_scoped(store, stage, scope).err()
 }
 
 #[cfg(test)]
@@ -248,6 +312,54 @@ mod tests {
         let p = machine_lock_path(dir.path(), &long);
         assert!(p.file_name().unwrap().len() < 255);
         assert_ne!(p, machine_lock_path(dir.path(), &"s".repeat(299)));
+    }
+
+    #[test]
+    fn simulated_stages_of_two_stores_run_at_once_real_ones_do_not() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a_db, b_db) = (dir.path().join("a.db"), dir.path().join("b.db"));
+        let a = try_lock_in(&[], &a_db, "sim-xy").expect("free");
+        let b = try_lock_in(&[], &b_db, "sim-xy").expect("another store's sim-xy is not ours");
+        // The same store still refuses a second holder, simulated or real.
+        assert!(matches!(
+            try_lock_in(&[], &a_db, "sim-xy"),
+            Err(StageLockError::Busy { .. })
+        ));
+        let machine = [dir.path().join("machine")];
+        std::fs::create_dir(&machine[0]).unwrap();
+        assert!(matches!(
+            try_lock_in(&machine, &a_db, "sim-xy"),
+            Err(StageLockError::Busy { .. })
+        ));
+        drop((a, b));
+        // A real port stays machine-wide: a second store is refused.
+        let r = try_lock_in(&machine, &a_db, "bench").expect("free");
+        assert!(matches!(
+            try_lock_in(&machine, &b_db, "bench"),
+            Err(StageLockError::Busy { .. })
+        ));
+        drop(r);
+        // What `csmetro run|move|verify` of a simulated stage take.
+        let (c_db, d_db) = (dir.path().join("c.db"), dir.path().join("d.db"));
+        let _c = try_lock_scoped(&c_db, "sim-xy", Scope::Store).expect("free");
+        let _d = try_lock_scoped(&d_db, "sim-xy", Scope::Store).expect("another store");
+        assert!(held_elsewhere_scoped(&c_db, "sim-xy", Scope::Store).is_some());
+    }
+
+    #[test]
+    fn the_scope_follows_the_hardware_kind() {
+        use crate::campaign::spec::HardwareKind;
+        assert_eq!(Scope::of(HardwareKind::Sim), Scope::Store);
+        assert_eq!(Scope::of(HardwareKind::Real), Scope::Machine);
+        let sim = "[campaign]\nname = \"a\"\n[hardware]\nkind = \"sim\"\n";
+        assert_eq!(Scope::of_spec_toml(sim), Scope::Store);
+        assert_eq!(
+            Scope::of_spec_toml(&sim.replace("sim\"", "real\"")),
+            Scope::Machine
+        );
+        // Unreadable: machine-wide, the safe side.
+        assert_eq!(Scope::of_spec_toml("not toml ["), Scope::Machine);
+        assert_eq!(Scope::of_spec_toml("[hardware]\nkind = 3"), Scope::Machine);
     }
 
     #[test]

@@ -32,7 +32,11 @@ pub fn run(a: Args) -> CliResult {
             .map_err(|e| CliError::failure(format!("tokio runtime: {e}")))?;
         // The stage must be free: the check talks to the same controllers a running campaign
         // drives.
-        match stage_lock(&a.db, &c.spec.campaign.stage) {
+        match stage_lock(
+            &a.db,
+            &c.spec.campaign.stage,
+            stagelock::Scope::of(c.spec.hardware.kind),
+        ) {
             Ok(lock) => {
                 report.push(
                     "stage",
@@ -120,7 +124,11 @@ fn config_checks(path: &Path, report: &mut Report) -> Option<Campaign> {
 
 /// Takes the stage as `run` would; a store whose directory does not exist yet is used by no
 /// process, so only the machine-wide lock matters (taken next to a temporary store path).
-fn stage_lock(db: &Path, stage: &str) -> Result<stagelock::StageLock, String> {
+fn stage_lock(
+    db: &Path,
+    stage: &str,
+    scope: stagelock::Scope,
+) -> Result<stagelock::StageLock, String> {
     let dir_exists = db
         .parent()
         .is_none_or(|d| d.as_os_str().is_empty() || d.is_dir());
@@ -129,5 +137,5 @@ fn stage_lock(db: &Path, stage: &str) -> Result<stagelock::StageLock, String> {
     } else {
         std::env::temp_dir().join("csmetro-check.db")
     };
-    stagelock::try_lock(&store, stage).map_err(|e| e.to_string())
+    stagelock::try_lock_scoped(&store, stage, scope).map_err(|e| e.to_string())
 }

@@ -153,7 +153,8 @@ pub fn run(a: Args) -> CliResult {
             .map_err(|e| CliError::failure(format!("{}: {e}", d.display())))?;
     }
     let _lock =
-        stagelock::try_lock(&a.db, &a.stage).map_err(|e| CliError::failure(e.to_string()))?;
+        stagelock::try_lock_scoped(&a.db, &a.stage, stagelock::Scope::of(c.spec.hardware.kind))
+            .map_err(|e| CliError::failure(e.to_string()))?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

@@ -74,8 +74,12 @@ fn open(db: &std::path::Path) -> Result<SharedStore, CliError> {
 
 /// The stage for the whole foreground run: refused, before anything is stored or moved, while
 /// another process (the service, another `run`) drives it.
-fn take_stage(db: &std::path::Path, stage: &str) -> Result<StageLock, CliError> {
-    stagelock::try_lock(db, stage).map_err(|e| CliError::failure(e.to_string()))
+fn take_stage(
+    db: &std::path::Path,
+    stage: &str,
+    scope: stagelock::Scope,
+) -> Result<StageLock, CliError> {
+    stagelock::try_lock_scoped(db, stage, scope).map_err(|e| CliError::failure(e.to_string()))
 }
 
 pub fn run(a: Args) -> CliResult {
@@ -87,7 +91,11 @@ pub fn run(a: Args) -> CliResult {
         &store.lock().unwrap_or_else(|e| e.into_inner()),
     )
     .map_err(|e| CliError::input(e.to_string()))?;
-    let _stage = take_stage(&a.db, &c.spec.campaign.stage)?;
+    let _stage = take_stage(
+        &a.db,
+        &c.spec.campaign.stage,
+        stagelock::Scope::of(c.spec.hardware.kind),
+    )?;
     preflight(&c, &a.db, "nothing was recorded or moved")?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
     // A resume is offered where it applies: at the end of a run that did not finish.
@@ -119,7 +127,11 @@ pub fn resume(a: ResumeArgs) -> CliResult {
             row.state.as_str()
         )));
     }
-    let _stage = take_stage(&a.db, &row.stage)?;
+    let _stage = take_stage(
+        &a.db,
+        &row.stage,
+        stagelock::Scope::of_spec_toml(&row.spec_toml),
+    )?;
     let c = session::load_stored(&store, a.id).map_err(CliError::failure)?;
     preflight(
         &c,

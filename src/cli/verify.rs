@@ -1,7 +1,7 @@
 //! `csmetro verify ID`: measures a characterised stage again without and with its compensation
 //! and reports before/after side by side; exit 1 ("passed": false) when the compensated residual
 //! exceeds the expected one.
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
 
@@ -123,8 +123,12 @@ pub fn run(a: Args) -> CliResult {
         comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| CliError::input(e.to_string()))?;
     }
-    let _stage =
-        stagelock::try_lock(&a.db, &row.stage).map_err(|e| CliError::failure(e.to_string()))?;
+    let _stage = stagelock::try_lock_scoped(
+        &a.db,
+        &row.stage,
+        stagelock::Scope::of(c.spec.hardware.kind),
+    )
+    .map_err(|e| CliError::failure(e.to_string()))?;
     let opts = VerifyOptions {
         cycles: a.cycles,
         iso_targets: a.targets,
@@ -184,6 +188,7 @@ pub fn run(a: Args) -> CliResult {
             .and_then(|()| std::fs::write(&p, bytes));
         written &= ok.is_ok();
     }
+    link_report(&shared, &dir, a.id, verify::REPORT_FILE, v.passed);
     if a.json {
         outln!("{}", verify::json(&v));
     } else {
@@ -201,6 +206,36 @@ pub fn run(a: Args) -> CliResult {
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// The characterisation's `report.html`, in the store and in its output directory, links to
+/// the verification (`href`, relative to the results). A report that cannot be updated keeps
+/// its old content: the verification's own files are written already.
+fn link_report(shared: &Arc<Mutex<Store>>, dir: &Path, id: i64, href: &str, passed: bool) {
+    use crate::report::verification::with_verification_link;
+    let note = "(before / after figures and charts of the last `csmetro verify`)";
+    {
+        let s = shared.lock().unwrap_or_else(|e| e.into_inner());
+        if let Ok(Some((ctype, bytes))) = s.result(id, "report.html") {
+            if let Some(h) = std::str::from_utf8(&bytes)
+                .ok()
+                .and_then(|t| with_verification_link(t, href, passed, note))
+            {
+                if let Err(e) = s.put_result(id, "report.html", &ctype, h.as_bytes()) {
+                    eprintln!("warning: report.html not updated in the store: {e}");
+                }
+            }
+        }
+    }
+    let p = dir.join("report.html");
+    if let Some(h) = std::fs::read_to_string(&p)
+        .ok()
+        .and_then(|t| with_verification_link(&t, href, passed, note))
+    {
+        if let Err(e) = std::fs::write(&p, h) {
+            eprintln!("warning: {}: not updated: {e}", p.display());
+        }
+    }
 }
 
 /// Runs `body` on a runtime with Ctrl-C / SIGTERM turned into an abort of the verification.
@@ -272,7 +307,9 @@ fn run_map(
             comp.source, a.id
         )));
     }
-    let _stage = stagelock::try_lock(&a.db, stage).map_err(|e| CliError::failure(e.to_string()))?;
+    let _stage =
+        stagelock::try_lock_scoped(&a.db, stage, stagelock::Scope::of(c.spec.hardware.kind))
+            .map_err(|e| CliError::failure(e.to_string()))?;
     let quiet = a.quiet;
     let id = a.id;
     let comp = Arc::new(comp);
@@ -293,6 +330,7 @@ fn run_map(
         e => CliError::failure(e.to_string()),
     })?;
     let (written, dir) = keep_files(shared, c, a.id, &verify_map::files(&v));
+    link_report(shared, &dir, a.id, "verify/summary.txt", v.passed);
     if a.json {
         outln!("{}", verify_map::json(&v));
     } else {

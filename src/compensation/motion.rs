@@ -425,8 +425,12 @@ pub fn api_prepare(
         .map_err(|e| hidden(&format!("campaign {hw}'s hardware"), &e))?;
     let lock = match db_path {
         Some(p) => Some(
-            crate::campaign::stagelock::try_lock(&p, stage)
-                .map_err(|e| ApiError::conflict(e.to_string()))?,
+            crate::campaign::stagelock::try_lock_scoped(
+                &p,
+                stage,
+                crate::campaign::stagelock::Scope::of(c.spec.hardware.kind),
+            )
+            .map_err(|e| ApiError::conflict(e.to_string()))?,
         ),
         None => None,
     };

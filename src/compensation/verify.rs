@@ -298,6 +298,9 @@ pub struct AxisVerdict {
     pub characterisation_m: Option<u64>,
     pub grid_points: Option<u64>,
     pub cycles: u32,
+    /// Every reported target and direction against its own pass line (the figures above are
+    /// their extremes).
+    pub per_target: Vec<crate::report::verification::TargetCheck>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -589,6 +592,23 @@ pub async fn run(
                 (e, e.is_finite() && max_a <= e, "cv")
             }
         };
+        // Each target's pass line, as the verdict above checks it.
+        let expected_at = |d: Direction, x: f64| match (opts.expected_um, band) {
+            (Some(e), _) => e,
+            (None, Some(t)) => 3.0 * t.u_at(d, x).unwrap_or(f64::NAN) + repeat.unwrap_or(0.0),
+            (None, None) => expected,
+        };
+        let kind_of = |x: f64| {
+            if is_iso(x) {
+                Some("iso")
+            } else if is_un(x) {
+                Some("unvisited")
+            } else {
+                None
+            }
+        };
+        let per_target =
+            crate::report::verification::per_target(before, after, *axis, &kind_of, &expected_at);
         let u_mean_um = band.map(|t| {
             let u: Vec<f64> = [&t.u_forward_um, &t.u_backward_um]
                 .into_iter()
@@ -626,6 +646,7 @@ pub async fn run(
             max_abs_before_extrapolated_um: (!ext.is_empty()).then_some(max_b_ext),
             max_abs_after_extrapolated_um: (!ext.is_empty()).then_some(max_a_ext),
             cycles: opts.cycles,
+            per_target,
         });
     }
     let raw = before
@@ -648,6 +669,26 @@ pub async fn run(
 
 fn opt(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.3}"))
+}
+
+/// What an axis's expected residual is made of, in words.
+fn basis(a: &AxisVerdict) -> String {
+    match a.expected_from {
+        "band" => format!(
+            "expected 3 u + unidirectional R {} at each target, tightest at {} µm: {:.3} µm (mean u {})",
+            opt(a.repeatability_um),
+            opt(a.worst_target_um),
+            a.expected_um,
+            opt(a.u_mean_um)
+        ),
+        "given" => format!("expected {:.3} µm (given)", a.expected_um),
+        _ => format!(
+            "expected {:.3} µm (3 x CV error {} + unidirectional R {})",
+            a.expected_um,
+            opt(a.cv_error_um),
+            opt(a.repeatability_um)
+        ),
+    }
 }
 
 /// The side-by-side table (`summary.txt` of the verification).
@@ -683,22 +724,7 @@ pub fn table(v: &Verdict) -> String {
                 max
             ));
         }
-        let basis = match a.expected_from {
-            "band" => format!(
-                "expected 3 u + unidirectional R {} at each target, tightest at {} µm: {:.3} µm (mean u {})",
-                opt(a.repeatability_um),
-                opt(a.worst_target_um),
-                a.expected_um,
-                opt(a.u_mean_um)
-            ),
-            "given" => format!("expected {:.3} µm (given)", a.expected_um),
-            _ => format!(
-                "expected {:.3} µm (3 x CV error {} + unidirectional R {})",
-                a.expected_um,
-                opt(a.cv_error_um),
-                opt(a.repeatability_um)
-            ),
-        };
+        let basis = basis(a);
         s.push_str(&format!(
             "{:<5} E reduced {:.1}x; max |after| {:.3} µm ({:.3} µm at never-visited targets) vs {}: {}\n",
             a.axis.to_uppercase(),
@@ -765,89 +791,96 @@ pub fn samples_csv(v: &Verdict) -> String {
     s
 }
 
-/// Both curves of one axis (mean deviation per target and direction, before and after) as SVG.
+/// The compensated approaches of an axis the verdict checks: (target, deviation), µm.
+fn after_samples(v: &Verdict, a: &AxisVerdict) -> Vec<(f64, f64)> {
+    v.raw
+        .iter()
+        .filter(|(after, r)| {
+            *after
+                && r.target.run.axis.as_str() == a.axis
+                && !a
+                    .extrapolated_targets_um
+                    .iter()
+                    .any(|q| (q - r.target.target_um()).abs() < 1e-9)
+        })
+        .map(|(_, r)| (r.target.target_um(), r.error_um(r.target.run.axis)))
+        .collect()
+}
+
+/// Size of the verification charts.
+const CHART: crate::report::PlotOptions = crate::report::PlotOptions {
+    width: 1200,
+    height: 700,
+};
+
+fn chart<T>(
+    v: &Verdict,
+    axis: &str,
+    draw: impl FnOnce(&crate::report::verification::VerifyChart<'_>) -> Result<T, String>,
+) -> Result<T, String> {
+    let a = v
+        .axes
+        .iter()
+        .find(|a| a.axis == axis)
+        .ok_or_else(|| format!("no axis {axis}"))?;
+    let samples = after_samples(v, a);
+    draw(&crate::report::verification::VerifyChart {
+        axis,
+        checks: &a.per_target,
+        after_samples: &samples,
+        passed: a.passed,
+    })
+}
+
+/// One axis before / after (mean deviation per target and direction, every compensated
+/// approach, the pass line ±expected) as SVG.
 pub fn plot_svg(v: &Verdict, axis: &str) -> Result<String, String> {
-    use plotters::prelude::*;
-    crate::report::register_fonts();
-    let series = |after: bool, forward: bool| -> Vec<(f64, f64)> {
-        let mut pts: std::collections::BTreeMap<i64, (f64, f64, usize)> = Default::default();
-        for (a, r) in &v.raw {
-            if *a != after
-                || r.target.run.axis.as_str() != axis
-                || (r.target.run.direction == Direction::Forward) != forward
-            {
-                continue;
-            }
-            let p = r.target.target_um();
-            let e = pts.entry((p * 1e6).round() as i64).or_insert((p, 0.0, 0));
-            e.1 += r.error_um(r.target.run.axis);
-            e.2 += 1;
-        }
-        pts.values().map(|(p, s, n)| (*p, s / *n as f64)).collect()
-    };
-    let all: Vec<(f64, f64)> = [(false, true), (false, false), (true, true), (true, false)]
-        .into_iter()
-        .flat_map(|(a, f)| series(a, f))
+    chart(v, axis, |c| {
+        crate::report::verification::verify_chart_svg(c, &CHART)
+    })
+}
+
+/// [`plot_svg`] as PNG.
+pub fn plot_png(v: &Verdict, axis: &str) -> Result<Vec<u8>, String> {
+    chart(v, axis, |c| {
+        crate::report::verification::verify_chart_png(c, &CHART)
+    })
+}
+
+/// `verify/report.html`: the before/after tables and charts (`pngs`: per axis).
+pub fn page_html(v: &Verdict, pngs: &[(String, Vec<u8>)]) -> String {
+    use crate::report::verification::{verify_html, AxisPage};
+    let axes: Vec<AxisPage<'_>> = v
+        .axes
+        .iter()
+        .map(|a| AxisPage {
+            axis: &a.axis,
+            e_before_um: a.before.e_um,
+            e_after_um: a.after.e_um,
+            mean_abs_before_um: a.mean_abs_before_um,
+            mean_abs_after_um: a.mean_abs_after_um,
+            max_abs_after_um: a.max_abs_after_um,
+            expected_um: a.expected_um,
+            expected_basis: basis(a),
+            passed: a.passed,
+            checks: &a.per_target,
+            png: pngs
+                .iter()
+                .find(|(n, _)| *n == a.axis)
+                .map(|(_, b)| b.as_slice()),
+            svg_name: Some(format!("verify_{}.svg", a.axis)),
+        })
         .collect();
-    if all.is_empty() {
-        return Err(format!("no samples of axis {axis}"));
-    }
-    let (x0, x1) = all
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.0), b.max(p.0))
-        });
-    let (y0, y1) = all
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.1), b.max(p.1))
-        });
-    let pad = ((y1 - y0) * 0.05).max(1e-3);
-    let mut out = String::new();
-    {
-        let root = SVGBackend::with_string(&mut out, (1200, 700)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| e.to_string())?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(
-                format!("axis {axis}: positioning deviation before / after compensation"),
-                (crate::report::FONT_FAMILY, 24),
-            )
-            .margin(20)
-            .x_label_area_size(50)
-            .y_label_area_size(70)
-            .build_cartesian_2d(x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
-            .map_err(|e| e.to_string())?;
-        chart
-            .configure_mesh()
-            .x_desc("target (µm)")
-            .y_desc("deviation (µm)")
-            .draw()
-            .map_err(|e| e.to_string())?;
-        for (after, forward, color, label) in [
-            (false, true, RED, "before, forward"),
-            (false, false, MAGENTA, "before, backward"),
-            (true, true, BLUE, "after, forward"),
-            (true, false, CYAN, "after, backward"),
-        ] {
-            let s = series(after, forward);
-            chart
-                .draw_series(LineSeries::new(s.clone(), color.stroke_width(2)))
-                .map_err(|e| e.to_string())?
-                .label(label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
-            chart
-                .draw_series(s.into_iter().map(|p| Circle::new(p, 3, color.filled())))
-                .map_err(|e| e.to_string())?;
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| e.to_string())?;
-        root.present().map_err(|e| e.to_string())?;
-    }
-    Ok(out)
+    verify_html(
+        &format!(
+            "Verification of campaign {} on stage {}",
+            v.campaign, v.stage
+        ),
+        &format!("Compensation: {}.", v.compensation),
+        v.passed,
+        &axes,
+        &table(v),
+    )
 }
 
 /// The stored verdict (the JSON of `csmetro verify --json`), among a campaign's results.
@@ -876,7 +909,7 @@ pub fn report_html(v: &Verdict, id: i64, name: &str, text: &str, origin: &str) -
         esc(&v.compensation)
     ));
     h.push_str(&format!(
-        "<h2>Before / after (ISO 230-2)</h2>\n<pre>{}</pre>\n",
+        "<h2>Before / after (ISO 230-2)</h2>\n<p><a href=\"{REPORT_FILE}\">Each target against its pass line</a>.</p>\n<pre>{}</pre>\n",
         esc(&table(v))
     ));
     for a in &v.axes {
@@ -916,6 +949,7 @@ pub fn files(v: &Verdict) -> Vec<(String, String, Vec<u8>)> {
             samples_csv(v).into_bytes(),
         ),
     ];
+    let mut pngs = Vec::new();
     for a in &v.axes {
         if let Ok(svg) = plot_svg(v, &a.axis) {
             f.push((
@@ -924,9 +958,25 @@ pub fn files(v: &Verdict) -> Vec<(String, String, Vec<u8>)> {
                 svg.into_bytes(),
             ));
         }
+        if let Ok(png) = plot_png(v, &a.axis) {
+            f.push((
+                format!("verify/verify_{}.png", a.axis),
+                "image/png".into(),
+                png.clone(),
+            ));
+            pngs.push((a.axis.clone(), png));
+        }
     }
+    f.push((
+        REPORT_FILE.into(),
+        "text/html; charset=utf-8".into(),
+        page_html(v, &pngs).into_bytes(),
+    ));
     f
 }
+
+/// The verification's page among the characterisation's results (linked from its report.html).
+pub const REPORT_FILE: &str = "verify/report.html";
 
 #[cfg(test)]
 mod tests;

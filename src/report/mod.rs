@@ -12,6 +12,9 @@
 //! | `iso230.json` | [`AxisIso230`] per moving axis |
 //! | `plots/iso230_<axis>.svg`, `.png` | ISO 230-2 chart: x̄↑ x̄↓ per target, ±2s bands, A B E M R ([`iso_chart_files`]) |
 //!
+//! `csmetro verify ID` adds `verify/report.html` and `verify/verify_<axis>.svg|png` (before /
+//! after with the pass line, [`verification`]) and links the first from `report.html`.
+//!
 //! The summary table ([`SummaryTable`], [`render_table`]) needs the campaign's timings, so the
 //! engine renders it itself; so does `report.html` ([`html::report_html`]), which also needs
 //! the campaign's log (the rig's identification, the attempts).
@@ -23,6 +26,7 @@ pub mod iso230_1;
 mod isoplot;
 mod plot;
 mod table;
+pub mod verification;
 
 use std::path::Path;
 

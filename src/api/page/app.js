@@ -177,9 +177,20 @@ function select(id) {
     drawPending: false,
     live: true,
     state: null,
+    // A `[map]` campaign: samples per approach direction ([x, y, ex, ey]), the reconstructed
+    // grids (map_<dir>.csv), the figures drawn.
+    map: { samples: new Map(), grids: new Map(), figs: new Map(), loading: new Set(), dirty: false, isoDone: false },
   };
   $('detail').hidden = false;
   $('plots').replaceChildren();
+  $('lines').hidden = false;
+  $('maps').hidden = true;
+  $('map-body').replaceChildren();
+  $('map-count').textContent = '';
+  $('iso2301').hidden = true;
+  $('iso2301-body').replaceChildren();
+  $('verification').hidden = true;
+  $('verification-body').replaceChildren();
   $('events').replaceChildren();
   $('results').replaceChildren(el('li', { class: 'note' }, 'none yet'));
   $('iso').hidden = true;
@@ -403,6 +414,12 @@ function addSample(sel, s) {
   if (!s || !s.target || sel.samples.has(s.target.seq)) return false;
   sel.samples.set(s.target.seq, s);
   const run = s.target.run;
+  if (run.phase === 'map') {
+    // Both axes move: an error against one axis's position means nothing; drawn over XY.
+    addMapSample(sel, s);
+    scheduleDraw(sel);
+    return true;
+  }
   const other = run.axis === 'x' ? 'y' : 'x';
   const d = run.direction === 'backward' ? 'b' : 'f';
   const pos = run.axis === 'x' ? s.target.target_x_um : s.target.target_y_um;
@@ -425,6 +442,7 @@ function chart(sel, comp) {
   const fig = el('figure', { 'data-component': comp }, el('figcaption', {}, comp), canvas);
   c = { comp, canvas, fig, points: [], curves: new Map() };
   sel.charts.set(comp, c);
+  $('lines').hidden = false;
   const figs = [...sel.charts.values()].sort((a, b) => a.comp.localeCompare(b.comp)).map((x) => x.fig);
   $('plots').replaceChildren(...figs);
   return c;
@@ -440,6 +458,7 @@ function scheduleDraw(sel) {
     for (const c of sel.charts.values()) {
       if (c.dirty) { c.dirty = false; draw(c); }
     }
+    if (sel.map.dirty) { sel.map.dirty = false; drawMaps(sel); }
     $('plot-count').textContent = `${sel.samples.size} samples`;
     $('plots').dataset.samples = sel.samples.size;
     S.stats.samplesDrawn = sel.samples.size;
@@ -600,6 +619,48 @@ async function loadResults(sel) {
     rep.hidden = true;
   }
   showIso(sel, names);
+  // A map campaign's reconstructed grids and its ISO 230-1 figures (summary.json `map`).
+  const maps = names.map((n) => /^map_(forward|backward)\.csv$/.exec(n)).filter(Boolean);
+  for (const m of maps) loadMapGrid(sel, m[1], m[0]);
+  if (maps.length && names.includes('summary.json')) showIso2301(sel);
+  if (names.includes('verify/verify.json')) showVerification(sel, names);
+}
+
+// The last `csmetro verify` of this campaign (GET /campaigns/{id}/verification): the verdict,
+// the before/after table per axis and its charts (verify/verify_<axis>.svg, pass line drawn).
+async function showVerification(sel, names) {
+  const key = names.filter((n) => n.startsWith('verify/')).join('\n');
+  if (key === sel.verifyKey) return;
+  sel.verifyKey = key;
+  let v;
+  try {
+    v = await getJson(`/campaigns/${sel.id}/verification`);
+  } catch (e) {
+    if (!(e instanceof AuthNeeded)) notice(`Verification: ${e.message}`);
+    return;
+  }
+  if (S.sel !== sel || !v || typeof v !== 'object') return;
+  const kids = [el('p', { class: v.passed ? 'state-done' : 'state-failed', 'data-passed': String(!!v.passed) },
+    `Verification ${v.passed ? 'passed' : 'FAILED'}${v.kind === 'map' ? ' (map)' : ''}`)];
+  const axes = Array.isArray(v.axes) ? v.axes.filter((a) => a && a.before && a.after) : [];
+  if (axes.length) {
+    kids.push(el('table', { class: 'verify-table' },
+      el('thead', {}, el('tr', {}, ...['axis', 'E before', 'E after', 'mean |e| before', 'mean |e| after',
+        'max |after|', 'expected', 'verdict'].map((h, i) => el('th', { class: i ? 'num' : '' }, h)))),
+      el('tbody', {}, ...axes.map((a) => el('tr', { 'data-axis': a.axis },
+        el('td', {}, String(a.axis)),
+        ...[a.before.e_um, a.after.e_um, a.mean_abs_before_um, a.mean_abs_after_um, a.max_abs_after_um,
+          a.expected_um].map((x) => el('td', { class: 'num' }, fmt(x))),
+        el('td', { class: a.passed ? 'state-done' : 'state-failed' }, a.passed ? 'pass' : 'FAIL'))))));
+    kids.push(el('p', { class: 'note' }, 'µm; every compensated approach must stay within ±expected (the pass line on the charts).'));
+  }
+  for (const n of names.filter((x) => /^verify\/verify_[a-z]+\.svg$/.test(x))) {
+    const url = await blobUrl(sel, n);
+    if (url) kids.push(el('figure', {}, el('figcaption', {}, n), el('img', { src: url, alt: `verification chart ${n}` })));
+  }
+  if (S.sel !== sel) return;
+  $('verification-body').replaceChildren(...kids);
+  $('verification').hidden = false;
 }
 
 // With a token a plain link cannot authenticate: fetch the file, then open it.
@@ -745,6 +806,225 @@ function isoChart(axis, f, rows) {
     .map(([k, v]) => `${k} = ${fmt(v)} µm`);
   txt.forEach((t, k) => ctx.fillText(t, fr.W - fr.R - 6, fr.T + 12 + 12 * k));
   return el('figure', {}, el('figcaption', {}, `ISO 230-2, axis ${axis}`), canvas);
+}
+
+// ---------------------------------------------------------------- XY maps
+
+function showMapSection(sel) {
+  if (S.sel !== sel) return;
+  $('maps').hidden = false;
+  $('lines').hidden = sel.charts.size === 0;
+}
+
+function addMapSample(sel, s) {
+  const t = s.target;
+  const dir = t.run.direction;
+  let list = sel.map.samples.get(dir);
+  if (!list) { list = []; sel.map.samples.set(dir, list); }
+  list.push([t.target_x_um, t.target_y_um, s.meas_x_um - t.target_x_um, s.meas_y_um - t.target_y_um]);
+  sel.map.dirty = true;
+  showMapSection(sel);
+}
+
+// Largest map file read (x fastest, one row per grid point): 2 M points.
+const MAP_MAX_ROWS = 2000000;
+
+// `map_<dir>.csv` (x_um,y_um,ex_um,ey_um[,theta_urad]) as a grid: sorted xs, ys and ex, ey
+// with x fastest; null when it is not one.
+function parseMapCsv(text) {
+  const lines = text.split('\n');
+  const head = lines[0].trim().split(',');
+  const [ix, iy, iex, iey] = ['x_um', 'y_um', 'ex_um', 'ey_um'].map((k) => head.indexOf(k));
+  if (Math.min(ix, iy, iex, iey) < 0 || lines.length > MAP_MAX_ROWS + 2) return null;
+  const rows = [];
+  for (let k = 1; k < lines.length; k++) {
+    if (!lines[k]) continue;
+    const f = lines[k].split(',').map(Number);
+    if (isFinite(f[ix]) && isFinite(f[iy])) rows.push(f);
+  }
+  const axis = (i) => [...new Set(rows.map((f) => f[i]))].sort((a, b) => a - b);
+  const xs = axis(ix), ys = axis(iy);
+  if (!xs.length || !ys.length || xs.length * ys.length > MAP_MAX_ROWS) return null;
+  const xi = new Map(xs.map((v, i) => [v, i])), yi = new Map(ys.map((v, i) => [v, i]));
+  const ex = new Float64Array(xs.length * ys.length).fill(NaN);
+  const ey = new Float64Array(xs.length * ys.length).fill(NaN);
+  for (const f of rows) {
+    const k = yi.get(f[iy]) * xs.length + xi.get(f[ix]);
+    ex[k] = f[iex];
+    ey[k] = f[iey];
+  }
+  return { xs, ys, ex, ey };
+}
+
+async function loadMapGrid(sel, dir, name) {
+  if (sel.map.loading.has(name)) return;
+  sel.map.loading.add(name);
+  try {
+    const r = await api(`/campaigns/${sel.id}/results/${encodeURIComponent(name)}`);
+    if (!r.ok || S.sel !== sel) { sel.map.loading.delete(name); return; }
+    const g = parseMapCsv(await r.text());
+    if (!g || S.sel !== sel) return;
+    sel.map.grids.set(dir, g);
+    sel.map.dirty = true;
+    showMapSection(sel);
+    scheduleDraw(sel);
+  } catch (e) {
+    sel.map.loading.delete(name);
+    if (!(e instanceof AuthNeeded)) notice(`${name}: ${e.message}`);
+  }
+}
+
+// Blue (negative) – white – red (positive); t in [-1, 1].
+function diverging(t) {
+  const a = Math.min(1, Math.abs(t));
+  const [r, g, b] = t < 0 ? [33, 102, 172] : [178, 24, 43];
+  const mix = (c) => Math.round(255 + (c - 255) * a);
+  return `rgb(${mix(r)},${mix(g)},${mix(b)})`;
+}
+
+const MAP_COMPONENTS = [['ex', 'eₓ', 2], ['ey', 'eᵧ', 3]];
+
+function mapFig(sel, key, caption) {
+  let f = sel.map.figs.get(key);
+  if (f) return f;
+  const canvas = el('canvas', { width: 480, height: 360, 'data-map': key, 'data-samples': 0, 'data-cells': 0 });
+  f = { key, canvas, fig: el('figure', { 'data-map': key }, el('figcaption', {}, caption), canvas) };
+  sel.map.figs.set(key, f);
+  // Forward before backward, e_x before e_y.
+  const order = (k) => (k.startsWith('forward') ? '0' : '1') + k;
+  const figs = [...sel.map.figs.values()].sort((a, b) => order(a.key).localeCompare(order(b.key))).map((x) => x.fig);
+  $('map-body').replaceChildren(...figs);
+  return f;
+}
+
+function drawMaps(sel) {
+  const dirs = new Set([...sel.map.samples.keys(), ...sel.map.grids.keys()]);
+  let n = 0;
+  for (const dir of dirs) {
+    const pts = sel.map.samples.get(dir) || [];
+    n += pts.length;
+    const grid = sel.map.grids.get(dir) || null;
+    for (const [comp, label, col] of MAP_COMPONENTS) {
+      const caption = `${label} (µm), ${dir}, ${grid ? 'reconstructed' : 'samples so far'}`;
+      const f = mapFig(sel, `${dir}-${comp}`, caption);
+      f.fig.firstChild.textContent = caption;
+      heatMap(f.canvas, pts, col, grid, comp);
+    }
+  }
+  $('map-count').textContent = `${n} samples`;
+}
+
+// One error component over XY: the reconstructed grid as cells when there is one (samples as
+// dots), else the samples as coloured squares; a colour bar symmetric about 0 on the right.
+function heatMap(canvas, pts, col, grid, comp) {
+  const ctx = canvas.getContext('2d');
+  const W = canvas.width, H = canvas.height;
+  const L = 58, R = 78, T = 10, B = 36;
+  ctx.clearRect(0, 0, W, H);
+  const span = (v) => v.reduce(([a, b], x) => [Math.min(a, x), Math.max(b, x)], [Infinity, -Infinity]);
+  const xs = grid ? grid.xs : pts.map((p) => p[0]);
+  const ys = grid ? grid.ys : pts.map((p) => p[1]);
+  const dx = grid && grid.xs.length > 1 ? grid.xs[1] - grid.xs[0] : 0;
+  const dy = grid && grid.ys.length > 1 ? grid.ys[1] - grid.ys[0] : 0;
+  let [x0, x1] = span(xs), [y0, y1] = span(ys);
+  if (!isFinite(x0)) [x0, x1] = [0, 1];
+  if (!isFinite(y0)) [y0, y1] = [0, 1];
+  x0 -= dx / 2; x1 += dx / 2; y0 -= dy / 2; y1 += dy / 2;
+  if (x1 - x0 < 1e-9) { x0 -= 1; x1 += 1; }
+  if (y1 - y0 < 1e-9) { y0 -= 1; y1 += 1; }
+  const values = grid ? [...grid[comp]] : pts.map((p) => p[col]);
+  const vmax = values.concat(pts.map((p) => p[col])).filter(isFinite)
+    .reduce((m, v) => Math.max(m, Math.abs(v)), 0) || 1;
+  const X = (v) => L + (v - x0) / (x1 - x0) * (W - L - R);
+  const Y = (v) => H - B - (v - y0) / (y1 - y0) * (H - T - B);
+  let cells = 0;
+  if (grid) {
+    const cw = Math.abs(X(x0 + (dx || 1)) - X(x0)) + 0.6, ch = Math.abs(Y(y0 + (dy || 1)) - Y(y0)) + 0.6;
+    grid.ys.forEach((y, j) => grid.xs.forEach((x, i) => {
+      const v = grid[comp][j * grid.xs.length + i];
+      if (!isFinite(v)) return;
+      ctx.fillStyle = diverging(v / vmax);
+      ctx.fillRect(X(x) - cw / 2, Y(y) - ch / 2, cw, ch);
+      cells++;
+    }));
+  }
+  for (const p of pts) {
+    if (!isFinite(p[col])) continue;
+    if (grid) {
+      ctx.fillStyle = '#1b1f24';
+      ctx.fillRect(X(p[0]) - 1, Y(p[1]) - 1, 2, 2);
+    } else {
+      ctx.fillStyle = diverging(p[col] / vmax);
+      ctx.fillRect(X(p[0]) - 4, Y(p[1]) - 4, 8, 8);
+      ctx.strokeStyle = '#5b6570';
+      ctx.lineWidth = 0.5;
+      ctx.strokeRect(X(p[0]) - 4, Y(p[1]) - 4, 8, 8);
+    }
+  }
+  ctx.font = '11px system-ui, sans-serif';
+  ctx.fillStyle = '#5b6570';
+  ctx.strokeStyle = '#1b1f24';
+  ctx.lineWidth = 1;
+  ctx.textAlign = 'center';
+  for (const t of niceTicks(x0, x1, 5)) ctx.fillText(String(t), X(t), H - B + 14);
+  ctx.fillText('x (µm)', (L + W - R) / 2, H - 4);
+  ctx.textAlign = 'right';
+  for (const t of niceTicks(y0, y1, 5)) ctx.fillText(String(t), L - 4, Y(t) + 4);
+  ctx.save();
+  ctx.translate(12, (T + H - B) / 2);
+  ctx.rotate(-Math.PI / 2);
+  ctx.textAlign = 'center';
+  ctx.fillText('y (µm)', 0, 0);
+  ctx.restore();
+  ctx.strokeRect(L, T, W - L - R, H - T - B);
+  // Colour bar.
+  const bx = W - R + 12, bw = 14, bh = H - T - B;
+  for (let k = 0; k < bh; k++) {
+    ctx.fillStyle = diverging(1 - 2 * k / (bh - 1));
+    ctx.fillRect(bx, T + k, bw, 1);
+  }
+  ctx.strokeRect(bx, T, bw, bh);
+  ctx.fillStyle = '#5b6570';
+  ctx.textAlign = 'left';
+  ctx.fillText(`+${fmt(vmax)}`, bx + bw + 3, T + 10);
+  ctx.fillText('0', bx + bw + 3, T + bh / 2 + 4);
+  ctx.fillText(`−${fmt(vmax)}`, bx + bw + 3, T + bh);
+  canvas.dataset.samples = pts.length;
+  canvas.dataset.cells = cells;
+  canvas.dataset.vmax = vmax;
+}
+
+// The ISO 230-1 figures of each reconstructed map (summary.json `map.runs[].iso230_1`).
+async function showIso2301(sel) {
+  if (sel.map.isoDone) return;
+  let summary;
+  try {
+    summary = await getJson(`/campaigns/${sel.id}/results/summary.json`);
+  } catch (e) {
+    if (!(e instanceof AuthNeeded)) notice(`summary.json: ${e.message}`);
+    return;
+  }
+  if (S.sel !== sel) return;
+  const runs = summary && summary.map && Array.isArray(summary.map.runs) ? summary.map.runs : [];
+  const rows = runs.filter((r) => r && r.iso230_1 && typeof r.iso230_1 === 'object');
+  if (!rows.length) return;
+  sel.map.isoDone = true;
+  const figs = [
+    ['squareness (angle − 90°)', 'µrad', 'squareness_urad', 1],
+    ['straightness of X (eᵧ along x), mean profile', 'µm', 'straightness_x_um', 3],
+    ['straightness of X, worst row', 'µm', 'straightness_x_worst_um', 3],
+    ['straightness of Y (eₓ along y), mean profile', 'µm', 'straightness_y_um', 3],
+    ['straightness of Y, worst column', 'µm', 'straightness_y_worst_um', 3],
+  ];
+  const table = el('table', { class: 'iso2301-table' },
+    el('thead', {}, el('tr', {}, el('th', {}, 'figure'), el('th', {}, 'unit'),
+      ...rows.map((r) => el('th', { class: 'num' }, String(r.direction || ''))))),
+    el('tbody', {}, ...figs.map(([what, unit, key, digits]) => el('tr', { 'data-figure': key },
+      el('td', {}, what), el('td', {}, unit),
+      ...rows.map((r) => el('td', { class: 'num' }, fmt(r.iso230_1[key], digits)))))));
+  const how = rows.map((r) => `${r.direction}: ${r.method}, ${r.m} samples, CV error ${fmt(r.cv_error_um, 4)} µm`);
+  $('iso2301-body').replaceChildren(table, el('p', { class: 'note' }, `From the reconstructed map (${how.join('; ')}).`));
+  $('iso2301').hidden = false;
 }
 
 // ---------------------------------------------------------------- submission
