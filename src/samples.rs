@@ -292,13 +292,39 @@ pub fn parse_samples_with(
 
 /// Writes `position_um,error_um` at each position.
 pub fn write_curve_csv(path: &Path, positions: &[f64], values: &[f64]) -> std::io::Result<()> {
+    write_curve_u_csv(path, positions, values, &[])
+}
+
+/// Writes `position_um,error_um,u_um` (the curve's pointwise standard uncertainty, k = 1) at
+/// each position; without a `u` of the positions' length, `position_um,error_um` only.
+pub fn write_curve_u_csv(
+    path: &Path,
+    positions: &[f64],
+    values: &[f64],
+    u: &[f64],
+) -> std::io::Result<()> {
     use std::io::Write;
     let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
-    writeln!(out, "position_um,error_um")?;
-    for (p, v) in positions.iter().zip(values) {
-        writeln!(out, "{p},{v}")?;
-    }
+    out.write_all(curve_csv(positions, values, u).as_bytes())?;
     out.flush()
+}
+
+/// The text of [`write_curve_u_csv`].
+pub fn curve_csv(positions: &[f64], values: &[f64], u: &[f64]) -> String {
+    let with_u = u.len() == positions.len();
+    let mut s = String::from(if with_u {
+        "position_um,error_um,u_um\n"
+    } else {
+        "position_um,error_um\n"
+    });
+    for (i, (p, v)) in positions.iter().zip(values).enumerate() {
+        if with_u {
+            s.push_str(&format!("{p},{v},{}\n", u[i]));
+        } else {
+            s.push_str(&format!("{p},{v}\n"));
+        }
+    }
+    s
 }
 
 #[cfg(test)]

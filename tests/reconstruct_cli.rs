@@ -7,15 +7,30 @@ fn bin() -> Command {
 }
 
 fn read_curve(path: &Path) -> Vec<(f64, f64)> {
+    read_curve_u(path).0
+}
+
+/// (position, error) rows and, when the file has the column, each row's u_um.
+fn read_curve_u(path: &Path) -> (Vec<(f64, f64)>, Option<Vec<f64>>) {
     let text = std::fs::read_to_string(path).unwrap();
     let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("position_um,error_um"));
-    lines
-        .map(|l| {
-            let (a, b) = l.split_once(',').unwrap();
-            (a.parse().unwrap(), b.parse().unwrap())
-        })
-        .collect()
+    let header = lines.next().unwrap();
+    assert!(
+        header == "position_um,error_um" || header == "position_um,error_um,u_um",
+        "{header}"
+    );
+    let with_u = header.ends_with(",u_um");
+    let mut rows = Vec::new();
+    let mut u = Vec::new();
+    for l in lines {
+        let f: Vec<f64> = l.split(',').map(|v| v.parse().unwrap()).collect();
+        assert_eq!(f.len(), if with_u { 3 } else { 2 }, "{l}");
+        rows.push((f[0], f[1]));
+        if with_u {
+            u.push(f[2]);
+        }
+    }
+    (rows, with_u.then_some(u))
 }
 
 fn generate(dir: &Path, m: usize) -> (PathBuf, PathBuf) {
@@ -95,8 +110,16 @@ fn round_trip_every_method_writes_the_whole_grid_and_beats_a_lookup_table() {
         if method == "auto" {
             assert!(j["cv_error_um"].as_f64().unwrap() > 0.0);
         }
-        let g = read_curve(&out);
+        let (g, u) = read_curve_u(&out);
         assert_eq!(g.len(), 1901);
+        // The pointwise u (k = 1) for the methods with a band; bp asked directly has none.
+        match u {
+            Some(u) => {
+                assert_ne!(method, "bp");
+                assert!(u.iter().all(|v| v.is_finite() && *v > 0.0), "{method}");
+            }
+            None => assert_eq!(method, "bp"),
+        }
         let e = g
             .iter()
             .zip(&truth)

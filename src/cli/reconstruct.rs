@@ -45,7 +45,9 @@ pub struct Args {
     /// set fails) at this one. JSON `relative_gap` reports the gap reached.
     #[arg(long, default_value_t = 1e-3)]
     gap_tol: f64,
-    /// Output CSV `position_um,error_um` at every grid point (default: stdout unless --json).
+    /// Output CSV `position_um,error_um,u_um` at every grid point, u the pointwise standard
+    /// uncertainty (k = 1; the column is left out for bp/bpdn, which have none) (default: stdout
+    /// unless --json).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Print exactly one JSON object with the solve figures on stdout.
@@ -102,13 +104,10 @@ pub fn run(a: Args) -> CliResult {
         .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
     let positions = grid.positions();
     match &a.out {
-        Some(path) => samples::write_curve_csv(path, &positions, &r.values)
+        Some(path) => samples::write_curve_u_csv(path, &positions, &r.values, &r.u_um)
             .map_err(|e| CliError::failure(format!("{}: cannot write: {e}", path.display())))?,
         None if !a.json => {
-            outln!("position_um,error_um");
-            for (p, v) in positions.iter().zip(&r.values) {
-                outln!("{p},{v}");
-            }
+            out!("{}", samples::curve_csv(&positions, &r.values, &r.u_um));
         }
         None => {}
     }
