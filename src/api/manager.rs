@@ -468,7 +468,7 @@ impl Manager {
         let mut c = Campaign::parse(text, &file, &self.campaigns_dir)
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
         // `verify = ID`: a characterisation in this service's store only.
-        crate::compensation::campaign::resolve(&mut c, &self.db())
+        crate::campaign::verification::resolve(&mut c, &self.db())
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
         // load_stored resolves relative paths from the stored path's directory.
         c.origin = self.campaigns_dir.join(&file).display().to_string();

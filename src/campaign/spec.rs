@@ -37,7 +37,7 @@ pub struct CampaignSpec {
     pub outputs: Outputs,
     /// `[compensation]`: run the whole campaign compensated (see [`crate::compensation`]).
     #[serde(default)]
-    pub compensation: Option<crate::compensation::CompensationSpec>,
+    pub compensation: Option<CompensationSpec>,
     /// `[map]`: an XY workspace map (see [`map`]).
     #[serde(default)]
     pub map: Option<MapSpec>,
@@ -53,7 +53,7 @@ pub struct Meta {
     #[serde(default = "default_stage")]
     pub stage: String,
     /// `verify = ID`: this campaign verifies stored characterisation ID with its compensation
-    /// (see [`crate::compensation::campaign`]); its axes are the characterisation's.
+    /// (see [`crate::campaign::verification`]); its axes are the characterisation's.
     #[serde(default)]
     pub verify: Option<i64>,
 }
@@ -539,7 +539,7 @@ impl Campaign {
                 map,
                 model: model.map(Arc::new),
             })?;
-        crate::compensation::check_spec(&c, matches!(trust, Trust::Submitted(_)))
+        check_compensation(&c, matches!(trust, Trust::Submitted(_)))
             .map_err(|(k, m)| fail(k, m))?;
         Ok(c)
     }
@@ -613,7 +613,7 @@ fn validate(
         ));
     }
     if let Some(id) = spec.campaign.verify {
-        crate::compensation::campaign::check_spec(spec, id).map_err(|(k, m)| fail(k, m))?;
+        check_verification(spec, id).map_err(|(k, m)| fail(k, m))?;
     } else if spec.axes.is_empty() && spec.map.is_none() {
         return Err(fail(
             "axes",
@@ -1008,8 +1008,12 @@ fn validate(
     Ok((plans, method, solver, map, model))
 }
 
+mod compensation;
+pub use compensation::{check_spec as check_compensation, fits, CompensationSpec};
 pub mod map;
 pub use map::{MapPlan, MapSpec};
+mod verification;
+pub use verification::{check_verification, DEFAULT_VERIFY_CYCLES, MAX_VERIFY_CYCLES};
 mod paths;
 use paths::{check_submitted_outputs, load_model, probe_outputs};
 

@@ -12,9 +12,9 @@ use serde_json::json;
 
 use super::run::DEFAULT_DB;
 use super::{CliError, CliResult};
+use crate::campaign::motion::{self, MoveError, MoveRequest};
 use crate::campaign::spec::Campaign;
 use crate::campaign::{session, stagelock};
-use crate::compensation::motion::{self, MoveError, MoveRequest};
 use crate::compensation::Compensation;
 use crate::store::Store;
 use crate::types::{AxisId, Direction};

@@ -82,7 +82,7 @@ pub fn run(a: Args) -> CliResult {
     let origin = origin(a.operator.as_deref())?;
     let mut c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
-    crate::compensation::campaign::resolve(
+    crate::campaign::verification::resolve(
         &mut c,
         &store.lock().unwrap_or_else(|e| e.into_inner()),
     )
@@ -204,7 +204,7 @@ fn foreground(
         .build()
         .map_err(|e| CliError::failure(e.to_string()))?;
     rt.block_on(async move {
-        let planned = crate::compensation::campaign::planned(&c)
+        let planned = crate::campaign::verification::planned(&c)
             .unwrap_or(crate::campaign::plan::plan(&c).total() as u64);
         let stored = store
             .lock()

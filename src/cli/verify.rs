@@ -12,8 +12,8 @@ use super::{CliError, CliResult};
 use crate::campaign::engine::Control;
 use crate::campaign::session;
 use crate::campaign::stagelock;
-use crate::compensation::verify::{self, prior_from_summary, Prior, VerifyOptions};
-use crate::compensation::verify_map;
+use crate::campaign::verify::map as verify_map;
+use crate::campaign::verify::{self, prior_from_summary, Prior, VerifyOptions};
 use crate::compensation::Compensation;
 use crate::store::Store;
 use crate::types::{AxisId, CampaignState};
@@ -92,7 +92,7 @@ pub fn run(a: Args) -> CliResult {
     // A bad table is refused here, before any hardware is touched.
     let comp = match &a.compensation {
         Some(p) => Compensation::load(p),
-        None => Compensation::from_store(&store, a.id, &row.stage),
+        None => crate::campaign::compensate::stored(&store, a.id, &row.stage),
     }
     .map_err(|e| CliError::input(e.to_string()))?;
     comp.check_stage(&row.stage)

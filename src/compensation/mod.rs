@@ -12,12 +12,8 @@ use std::path::Path;
 
 use crate::types::{AxisId, Direction};
 
-pub mod campaign;
 pub mod map;
-pub mod motion;
 mod table;
-pub mod verify;
-pub mod verify_map;
 
 use table::parse_num;
 pub use table::AxisTable;
@@ -219,11 +215,14 @@ impl Compensation {
         })
     }
 
-    /// Compensation of a stored campaign: its `compensation_x|y.csv` results.
-    pub fn from_store(
-        store: &crate::store::Store,
+    /// Compensation of stored campaign `id` of `stage`, from its result files
+    /// (`compensation_x|y.csv`, else `compensation_map_<direction>.csv`, and `summary.json`):
+    /// `read(name)` gives a result's bytes, `None` when the campaign has no such file. The store
+    /// stays above: the caller reads it.
+    pub fn from_results(
         id: i64,
         stage: &str,
+        read: impl Fn(&str) -> Result<Option<Vec<u8>>, String>,
     ) -> Result<Compensation, TableError> {
         let origin = format!("campaign {id}");
         let mut c = Compensation {
@@ -235,14 +234,18 @@ impl Compensation {
             map: None,
             source: origin.clone(),
         };
-        if let Ok(Some((_, bytes))) = store.result(id, "summary.json") {
-            if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) {
-                c.line_other_um = line_positions(&v);
-            }
+        // A summary that cannot be read leaves the lines' positions unknown, as before.
+        let summary: Option<serde_json::Value> = read("summary.json")
+            .ok()
+            .flatten()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+        if let Some(v) = &summary {
+            c.line_other_um = line_positions(v);
         }
+        let text = |name: &str| stored_text(&read, &origin, name);
         for axis in [AxisId::X, AxisId::Y] {
             let name = format!("compensation_{axis}.csv");
-            if let Some((text, at)) = stored_text(store, id, &origin, &name)? {
+            if let Some((text, at)) = text(&name)? {
                 let t = AxisTable::parse(axis, &text, &at)?;
                 match axis {
                     AxisId::X => c.x = Some(t),
@@ -255,7 +258,7 @@ impl Compensation {
             let mut m = map::MapCompensation::default();
             for d in [Direction::Forward, Direction::Backward] {
                 let name = format!("compensation_map_{}.csv", d.as_str());
-                if let Some((text, at)) = stored_text(store, id, &origin, &name)? {
+                if let Some((text, at)) = text(&name)? {
                     m.set(map::MapTable::parse(d, &text, &at)?);
                 }
             }
@@ -266,10 +269,8 @@ impl Compensation {
                     message: "has no compensation table (a finished characterisation writes compensation_x|y.csv, a map campaign compensation_map_<direction>.csv)".into(),
                 });
             }
-            if let Ok(Some((_, bytes))) = store.result(id, "summary.json") {
-                if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) {
-                    m.read_summary(&v);
-                }
+            if let Some(v) = &summary {
+                m.read_summary(v);
             }
             c.map = Some(m);
         }
@@ -490,19 +491,18 @@ fn read_table_file(path: &Path) -> Result<(String, String), TableError> {
     Ok((origin, text))
 }
 
-/// Result file `name` of stored campaign `id` as text, with its origin for messages
-/// (`campaign N/name`); `None` when the campaign has no such file.
+/// Result file `name` as text (`read` gives its bytes), with its origin for messages
+/// (`campaign N/name`); `None` when there is no such file.
 fn stored_text(
-    store: &crate::store::Store,
-    id: i64,
+    read: &impl Fn(&str) -> Result<Option<Vec<u8>>, String>,
     origin: &str,
     name: &str,
 ) -> Result<Option<(String, String)>, TableError> {
     let at = format!("{origin}/{name}");
-    let Some((_, bytes)) = store.result(id, name).map_err(|e| TableError {
+    let Some(bytes) = read(name).map_err(|message| TableError {
         origin: origin.to_string(),
         line: 0,
-        message: e.to_string(),
+        message,
     })?
     else {
         return Ok(None);
@@ -565,95 +565,6 @@ fn summary_identity(
         v["id"].as_i64(),
         line_positions(&v),
     ))
-}
-
-/// `[compensation]` of a campaign file: `from = ID` (a characterisation in the same store) or
-/// `file = "..."` (a results directory or a table, relative to the campaign file).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CompensationSpec {
-    #[serde(default)]
-    pub from: Option<i64>,
-    #[serde(default)]
-    pub file: Option<String>,
-}
-
-/// Checks `[compensation]` of a parsed campaign: one source; a `file` is loaded now (a bad table
-/// refuses the campaign before anything is stored or moved) and must fit the campaign's stage,
-/// axes and directions. `from = ID` is resolved when the campaign runs (it needs the store).
-/// Errors: (key, message). Submitted campaigns may only name a stored characterisation.
-pub fn check_spec(
-    c: &crate::campaign::spec::Campaign,
-    submitted: bool,
-) -> Result<(), (&'static str, String)> {
-    let Some(s) = &c.spec.compensation else {
-        return Ok(());
-    };
-    match (s.from, &s.file) {
-        (Some(id), None) if id > 0 => Ok(()),
-        (Some(_), None) => Err(("compensation.from", "must be a campaign id (> 0)".into())),
-        (None, Some(_)) if submitted => Err((
-            "compensation.file",
-            "a submitted campaign names its compensation by the characterisation's id: from = ID".into(),
-        )),
-        (None, Some(f)) => {
-            if f.is_empty() || f.len() > 1024 || f.contains('\0') {
-                return Err(("compensation.file", "must be a path of 1..=1024 bytes".into()));
-            }
-            let comp = Compensation::load(&c.resolve(f)).map_err(|e| ("compensation.file", e.to_string()))?;
-            fits(&comp, c).map_err(|e| ("compensation.file", e))
-        }
-        _ => Err((
-            "compensation",
-            "give one of from = ID (a stored characterisation) or file = \"...\" (results directory or table)".into(),
-        )),
-    }
-}
-
-/// Refuses a compensation that does not fit campaign `c`: another stage, an axis without a
-/// table or a grid short of the axis's range, a direction the table cannot serve.
-pub fn fits(comp: &Compensation, c: &crate::campaign::spec::Campaign) -> Result<(), String> {
-    comp.check_stage(&c.spec.campaign.stage)
-        .map_err(|e| e.to_string())?;
-    for ax in &c.axes {
-        comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
-            .map_err(|e| e.to_string())?;
-        let t = comp.table(ax.axis).expect("checked by check_covers");
-        for &d in &c.spec.acquisition.directions {
-            if t.served_direction(d) != d {
-                return Err(format!(
-                    "{}: no {} correction, and the campaign measures {} (approached from the other side, backlash would stay)",
-                    t.origin,
-                    d.as_str(),
-                    d.as_str()
-                ));
-            }
-        }
-    }
-    Ok(())
-}
-
-/// The compensation campaign `c` runs with, resolved against `store` (`from = ID`) or its file.
-pub fn for_campaign(
-    c: &crate::campaign::spec::Campaign,
-    store: &crate::store::Store,
-) -> Result<Option<std::sync::Arc<Compensation>>, String> {
-    let Some(s) = &c.spec.compensation else {
-        return Ok(None);
-    };
-    let comp = match (s.from, &s.file) {
-        (Some(id), _) => {
-            let row = store
-                .campaign(id)
-                .map_err(|e| e.to_string())?
-                .ok_or_else(|| format!("compensation: no campaign {id} in the store"))?;
-            Compensation::from_store(store, id, &row.stage).map_err(|e| e.to_string())?
-        }
-        (None, Some(f)) => Compensation::load(&c.resolve(f)).map_err(|e| e.to_string())?,
-        (None, None) => return Ok(None),
-    };
-    fits(&comp, c).map_err(|e| format!("compensation: {e}"))?;
-    Ok(Some(std::sync::Arc::new(comp)))
 }
 
 #[cfg(test)]

@@ -27,22 +27,22 @@
 //! noise included; the worst of the directions served) + the unidirectional repeatability R
 //! (4 × the largest standard deviation over cycles at one point and direction, from the
 //! uncompensated pass; 0 with one cycle) + the bilinear interpolation's bound between the map's
-//! grid points ([`super::map::MapTable::interpolation_bound_um`]); or `--expected-um`.
+//! grid points ([`crate::compensation::map::MapTable::interpolation_bound_um`]); or `--expected-um`.
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use serde_json::{json, Value};
+use serde_json::Value;
 use tokio::sync::watch;
 
-use super::verify::{Collect, Sink, VerifyError, MAX_CYCLES};
-use super::Compensation;
-use crate::campaign::engine::{Control, EndState, Engine};
+use super::{run_passes, Sink, VerifyError, MAX_CYCLES};
+use crate::campaign::engine::Control;
 use crate::campaign::plan::{Batch, Plan};
 use crate::campaign::rig;
 use crate::campaign::spec::Campaign;
+use crate::compensation::Compensation;
 use crate::grid::Grid;
 use crate::report::iso230_1::ls_straightness;
 use crate::types::{AxisId, Direction, Phase, RunKey, SampleRecord, Target};
@@ -346,7 +346,7 @@ pub async fn run(
     control: watch::Receiver<Control>,
     sink: &mut dyn Sink,
 ) -> Result<MapVerdict, VerifyError> {
-    use VerifyError::{Failed, Halted, Refused};
+    use VerifyError::{Failed, Refused};
     if opts.cycles == 0 || opts.cycles > MAX_CYCLES {
         return Err(Refused(format!("cycles must be 1..={MAX_CYCLES}")));
     }
@@ -393,43 +393,17 @@ pub async fn run(
             }
         }
     }
-    let mut acquisition_s = 0.0;
-    let mut passes: Vec<Vec<SampleRecord>> = Vec::new();
-    for (k, plan) in [&before_plan, &after_plan].into_iter().enumerate() {
-        let pass = ["before", "after"][k];
-        sink.event("pass", &json!({"pass": pass, "targets": plan.total()}));
-        let mut rec = Collect {
-            samples: Vec::new(),
-            sink: &mut *sink,
-        };
-        let r = {
-            let mut e = Engine::new(c, &mut rig, &mut rec, control.clone(), BTreeMap::new());
-            if k == 1 {
-                e.compensation = Some(comp.clone());
-            }
-            e.run(plan).await
-        };
-        let out = match r {
-            Ok(o) => o,
-            Err(e) => {
-                rig.stop_all().await;
-                rig.close().await;
-                return Err(Failed(format!("stopped: {e}")));
-            }
-        };
-        if out.end != EndState::Done {
-            rig.close().await;
-            return Err(Halted(out.end));
-        }
-        acquisition_s += out
-            .stats
-            .values()
-            .map(|s| s.acquisition_s + s.positioning_s)
-            .sum::<f64>();
-        passes.push(rec.samples);
-    }
-    rig.close().await;
-    let (before, after) = (&passes[0], &passes[1]);
+    let (passes, acquisition_s) = run_passes(
+        c,
+        rig,
+        &comp,
+        [&before_plan, &after_plan],
+        control,
+        &BTreeMap::new(),
+        sink,
+    )
+    .await?;
+    let [before, after] = &passes;
     let (pb, pa) = (per_point(before), per_point(after));
     let interp = [&m.forward, &m.backward]
         .into_iter()
@@ -610,7 +584,7 @@ pub fn files(v: &MapVerdict) -> Vec<(String, String, Vec<u8>)> {
             table(v).into_bytes(),
         ),
         (
-            super::verify::VERDICT_FILE.into(),
+            super::VERDICT_FILE.into(),
             "application/json".into(),
             serde_json::to_vec_pretty(&json(v)).unwrap_or_default(),
         ),

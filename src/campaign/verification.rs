@@ -10,56 +10,15 @@ use std::sync::Arc;
 use serde_json::{json, Value};
 use tokio::sync::{broadcast, watch};
 
+use super::attempt::{Attempt, Finished};
+use super::compensate::stored;
+use super::engine::{Control, EndState, Outcome};
+use super::events::{emit, lock, store_sample, Event, SharedStore};
+use super::spec::{Campaign, HardwareKind, SpecError};
 use super::verify::{self, prior_from_summary, Prior, Sink, VerifyError, VerifyOptions};
-use super::Compensation;
-use crate::campaign::engine::{Control, EndState, Outcome};
-use crate::campaign::session::{emit, lock, store_sample, Event, Finished, SharedStore};
-use crate::campaign::spec::{Campaign, CampaignSpec, HardwareKind, SpecError};
 use crate::store::Store;
 use crate::tomlpos::{line_of, span_of};
 use crate::types::{AxisId, CampaignState, Origin, SampleRecord};
-
-/// ISO 230-2's measurement cycles per direction, when the file does not set
-/// `[acquisition] cycles`.
-pub const DEFAULT_CYCLES: u32 = 5;
-
-/// Checks a verification's own keys (before any store is at hand): an id, no `[axes]`, no
-/// `[compensation]`. Errors: (key, message).
-pub fn check_spec(spec: &CampaignSpec, id: i64) -> Result<(), (&'static str, String)> {
-    if id <= 0 {
-        return Err(("campaign.verify", "must be a campaign id (> 0)".into()));
-    }
-    if !spec.axes.is_empty() {
-        return Err((
-            "axes",
-            format!("a verification measures the axes of characterisation {id}: leave out [axes]"),
-        ));
-    }
-    if spec.map.is_some() {
-        return Err((
-            "map",
-            format!("a verification measures the axes of characterisation {id}: leave out [map]"),
-        ));
-    }
-    if spec.compensation.is_some() {
-        return Err((
-            "compensation",
-            format!(
-                "a verification applies the compensation of characterisation {id}: leave out [compensation]"
-            ),
-        ));
-    }
-    if spec.acquisition.cycles > verify::MAX_CYCLES {
-        return Err((
-            "acquisition.cycles",
-            format!(
-                "a verification measures at most {} cycles",
-                verify::MAX_CYCLES
-            ),
-        ));
-    }
-    Ok(())
-}
 
 /// What a verification campaign measures: targets and cycles as `csmetro verify` chooses them;
 /// cycles from `[acquisition] cycles` when the file sets it, else ISO 230-2's 5.
@@ -67,7 +26,7 @@ pub fn options(c: &Campaign) -> VerifyOptions {
     let cycles = if span_of(&c.text, "acquisition.cycles").is_some() {
         c.spec.acquisition.cycles
     } else {
-        DEFAULT_CYCLES
+        super::spec::DEFAULT_VERIFY_CYCLES
     };
     VerifyOptions {
         cycles,
@@ -127,7 +86,7 @@ pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
             row.state.as_str()
         )));
     }
-    let comp = Compensation::from_store(store, id, &row.stage).map_err(|e| err(e.to_string()))?;
+    let comp = stored(store, id, &row.stage).map_err(|e| err(e.to_string()))?;
     let h = &c.spec.hardware;
     let pre = c.spec.acquisition.approach_um;
     for ax in &ch.axes {
@@ -210,18 +169,17 @@ impl Sink for StoreSink {
     }
 }
 
-/// Runs (or resumes: targets stored are not measured again) verification campaign `id`,
+/// Runs (or resumes: targets stored are not measured again) verification campaign `run.id`,
 /// stores its verdict and result files, and records its final state: done when it passed,
 /// failed (with the axis that did not) when the compensated residual exceeds the expected one.
-pub async fn execute(
-    store: SharedStore,
-    id: i64,
+pub(super) async fn execute(
+    run: &Attempt,
     mut c: Campaign,
     control: watch::Receiver<Control>,
-    events: broadcast::Sender<Event>,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     origin: Origin,
 ) -> Result<Finished, String> {
+    let (store, id) = (&run.store, run.id);
     let char_id = c
         .spec
         .campaign
@@ -229,36 +187,17 @@ pub async fn execute(
         .ok_or("not a verification campaign")?;
     let t0 = std::time::Instant::now();
     let fail = |msg: String| {
-        // A state that cannot be stored is said with the reason.
-        let stored = lock(&store).set_state(id, CampaignState::Interrupted, Some(&msg));
-        let msg = match stored {
-            Ok(()) => msg,
-            Err(e) => format!("{msg}; state not stored: {e}"),
-        };
-        emit(
-            &store,
-            &events,
-            id,
-            "error",
-            json!({"cause": "verification", "error": msg, "resumable": true}),
-        );
-        emit(
-            &store,
-            &events,
-            id,
-            "finished",
-            json!({"state": "interrupted", "error": msg}),
-        );
+        let msg = run.fail("verification", msg);
         format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
     };
     // Resolved again here: the characterisation may have gone since the file was loaded.
     let resolved = {
-        let s = lock(&store);
+        let s = lock(store);
         resolve(&mut c, &s)
             .map_err(|e| e.to_string())
             .and_then(|()| {
-                let comp = Compensation::from_store(&s, char_id, &c.spec.campaign.stage)
-                    .map_err(|e| e.to_string())?;
+                let comp =
+                    stored(&s, char_id, &c.spec.campaign.stage).map_err(|e| e.to_string())?;
                 let summary: Value = s
                     .result(char_id, "summary.json")
                     .ok()
@@ -283,28 +222,17 @@ pub async fn execute(
         ..options(&c)
     };
     let (nb, na) = verify::planned(&c, &opts);
-    {
-        let s = lock(&store);
-        s.set_planned(id, nb + na).map_err(|e| e.to_string())?;
-        s.set_state(id, CampaignState::Running, None)
-            .map_err(|e| e.to_string())?;
-    }
-    emit(
-        &store,
-        &events,
-        id,
-        if done.is_empty() {
-            "started"
-        } else {
-            "resumed_from_store"
-        },
-        json!({"planned": nb + na, "stored": done.len(), "name": c.spec.campaign.name,
-               "verify": char_id, "by": origin.describe(), "origin": origin}),
-    );
+    run.start(
+        nb + na,
+        done.len(),
+        &c.spec.campaign.name,
+        &origin,
+        Some(char_id),
+    )?;
     let prior = move |axis: AxisId| -> Prior { prior_from_summary(&summary, axis) };
     let mut sink = StoreSink {
         store: store.clone(),
-        events: events.clone(),
+        events: run.events.clone(),
         id,
         on_sample,
     };
@@ -335,29 +263,8 @@ pub async fn execute(
                     "stopped; resumes from the last stored sample",
                 )
             };
-            // Not stored, an aborted campaign would be left `running` and resumed by the
-            // service's next start: an error, not a finished campaign.
-            lock(&store).set_state(id, state, Some(msg)).map_err(|e| {
-                format!(
-                    "campaign {id}: motion stopped, but its state ({}) was not stored: {e}",
-                    state.as_str()
-                )
-            })?;
-            emit(
-                &store,
-                &events,
-                id,
-                "finished",
-                json!({"state": state.as_str(), "reason": msg}),
-            );
-            return Ok(Finished {
-                id,
-                state,
-                outcome: outcome(end),
-                summary: None,
-                table: None,
-                out_dir: None,
-            });
+            let data = json!({"state": state.as_str(), "reason": msg});
+            return run.halted(state, msg, data, outcome(end));
         }
         Err(e) => return Err(fail(format!("stopped: {e}"))),
     };
@@ -396,31 +303,8 @@ pub async fn execute(
         "text/html; charset=utf-8".into(),
         verify::report_html(&v, id, &c.spec.campaign.name, &c.text, &c.origin).into_bytes(),
     ));
-    let store_id = lock(&store).store_id().unwrap_or_else(|_| "unknown".into());
-    {
-        let s = lock(&store);
-        for (name, ctype, bytes) in &files {
-            if let Err(e) = s.put_result(id, name, ctype, bytes) {
-                errors.push(format!("results not stored: {e}"));
-            }
-        }
-    }
-    let wanted = crate::campaign::results::out_dir(&c, id);
-    let written =
-        crate::campaign::results::claim_out_dir(&wanted, &store_id, id, &c.spec.campaign.name)
-            .and_then(|d| {
-                for (name, _, bytes) in &files {
-                    let p = d.join(name);
-                    p.parent()
-                        .map_or(Ok(()), std::fs::create_dir_all)
-                        .and_then(|()| std::fs::write(&p, bytes))
-                        .map_err(|e| format!("results not written ({name}: {})", e.kind()))?;
-                }
-                Ok(d)
-            });
-    if let Err(e) = &written {
-        errors.push(e.clone());
-    }
+    let store_id = run.store_id();
+    let written = run.put_files(&c, &store_id, &files, &mut errors);
     let mut state = if errors.is_empty() {
         state
     } else {
@@ -435,7 +319,7 @@ pub async fn execute(
         let json_bytes =
             serde_json::to_vec_pretty(&summary).map_err(|e| fail(format!("summary.json: {e}")))?;
         let mut failed = Vec::new();
-        let stored = lock(&store).put_result(id, "summary.json", "application/json", &json_bytes);
+        let stored = lock(store).put_result(id, "summary.json", "application/json", &json_bytes);
         if let Err(e) = stored {
             failed.push(format!("results not stored (summary.json): {e}"));
         }
@@ -451,23 +335,12 @@ pub async fn execute(
         errors.extend(failed);
         state = CampaignState::Failed;
     }
-    let message = (!errors.is_empty()).then(|| errors.join("; "));
-    lock(&store)
-        .set_state(id, state, message.as_deref())
-        .map_err(|e| e.to_string())?;
-    emit(
-        &store,
-        &events,
-        id,
-        "finished",
-        json!({"state": state.as_str(), "errors": errors, "summary": summary}),
-    );
-    Ok(Finished {
-        id,
+    run.finish(
         state,
-        outcome: outcome(EndState::Done),
-        summary: Some(summary),
-        table: Some(table),
-        out_dir: written.ok(),
-    })
+        errors,
+        summary,
+        table,
+        outcome(EndState::Done),
+        written.ok(),
+    )
 }
