@@ -8,6 +8,8 @@ use super::spec::{AxisPlan, Campaign};
 use crate::sampling::{Design, DesignKind};
 use crate::types::{AxisId, Direction, Phase, RunKey, Target};
 
+pub mod map;
+
 /// A monotonic sweep of one run: approached from its direction, targets in visiting order.
 #[derive(Debug, Clone)]
 pub struct Batch {
@@ -129,7 +131,7 @@ pub fn plan(c: &Campaign) -> Plan {
     }
     // `[map]`: its runs come after the lines'.
     if let Some(mp) = &c.map {
-        batches.extend(super::map::batches(mp, &mut seq));
+        batches.extend(map::batches(mp, &mut seq));
     }
     Plan { batches }
 }

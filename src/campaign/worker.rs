@@ -17,6 +17,8 @@ use crate::recon::{reconstruct, Method, ReconSettings};
 use crate::samples::{nearest_steps, GridSamples};
 use crate::types::{Component, Phase, RunKey, SampleRecord};
 
+pub mod map;
+
 /// A reconstructed (CS) or measured (full scan) curve of one component of one run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Curve {
@@ -323,7 +325,7 @@ pub fn settings(c: &Campaign) -> ReconSettings {
 }
 
 /// The maps the worker reconstructed (`[map]` runs), filled as each map run completes.
-pub type Maps = std::sync::Arc<std::sync::Mutex<Vec<Result<super::map::MapResult, String>>>>;
+pub type Maps = std::sync::Arc<std::sync::Mutex<Vec<Result<map::MapResult, String>>>>;
 
 /// Handle of the worker thread.
 pub struct Worker {
@@ -359,7 +361,7 @@ impl Worker {
                                 continue;
                             }
                             if let (Phase::Map, Some(mp)) = (run.phase, &map_plan) {
-                                let r = super::map::reconstruct_run(mp, run, &samples);
+                                let r = map::reconstruct_run(mp, run, &samples);
                                 maps2.lock().unwrap_or_else(|p| p.into_inner()).push(r);
                                 continue;
                             }
