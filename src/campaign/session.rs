@@ -54,11 +54,10 @@ pub fn load_stored(store: &SharedStore, id: i64) -> Result<Campaign, String> {
         .map(|p| p.to_path_buf())
         .unwrap_or_default();
     let snapshot = lock(store).model_snapshot(id).map_err(|e| e.to_string())?;
-    let mut c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)
+    let c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)
         .map_err(|e| e.to_string())?;
     // `verify = ID`: the characterisation's axes.
-    super::verification::resolve(&mut c, &lock(store)).map_err(|e| e.to_string())?;
-    Ok(c)
+    super::verification::resolve(c, &lock(store)).map_err(|e| e.to_string())
 }
 
 struct StoreRecorder {

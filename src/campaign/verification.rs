@@ -34,13 +34,13 @@ pub fn options(c: &Campaign) -> VerifyOptions {
     }
 }
 
-/// Resolves a verification campaign against `store`: its axes become the characterisation's
-/// (unchanged for any other campaign). Refused, at `campaign.verify`'s line: an id not in this
+/// Resolves a verification campaign against `store`: a new validated campaign measuring the
+/// characterisation's axes (any other campaign is returned as it is). Refused, at `campaign.verify`'s line: an id not in this
 /// store, of another stage, not finished, itself a verification, without compensation tables,
 /// or a characterisation this file's hardware or directions cannot measure.
-pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
+pub fn resolve(c: Campaign, store: &Store) -> Result<Campaign, SpecError> {
     let Some(id) = c.spec.campaign.verify else {
-        return Ok(());
+        return Ok(c);
     };
     let key = "campaign.verify";
     let err = |message: String| SpecError {
@@ -138,9 +138,7 @@ pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
             )));
         }
     }
-    c.spec.axes = ch.spec.axes.clone();
-    c.axes = ch.axes;
-    Ok(())
+    Ok(c.measuring_axes_of(ch))
 }
 
 /// Targets a verification campaign plans (both passes); `None` for other campaigns.
@@ -174,7 +172,7 @@ impl Sink for StoreSink {
 /// failed (with the axis that did not) when the compensated residual exceeds the expected one.
 pub(super) async fn execute(
     run: &Attempt,
-    mut c: Campaign,
+    c: Campaign,
     control: watch::Receiver<Control>,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     origin: Origin,
@@ -193,30 +191,26 @@ pub(super) async fn execute(
     // Resolved again here: the characterisation may have gone since the file was loaded.
     let resolved = {
         let s = lock(store);
-        resolve(&mut c, &s)
-            .map_err(|e| e.to_string())
-            .and_then(|()| {
-                let comp =
-                    stored(&s, char_id, &c.spec.campaign.stage).map_err(|e| e.to_string())?;
-                let summary: Value = s
-                    .result(char_id, "summary.json")
-                    .ok()
-                    .flatten()
-                    .and_then(|(_, b)| serde_json::from_slice(&b).ok())
-                    .unwrap_or_default();
-                let measured = s.samples(char_id).map_err(|e| e.to_string())?;
-                let measured =
-                    [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&measured, ax));
-                let done: BTreeMap<u64, SampleRecord> = s
-                    .samples(id)
-                    .map_err(|e| e.to_string())?
-                    .into_iter()
-                    .map(|r| (r.target.seq, r))
-                    .collect();
-                Ok((comp, summary, measured, done))
-            })
+        resolve(c, &s).map_err(|e| e.to_string()).and_then(|c| {
+            let comp = stored(&s, char_id, &c.spec.campaign.stage).map_err(|e| e.to_string())?;
+            let summary: Value = s
+                .result(char_id, "summary.json")
+                .ok()
+                .flatten()
+                .and_then(|(_, b)| serde_json::from_slice(&b).ok())
+                .unwrap_or_default();
+            let measured = s.samples(char_id).map_err(|e| e.to_string())?;
+            let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&measured, ax));
+            let done: BTreeMap<u64, SampleRecord> = s
+                .samples(id)
+                .map_err(|e| e.to_string())?
+                .into_iter()
+                .map(|r| (r.target.seq, r))
+                .collect();
+            Ok((c, comp, summary, measured, done))
+        })
     };
-    let (comp, summary, measured, done) = resolved.map_err(|e| fail(format!("stopped: {e}")))?;
+    let (c, comp, summary, measured, done) = resolved.map_err(|e| fail(format!("stopped: {e}")))?;
     let opts = VerifyOptions {
         measured_span_um: measured,
         ..options(&c)

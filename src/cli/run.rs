@@ -80,13 +80,11 @@ fn take_stage(db: &std::path::Path, stage: &str) -> Result<StageLock, CliError> 
 
 pub fn run(a: Args) -> CliResult {
     let origin = origin(a.operator.as_deref())?;
-    let mut c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
+    let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
-    crate::campaign::verification::resolve(
-        &mut c,
-        &store.lock().unwrap_or_else(|e| e.into_inner()),
-    )
-    .map_err(|e| CliError::input(e.to_string()))?;
+    let c =
+        crate::campaign::verification::resolve(c, &store.lock().unwrap_or_else(|e| e.into_inner()))
+            .map_err(|e| CliError::input(e.to_string()))?;
     let _stage = take_stage(&a.db, &c.spec.campaign.stage)?;
     preflight(&c, &a.db, "nothing was recorded or moved")?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
