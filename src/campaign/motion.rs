@@ -120,7 +120,7 @@ fn notes(
 ) -> Vec<String> {
     let mut out = Vec::new();
     for (i, axis) in [AxisId::X, AxisId::Y].into_iter().enumerate() {
-        let (Some(p), Some(line_at)) = (plan[i], cmp.line_other_um[i]) else {
+        let (Some(p), Some(line_at)) = (plan[i], cmp.line_other_um()[i]) else {
             continue;
         };
         let other_at = plan[1 - i].map_or(now_um[1 - i], |q| q.command_um);
@@ -301,7 +301,7 @@ pub async fn execute(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::compensation::{AxisCommand, AxisTable};
+    use crate::compensation::{AxisCommand, AxisTable, Correction};
 
     #[test]
     fn a_move_away_from_the_line_without_the_other_table_is_noted() {
@@ -310,10 +310,11 @@ mod tests {
         let cmp = Compensation {
             stage: None,
             campaign: None,
-            x: Some(t),
-            y: None,
-            line_other_um: [Some(2100.0), None],
-            map: None,
+            correction: Correction::Lines {
+                x: Some(t),
+                y: None,
+                line_other_um: [Some(2100.0), None],
+            },
             source: "test".into(),
         };
         let plan = [

@@ -266,7 +266,7 @@ fn run_map(
     comp: Compensation,
     opts: &verify_map::MapVerifyOptions,
 ) -> CliResult {
-    if comp.map.is_none() {
+    if comp.map().is_none() {
         return Err(CliError::input(format!(
             "{}: campaign {} is a map campaign: verify it with its map (compensation_map_<direction>.csv)",
             comp.source, a.id

@@ -113,7 +113,7 @@ pub fn points(
     opts: &MapVerifyOptions,
 ) -> Result<(Vec<[f64; 2]>, usize, usize), String> {
     let mp = c.map.as_ref().ok_or("not a map campaign")?;
-    let m = comp.map.as_ref().ok_or("not a map compensation")?;
+    let m = comp.map().ok_or("not a map compensation")?;
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0x4d41_5056);
     let (cols, rows) = lattice(opts.points);
     let mut axes = Vec::new();
@@ -356,7 +356,7 @@ pub async fn run(
     let Some(mp) = &c.map else {
         return Err(Refused(format!("campaign {id} is not a map campaign")));
     };
-    let Some(m) = &comp.map else {
+    let Some(m) = comp.map() else {
         return Err(Refused(format!(
             "{}: not a map compensation (a map campaign is verified with its compensation_map_<direction>.csv)",
             comp.source
