@@ -147,7 +147,7 @@ impl Attempt {
             errors.push(format!("results not stored: {e}"));
         }
         let wanted = super::results::out_dir(c, id);
-        let written = super::results::claim_out_dir(&wanted, store_id, id, &c.spec.campaign.name)
+        let written = super::results::claim_out_dir(&wanted, store_id, id, &c.spec().campaign.name)
             .and_then(|d| write_files(&d, files).map(|()| d));
         if let Err(e) = &written {
             tracing::warn!(error = %e, dir = %wanted.display(), "result files not written");

@@ -18,7 +18,7 @@ pub fn stored(store: &Store, id: i64, stage: &str) -> Result<Compensation, Table
 
 /// The compensation campaign `c` runs with, resolved against `store` (`from = ID`) or its file.
 pub fn for_campaign(c: &Campaign, store: &Store) -> Result<Option<Arc<Compensation>>, String> {
-    let Some(s) = &c.spec.compensation else {
+    let Some(s) = &c.spec().compensation else {
         return Ok(None);
     };
     let comp = match (s.from, &s.file) {

@@ -25,8 +25,8 @@ use crate::types::{AxisId, Phase};
 /// and the approach), one step in +y between rows; per point the move, the controller's
 /// settling, `settle_s + dwell_s` and the frames.
 pub fn full_scan_estimate_s(c: &Campaign, mp: &MapPlan, motion_settle_s: f64) -> (u64, f64) {
-    let h = &c.spec.hardware.sim;
-    let a = &c.spec.acquisition;
+    let h = &c.spec().hardware.sim;
+    let a = &c.spec().acquisition;
     let step = mp.full_scan_step_um;
     let (wx, wy) = (
         mp.grid.x.end_um() - mp.grid.x.start_um,
@@ -56,7 +56,7 @@ pub fn add_to_report(
     motion_settle_s: f64,
     rep: &mut Report,
 ) -> Vec<String> {
-    let Some(mp) = &c.map else {
+    let Some(mp) = c.map() else {
         return Vec::new();
     };
     let mut problems = Vec::new();
@@ -214,7 +214,7 @@ pub fn add_to_report(
         "acquisition_saved_pct": saved,
         "runs": runs_json,
     });
-    if c.axes.is_empty() {
+    if c.axes().is_empty() {
         // No line runs: the line table's two header lines head nothing.
         rep.table = rep
             .table

@@ -136,8 +136,8 @@ fn notes(
 }
 
 async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64, String> {
-    let timeout = Duration::from_secs_f64(c.spec.hardware.move_timeout_s);
-    let rtimeout = Duration::from_secs_f64(c.spec.hardware.reference_timeout_s);
+    let timeout = Duration::from_secs_f64(c.spec().hardware.move_timeout_s);
+    let rtimeout = Duration::from_secs_f64(c.spec().hardware.reference_timeout_s);
     let a = rig.axis(p.axis);
     let (lo, hi) = a.soft_limits_um();
     let start = (p.command_um - p.approach.sign() * pre_um).clamp(lo, hi);

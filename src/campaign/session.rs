@@ -28,15 +28,15 @@ pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, String> {
     let s = lock(store);
     let id = s
         .create_campaign(
-            &c.spec.campaign.name,
-            &c.text,
-            &c.origin,
-            &c.spec.campaign.stage,
+            &c.spec().campaign.name,
+            c.text(),
+            c.origin(),
+            &c.spec().campaign.stage,
             planned,
         )
         .map_err(|e| e.to_string())?;
     // The model it was validated with runs it, at every resume too.
-    if let Some(m) = &c.model {
+    if let Some(m) = c.model() {
         s.set_model_snapshot(id, &m.text)
             .map_err(|e| e.to_string())?;
     }
@@ -158,7 +158,7 @@ pub async fn execute_with(
         id,
     };
     let origin = opts.origin.clone().unwrap_or_else(Origin::service);
-    if c.spec.campaign.verify.is_some() {
+    if c.spec().campaign.verify.is_some() {
         return super::verification::execute(&run, c, control, on_sample, origin).await;
     }
     let truth_log = match &opts.truth_log {
@@ -181,7 +181,7 @@ pub async fn execute_with(
     run.start(
         p.total() as u64,
         done.len(),
-        &c.spec.campaign.name,
+        &c.spec().campaign.name,
         &origin,
         None,
     )?;
@@ -500,11 +500,11 @@ fn report_html(
             ));
         }
     }
-    rig.push(("stage name".into(), c.spec.campaign.stage.clone()));
+    rig.push(("stage name".into(), c.spec().campaign.stage.clone()));
     let state = if errors.is_empty() { "done" } else { "failed" };
     html::report_html(&html::HtmlReport {
         id,
-        name: &c.spec.campaign.name,
+        name: &c.spec().campaign.name,
         state,
         errors,
         store_id,
@@ -513,8 +513,8 @@ fn report_html(
         iso: &rep.iso,
         files: &rep.files,
         rig,
-        campaign_text: &c.text,
-        campaign_origin: &c.origin,
+        campaign_text: c.text(),
+        campaign_origin: c.origin(),
     })
 }
 

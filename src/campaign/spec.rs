@@ -358,23 +358,24 @@ impl Trust {
     }
 }
 
-/// A validated campaign: the spec plus what it resolves to.
+/// A validated campaign: the spec plus what it resolves to. Immutable: built only by its
+/// constructors (which validate), read through its accessors.
 #[derive(Debug, Clone)]
 pub struct Campaign {
-    pub spec: CampaignSpec,
+    spec: CampaignSpec,
     /// The file text as given (stored with the campaign, so a resume runs the same plan).
-    pub text: String,
-    pub origin: String,
+    text: String,
+    origin: String,
     /// Directory of the campaign file (relative paths in it resolve from here).
-    pub base_dir: PathBuf,
-    pub axes: Vec<AxisPlan>,
-    pub method: Method,
-    pub solver: Solver,
+    base_dir: PathBuf,
+    axes: Vec<AxisPlan>,
+    method: Method,
+    solver: Solver,
     /// `[map]`, resolved.
-    pub map: Option<MapPlan>,
+    map: Option<MapPlan>,
     /// The simulator's stage model as validated (`[hardware.sim] model`), with the text it was
     /// read from: the rig runs this one, and the store keeps the text with the campaign.
-    pub model: Option<Arc<LoadedModel>>,
+    model: Option<Arc<LoadedModel>>,
 }
 
 /// A stage model read and checked at validation.
@@ -570,6 +571,49 @@ impl Campaign {
         self.axes.iter().find(|p| p.axis == a)
     }
 
+    /// The file as written (with a verification's axes resolved).
+    pub fn spec(&self) -> &CampaignSpec {
+        &self.spec
+    }
+
+    /// The file text as given (stored with the campaign, so a resume runs the same plan).
+    pub fn text(&self) -> &str {
+        &self.text
+    }
+
+    /// Where the file came from (a path; errors name it).
+    pub fn origin(&self) -> &str {
+        &self.origin
+    }
+
+    /// Directory of the campaign file (relative paths in it resolve from here).
+    pub fn base_dir(&self) -> &Path {
+        &self.base_dir
+    }
+
+    /// The axes, resolved.
+    pub fn axes(&self) -> &[AxisPlan] {
+        &self.axes
+    }
+
+    pub fn method(&self) -> Method {
+        self.method
+    }
+
+    pub fn solver(&self) -> Solver {
+        self.solver
+    }
+
+    /// `[map]`, resolved.
+    pub fn map(&self) -> Option<&MapPlan> {
+        self.map.as_ref()
+    }
+
+    /// The simulator's stage model as validated, with the text it was read from.
+    pub fn model(&self) -> Option<&Arc<LoadedModel>> {
+        self.model.as_ref()
+    }
+
     /// This verification campaign (`verify = ID`, no axes of its own) measuring the axes of
     /// characterisation `ch`, validated with it: a new campaign, this one is not changed.
     pub fn measuring_axes_of(self, ch: Campaign) -> Campaign {
@@ -580,6 +624,14 @@ impl Campaign {
             axes: ch.axes,
             ..self
         }
+    }
+
+    /// This campaign writing its results under `dir` (the service keeps every campaign's
+    /// results below its own results directory).
+    pub fn with_outputs_dir(self, dir: String) -> Campaign {
+        let mut spec = self.spec;
+        spec.outputs.dir = dir;
+        Campaign { spec, ..self }
     }
 
     /// This campaign under the name it is stored by (a submitted file's path in the service's

@@ -23,8 +23,8 @@ use crate::types::{AxisId, CampaignState, Origin, SampleRecord};
 /// What a verification campaign measures: targets and cycles as `csmetro verify` chooses them;
 /// cycles from `[acquisition] cycles` when the file sets it, else ISO 230-2's 5.
 pub fn options(c: &Campaign) -> VerifyOptions {
-    let cycles = if span_of(&c.text, "acquisition.cycles").is_some() {
-        c.spec.acquisition.cycles
+    let cycles = if span_of(c.text(), "acquisition.cycles").is_some() {
+        c.spec().acquisition.cycles
     } else {
         super::spec::DEFAULT_VERIFY_CYCLES
     };
@@ -39,14 +39,14 @@ pub fn options(c: &Campaign) -> VerifyOptions {
 /// store, of another stage, not finished, itself a verification, without compensation tables,
 /// or a characterisation this file's hardware or directions cannot measure.
 pub fn resolve(c: Campaign, store: &Store) -> Result<Campaign, SpecError> {
-    let Some(id) = c.spec.campaign.verify else {
+    let Some(id) = c.spec().campaign.verify else {
         return Ok(c);
     };
     let key = "campaign.verify";
     let err = |message: String| SpecError {
-        origin: c.origin.clone(),
-        line: span_of(&c.text, key)
-            .map(|s| line_of(&c.text, s.start))
+        origin: c.origin().to_string(),
+        line: span_of(c.text(), key)
+            .map(|s| line_of(c.text(), s.start))
             .unwrap_or(0),
         key: key.into(),
         message,
@@ -55,7 +55,7 @@ pub fn resolve(c: Campaign, store: &Store) -> Result<Campaign, SpecError> {
         .campaign(id)
         .map_err(|e| err(format!("store: {e}")))?
         .ok_or_else(|| err(format!("no campaign {id} in this store")))?;
-    let stage = &c.spec.campaign.stage;
+    let stage = &c.spec().campaign.stage;
     if &row.stage != stage {
         return Err(err(format!(
             "campaign {id} ran on stage {:?}, not on {stage:?}",
@@ -75,7 +75,7 @@ pub fn resolve(c: Campaign, store: &Store) -> Result<Campaign, SpecError> {
                 "campaign {id}: its stored file no longer validates"
             ))
         })?;
-    if ch.spec.campaign.verify.is_some() || ch.axes.is_empty() {
+    if ch.spec().campaign.verify.is_some() || ch.axes().is_empty() {
         return Err(err(format!(
             "campaign {id} is a verification, not a characterisation"
         )));
@@ -87,14 +87,14 @@ pub fn resolve(c: Campaign, store: &Store) -> Result<Campaign, SpecError> {
         )));
     }
     let comp = stored(store, id, &row.stage).map_err(|e| err(e.to_string()))?;
-    let h = &c.spec.hardware;
-    let pre = c.spec.acquisition.approach_um;
-    for ax in &ch.axes {
+    let h = &c.spec().hardware;
+    let pre = c.spec().acquisition.approach_um;
+    for ax in ch.axes() {
         let a = ax.axis;
         comp.check_covers(a, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| err(e.to_string()))?;
         let t = comp.table(a).expect("checked by check_covers");
-        for &d in &c.spec.acquisition.directions {
+        for &d in &c.spec().acquisition.directions {
             if t.served_direction(d) != d {
                 return Err(err(format!(
                     "campaign {id} has no {} correction of axis {a}: measure the directions it has",
@@ -143,7 +143,7 @@ pub fn resolve(c: Campaign, store: &Store) -> Result<Campaign, SpecError> {
 
 /// Targets a verification campaign plans (both passes); `None` for other campaigns.
 pub fn planned(c: &Campaign) -> Option<u64> {
-    c.spec.campaign.verify?;
+    c.spec().campaign.verify?;
     let (b, a) = verify::planned(c, &options(c));
     Some(b + a)
 }
@@ -179,7 +179,7 @@ pub(super) async fn execute(
 ) -> Result<Finished, String> {
     let (store, id) = (&run.store, run.id);
     let char_id = c
-        .spec
+        .spec()
         .campaign
         .verify
         .ok_or("not a verification campaign")?;
@@ -192,7 +192,7 @@ pub(super) async fn execute(
     let resolved = {
         let s = lock(store);
         resolve(c, &s).map_err(|e| e.to_string()).and_then(|c| {
-            let comp = stored(&s, char_id, &c.spec.campaign.stage).map_err(|e| e.to_string())?;
+            let comp = stored(&s, char_id, &c.spec().campaign.stage).map_err(|e| e.to_string())?;
             let summary: Value = s
                 .result(char_id, "summary.json")
                 .ok()
@@ -219,7 +219,7 @@ pub(super) async fn execute(
     run.start(
         nb + na,
         done.len(),
-        &c.spec.campaign.name,
+        &c.spec().campaign.name,
         &origin,
         Some(char_id),
     )?;
@@ -283,7 +283,7 @@ pub(super) async fn execute(
     };
     let mut summary = verify::json(&v);
     summary["id"] = json!(id);
-    summary["name"] = json!(c.spec.campaign.name);
+    summary["name"] = json!(&c.spec().campaign.name);
     summary["verify"] = json!(char_id);
     let table = verify::table(&v);
     let mut files = verify::files(&v);
@@ -295,7 +295,7 @@ pub(super) async fn execute(
     files.push((
         "report.html".into(),
         "text/html; charset=utf-8".into(),
-        verify::report_html(&v, id, &c.spec.campaign.name, &c.text, &c.origin).into_bytes(),
+        verify::report_html(&v, id, &c.spec().campaign.name, c.text(), c.origin()).into_bytes(),
     ));
     let store_id = run.store_id();
     let written = run.put_files(&c, &store_id, &files, &mut errors);

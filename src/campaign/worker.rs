@@ -314,10 +314,10 @@ fn mean_xy(p: &[(f64, f64)]) -> (f64, f64) {
 }
 
 pub fn settings(c: &Campaign) -> ReconSettings {
-    let r = &c.spec.reconstruction;
+    let r = &c.spec().reconstruction;
     ReconSettings {
-        method: c.method,
-        solver: c.solver,
+        method: c.method(),
+        solver: c.solver(),
         noise_um: r.noise_um,
         pitch_um: r.pitch_um,
         ..ReconSettings::default()
@@ -341,9 +341,9 @@ impl Worker {
         c: &Campaign,
         mut on_curve: impl FnMut(Result<&Curve, String>) + Send + 'static,
     ) -> Worker {
-        let grids: BTreeMap<_, Grid> = c.axes.iter().map(|a| (a.axis, a.grid)).collect();
+        let grids: BTreeMap<_, Grid> = c.axes().iter().map(|a| (a.axis, a.grid)).collect();
         let settings = settings(c);
-        let map_plan = c.map.clone();
+        let map_plan = c.map().cloned();
         let maps = Maps::default();
         let maps2 = maps.clone();
         let (tx, rx) = mpsc::channel::<Msg>();

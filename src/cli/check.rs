@@ -32,14 +32,14 @@ pub fn run(a: Args) -> CliResult {
             .map_err(|e| CliError::failure(format!("tokio runtime: {e}")))?;
         // The stage must be free: the check talks to the same controllers a running campaign
         // drives.
-        match stage_lock(&a.db, &c.spec.campaign.stage) {
+        match stage_lock(&a.db, &c.spec().campaign.stage) {
             Ok(lock) => {
                 report.push(
                     "stage",
                     Class::Device,
                     Ok(format!(
                         "`{}` not driven by another process",
-                        c.spec.campaign.stage
+                        &c.spec().campaign.stage
                     )),
                 );
                 rt.block_on(preflight::check_devices(
@@ -89,7 +89,7 @@ fn config_checks(path: &Path, report: &mut Report) -> Option<Campaign> {
             Class::Config,
             Ok(format!(
                 "{origin}: valid, kind = \"{}\", {} planned measurements",
-                match c.spec.hardware.kind {
+                match c.spec().hardware.kind {
                     crate::campaign::spec::HardwareKind::Sim => "sim",
                     crate::campaign::spec::HardwareKind::Real => "real",
                 },
@@ -107,7 +107,7 @@ fn config_checks(path: &Path, report: &mut Report) -> Option<Campaign> {
             report.push(
                 "outputs",
                 Class::Config,
-                Ok(format!("{} writable", c.spec.outputs.dir)),
+                Ok(format!("{} writable", c.spec().outputs.dir)),
             );
             Some(c)
         }

@@ -85,11 +85,11 @@ fn hardware(a: &Args, comp: Option<&Compensation>) -> Result<(Campaign, String),
         let base = p.parent().map(Path::to_path_buf).unwrap_or_default();
         let c = Campaign::parse(&text, &p.display().to_string(), &base)
             .map_err(|e| CliError::input(e.to_string()))?;
-        if c.spec.campaign.stage != a.stage {
+        if c.spec().campaign.stage != a.stage {
             return Err(CliError::input(format!(
                 "{} is a campaign of stage {:?}, not {:?}",
                 p.display(),
-                c.spec.campaign.stage,
+                c.spec().campaign.stage,
                 a.stage
             )));
         }

@@ -85,13 +85,13 @@ pub fn run(a: Args) -> CliResult {
     let c =
         crate::campaign::verification::resolve(c, &store.lock().unwrap_or_else(|e| e.into_inner()))
             .map_err(|e| CliError::input(e.to_string()))?;
-    let _stage = take_stage(&a.db, &c.spec.campaign.stage)?;
+    let _stage = take_stage(&a.db, &c.spec().campaign.stage)?;
     preflight(&c, &a.db, "nothing was recorded or moved")?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
     // A resume is offered where it applies: at the end of a run that did not finish.
     eprintln!(
         "campaign {id} \"{}\" stored in {}",
-        c.spec.campaign.name,
+        c.spec().campaign.name,
         a.db.display()
     );
     let opts = session::Options {
@@ -191,7 +191,7 @@ fn foreground(
     opts: session::Options,
     db: &std::path::Path,
 ) -> CliResult {
-    let stage = c.spec.campaign.stage.clone();
+    let stage = c.spec().campaign.stage.clone();
     let db_arg = if db == std::path::Path::new(DEFAULT_DB) {
         String::new()
     } else {

@@ -109,7 +109,7 @@ pub fn run(a: Args) -> CliResult {
     let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&samples, ax));
     let shared = Arc::new(Mutex::new(store));
     let c = session::load_stored(&shared, a.id).map_err(CliError::failure)?;
-    if c.map.is_some() {
+    if c.map().is_some() {
         let opts = verify_map::MapVerifyOptions {
             points: a.points,
             cycles: a.cycles,
@@ -119,7 +119,7 @@ pub fn run(a: Args) -> CliResult {
         };
         return run_map(&a, &row.stage, &shared, &c, comp, &opts);
     }
-    for ax in &c.axes {
+    for ax in c.axes() {
         comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| CliError::input(e.to_string()))?;
     }

@@ -151,13 +151,14 @@ impl Manager {
         self: &Arc<Self>,
         id: i64,
         stage: String,
-        mut c: Campaign,
+        c: Campaign,
         control: watch::Receiver<Control>,
     ) {
         // Below the service's results_dir whatever the template (absolute ones included).
-        c.spec.outputs.dir =
-            crate::campaign::results::service_outputs(&self.results_dir, &c.spec.outputs.dir);
-        tracing::info!(campaign = id, name = %c.spec.campaign.name, stage = %stage, "starting");
+        let dir =
+            crate::campaign::results::service_outputs(&self.results_dir, &c.spec().outputs.dir);
+        let c = c.with_outputs_dir(dir);
+        tracing::info!(campaign = id, name = %c.spec().campaign.name, stage = %stage, "starting");
         // Nothing is measured before `execute` runs: this is what earlier attempts stored.
         let stored = self.db().sample_count(id).unwrap_or(0);
         if let Some(a) = self.inner().active(id) {

@@ -34,7 +34,7 @@ impl Manager {
         // load_stored resolves relative paths from the stored path's directory.
         let c = c.stored_as(self.campaigns_dir.join(&file).display().to_string());
         self.preflight_at_submit(&c)?;
-        let stage = c.spec.campaign.stage.clone();
+        let stage = c.spec().campaign.stage.clone();
         let waiting = self.inner().queues.get(&stage).map_or(0, VecDeque::len);
         if waiting >= self.limits.max_queued_per_stage {
             return Err(ApiError::conflict(format!(
@@ -54,11 +54,11 @@ impl Manager {
             q.push_back(id);
             q.len() - 1
         };
-        tracing::info!(campaign = id, name = %c.spec.campaign.name, stage = %stage, "submitted");
+        tracing::info!(campaign = id, name = %c.spec().campaign.name, stage = %stage, "submitted");
         self.emit(
             id,
             "queued",
-            json!({"stage": stage, "position": position, "name": c.spec.campaign.name,
+            json!({"stage": stage, "position": position, "name": c.spec().campaign.name,
                    "by": origin.describe(), "origin": origin}),
         );
         self.schedule(&stage);
@@ -99,7 +99,7 @@ impl Manager {
     /// process drives, is checked when it starts. 409 when the file must change, 503 when the
     /// rig must; the message names the failed check.
     pub(super) fn preflight_at_submit(&self, c: &Campaign) -> Result<(), ApiError> {
-        let stage = &c.spec.campaign.stage;
+        let stage = &c.spec().campaign.stage;
         {
             let inner = self.inner();
             if inner.running.contains_key(stage)
@@ -118,7 +118,7 @@ impl Manager {
         let report = tokio::runtime::Handle::current().block_on(preflight_report(c));
         if !report.blocks() {
             for w in report.warnings() {
-                tracing::warn!(campaign = %c.spec.campaign.name, "{w}");
+                tracing::warn!(campaign = %c.spec().campaign.name, "{w}");
             }
             return Ok(());
         }
@@ -128,7 +128,7 @@ impl Manager {
                 axum::http::StatusCode::SERVICE_UNAVAILABLE
             }
         };
-        tracing::warn!(campaign = %c.spec.campaign.name, "{}; not queued", report.error_message());
+        tracing::warn!(campaign = %c.spec().campaign.name, "{}; not queued", report.error_message());
         Err(ApiError::new(
             status,
             format!("{}; the campaign was not queued", report.client_message()),

@@ -112,7 +112,7 @@ pub fn points(
     comp: &Compensation,
     opts: &MapVerifyOptions,
 ) -> Result<(Vec<[f64; 2]>, usize, usize), String> {
-    let mp = c.map.as_ref().ok_or("not a map campaign")?;
+    let mp = c.map().ok_or("not a map campaign")?;
     let m = comp.map().ok_or("not a map compensation")?;
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0x4d41_5056);
     let (cols, rows) = lattice(opts.points);
@@ -153,7 +153,7 @@ fn plan_of(c: &Campaign, pts: &[[f64; 2]], cycles: u32, seq0: u64) -> Plan {
     let mut seq = seq0;
     let mut batches = Vec::new();
     let dirs = c
-        .map
+        .map()
         .as_ref()
         .map(|m| m.directions.clone())
         .unwrap_or_default();
@@ -353,7 +353,7 @@ pub async fn run(
     if opts.points < 4 || opts.points > MAX_POINTS {
         return Err(Refused(format!("points must be 4..={MAX_POINTS}")));
     }
-    let Some(mp) = &c.map else {
+    let Some(mp) = c.map() else {
         return Err(Refused(format!("campaign {id} is not a map campaign")));
     };
     let Some(m) = comp.map() else {
@@ -362,7 +362,7 @@ pub async fn run(
             comp.source
         )));
     };
-    comp.check_stage(&c.spec.campaign.stage)
+    comp.check_stage(&c.spec().campaign.stage)
         .map_err(|e| Refused(e.to_string()))?;
     for &d in &mp.directions {
         if m.served_direction(d) != d {
@@ -474,7 +474,7 @@ pub async fn run(
         squareness_ratio: (fa.squareness_urad / fb.squareness_urad).abs(),
         squareness_map_urad: map_sq,
         squareness_after_over_map: map_sq.map(|q| (fa.squareness_urad / q).abs()),
-        stage: c.spec.campaign.stage.clone(),
+        stage: c.spec().campaign.stage.clone(),
         compensation: comp.source.clone(),
         points_um: pts,
         columns: cols,

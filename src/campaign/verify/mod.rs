@@ -141,12 +141,12 @@ fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<TargetSe
     let mut batches = Vec::new();
     let mut seq = seq0;
     let mut sets = Vec::new();
-    for ax in &c.axes {
+    for ax in c.axes() {
         let (iso, un, ext) = targets(ax, opts);
         let mut all: Vec<f64> = iso.iter().chain(&un).chain(&ext).copied().collect();
         all.sort_by(f64::total_cmp);
         for cycle in 0..opts.cycles {
-            for &direction in &c.spec.acquisition.directions {
+            for &direction in &c.spec().acquisition.directions {
                 let run = RunKey {
                     phase: Phase::Full,
                     axis: ax.axis,
@@ -456,9 +456,9 @@ pub async fn run(
             "targets: at least 2 on the grid, at most {MAX_TARGETS} in all"
         )));
     }
-    comp.check_stage(&c.spec.campaign.stage)
+    comp.check_stage(&c.spec().campaign.stage)
         .map_err(|e| Refused(e.to_string()))?;
-    for ax in &c.axes {
+    for ax in c.axes() {
         comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| Refused(e.to_string()))?;
     }
@@ -605,7 +605,7 @@ pub async fn run(
         campaign: id,
         passed: !axes.is_empty() && axes.iter().all(|a| a.passed),
         axes,
-        stage: c.spec.campaign.stage.clone(),
+        stage: c.spec().campaign.stage.clone(),
         compensation: comp.source.clone(),
         acquisition_s,
         samples: [before.len(), after.len()],
