@@ -392,8 +392,8 @@ pub async fn execute_with(
     ));
     let written = run.put_files(&c, &store_id, &rep.files, &mut errors);
     #[cfg(feature = "nexus")]
-    if let (true, Ok(d)) = (c.spec.outputs.nexus, &written) {
-        if let Err(e) = write_nexus(&store, id, d, &c.spec.campaign.name, errors.is_empty()) {
+    if let (true, Ok(d)) = (c.spec().outputs.nexus, &written) {
+        if let Err(e) = write_nexus(&store, id, d, &c.spec().campaign.name, errors.is_empty()) {
             errors.push(format!("NeXus file not written: {e}"));
         }
     }
