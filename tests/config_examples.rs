@@ -28,7 +28,7 @@ fn every_example_campaign_validates() {
     let kind = |name: &str| {
         seen.iter()
             .find(|(n, _)| n == name)
-            .map(|(_, c)| c.spec.hardware.kind)
+            .map(|(_, c)| c.spec().hardware.kind)
     };
     assert_eq!(kind("demo-sim.toml"), Some(HardwareKind::Sim));
     assert_eq!(kind("lab-xy-real.toml"), Some(HardwareKind::Real));

@@ -88,8 +88,8 @@ fn parse_quickly(text: &str) {
     let t0 = Instant::now();
     match Campaign::parse(text, "fuzz.toml", &config_dir()) {
         Ok(c) => {
-            assert!(!c.axes.is_empty());
-            for a in &c.axes {
+            assert!(!c.axes().is_empty());
+            for a in c.axes() {
                 assert!(a.grid.n <= csmetro::grid::MAX_GRID_POINTS);
                 assert!(a.m <= a.grid.n);
             }

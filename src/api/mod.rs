@@ -10,6 +10,7 @@ use axum::http::StatusCode;
 pub mod config;
 pub mod guard;
 pub mod manager;
+pub mod motion;
 pub mod page;
 mod progress;
 pub mod routes;

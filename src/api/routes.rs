@@ -550,7 +550,7 @@ async fn follow(
     }
 }
 
-/// `POST /stages/{name}/move`, see [`crate::compensation::motion`]. Every move that passes its
+/// `POST /stages/{name}/move`, see [`crate::campaign::motion`]. Every move that passes its
 /// checks is logged on the stage (`GET /stages/{name}/events`) with who asked: `move` before
 /// anything moves, then `moved` or `move_failed`.
 async fn move_stage(
@@ -562,7 +562,7 @@ async fn move_stage(
     let m = app.manager.clone();
     let stage = name.clone();
     let (c, comp, req, lock) =
-        blocking(move || crate::compensation::motion::api_prepare(&m, &name, &body)).await?;
+        blocking(move || super::motion::api_prepare(&m, &name, &body)).await?;
     let wanted: serde_json::Map<String, serde_json::Value> = req
         .wanted
         .iter()
@@ -573,11 +573,11 @@ async fn move_stage(
     asked["compensated"] = json!(comp.is_some());
     // No trace, no motion: a move whose log entry cannot be written does not happen.
     stage_event(&app, &stage, "move", asked).await?;
-    let out = crate::compensation::motion::execute(&c, comp.as_ref(), &req, std::future::pending())
+    let out = crate::campaign::motion::execute(&c, comp.as_ref(), &req, std::future::pending())
         .await
         .map_err(|e| match e {
-            crate::compensation::motion::MoveError::Refused(m) => ApiError::bad_request(m),
-            crate::compensation::motion::MoveError::Failed(m) => ApiError::internal(m),
+            crate::campaign::motion::MoveError::Refused(m) => ApiError::bad_request(m),
+            crate::campaign::motion::MoveError::Failed(m) => ApiError::internal(m),
         });
     drop(lock);
     let mut done = who.fields();
@@ -657,13 +657,13 @@ async fn stage_events(
     Ok(Json(json!({"stage": name, "events": rows, "next": next})))
 }
 
-/// `GET /campaigns/{id}/verification`: the stored verdict, see [`crate::compensation::verify`].
+/// `GET /campaigns/{id}/verification`: the stored verdict, see [`crate::campaign::verify`].
 async fn verification(
     State(app): State<App>,
     Path(id): Path<i64>,
 ) -> ApiResult<Json<serde_json::Value>> {
     let m = app.manager.clone();
-    let (_, bytes) = blocking(move || m.result(id, crate::compensation::verify::VERDICT_FILE))
+    let (_, bytes) = blocking(move || m.result(id, crate::campaign::verify::VERDICT_FILE))
         .await
         .map_err(|e| match e.status {
             StatusCode::NOT_FOUND => ApiError::not_found(format!("no verification: {}", e.message)),

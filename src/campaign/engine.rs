@@ -430,7 +430,7 @@ impl<'a> Engine<'a> {
         for s in self.done.values() {
             let _ = self.recorder.sample(s);
         }
-        let timeout = Duration::from_secs_f64(self.campaign.spec.hardware.reference_timeout_s);
+        let timeout = Duration::from_secs_f64(self.campaign.spec().hardware.reference_timeout_s);
         for a in [AxisId::X, AxisId::Y] {
             let rig = &mut *self.rig;
             let info = guarded(&mut self.control, async {
@@ -585,7 +585,7 @@ impl<'a> Engine<'a> {
         target_um: f64,
         timed_from_um: Option<f64>,
     ) -> Result<f64, EngineError> {
-        let timeout = Duration::from_secs_f64(self.campaign.spec.hardware.move_timeout_s);
+        let timeout = Duration::from_secs_f64(self.campaign.spec().hardware.move_timeout_s);
         let t = Instant::now();
         // Every motion command goes through here: none is sent once a halt is requested.
         let a = self.rig.axis(axis);
@@ -617,7 +617,7 @@ impl<'a> Engine<'a> {
             AxisId::X => first.target_x_um,
             AxisId::Y => first.target_y_um,
         };
-        let pre = self.campaign.spec.acquisition.approach_um;
+        let pre = &self.campaign.spec().acquisition.approach_um;
         let (lo, hi) = self.rig.axis(run.axis).soft_limits_um();
         let start = (first.target_um() - run.direction.sign() * pre).clamp(lo, hi);
         let mut phys = 0.0;
@@ -701,7 +701,7 @@ impl<'a> Engine<'a> {
 
     /// Measures at one target: move, settle, trigger; returns the decode job in flight.
     async fn measure(&mut self, t: &Target) -> Result<InFlight, EngineError> {
-        let acq = &self.campaign.spec.acquisition;
+        let acq = &self.campaign.spec().acquisition;
         let (settle, dwell, frames) = (acq.settle_s, acq.dwell_s, acq.frames_per_point);
         let from = self.planned_from_um.take();
         let move_s = if t.run.phase == Phase::Map {
@@ -868,7 +868,7 @@ impl<'a> Engine<'a> {
             return Ok(c);
         }
         // Rejected frames: re-approach each target from the run's side, measure again.
-        let max = self.campaign.spec.acquisition.max_retries;
+        let max = &self.campaign.spec().acquisition.max_retries;
         for t in retry {
             let c = *self.control.borrow();
             if c.halts() {
@@ -876,7 +876,7 @@ impl<'a> Engine<'a> {
             }
             let mut attempt = 1;
             loop {
-                if attempt > max {
+                if attempt > *max {
                     self.stat(b.run).failed_points += 1;
                     let physical_s = self.extra_s.remove(&t.seq).unwrap_or(0.0);
                     self.recorder.event(

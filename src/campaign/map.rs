@@ -1,6 +1,6 @@
-//! The map campaign (`[map]`): its plan batches, the worker's 2D reconstruction of each map run,
-//! the estimate of a full grid scan's time, and its result files (map CSV, heat maps, a 2D
-//! compensation table, ISO 230-1 figures).
+//! The map campaign's (`[map]`) results: the estimate of a full grid scan's time and its result
+//! files (map CSV, heat maps, a 2D compensation table, ISO 230-1 figures). Its plan batches are
+//! [`super::plan::map`], the worker's 2D reconstruction of each map run [`super::worker::map`].
 //!
 //! A map run visits the design's points (see [`crate::sampling2d`]) with both axes moving; the
 //! engine ends every move on each axis in the run's direction (forward: +x and +y) by at least
@@ -9,114 +9,15 @@
 //! reconstructed over the whole grid by [`crate::recon2d::reconstruct`].
 use serde_json::{json, Value};
 
-use super::plan::Batch;
 use super::results::{diff_stats, Report, Tally, TruthSource};
 use super::rig::trapezoid_s;
 use super::spec::{Campaign, MapPlan};
-use crate::recon2d::{reconstruct, write_map, Grid2, Map, MapSamples, Report2};
+pub use super::worker::map::MapResult;
+use crate::recon2d::{write_map, Grid2, Map};
 use crate::report::heatmap::{heatmap_png, heatmap_svg, HeatMap};
 use crate::report::iso230_1::{iso230_1, iso230_1_text, Iso2301};
 use crate::report::{format_hms, PlotOptions};
-use crate::types::{AxisId, Direction, Phase, RunKey, SampleRecord, Target};
-
-/// The run of a map direction: phase `map`, axis x by convention, cycle 0.
-pub fn run_key(direction: Direction) -> RunKey {
-    RunKey {
-        phase: Phase::Map,
-        axis: AxisId::X,
-        direction,
-        cycle: 0,
-    }
-}
-
-/// One batch per map direction: the same points, forward in the design's order, backward in
-/// the reverse order (bands from the top, descending x).
-pub fn batches(mp: &MapPlan, seq: &mut u64) -> Vec<Batch> {
-    let nx = mp.grid.x.n;
-    let cells = mp
-        .design
-        .points(&mp.grid)
-        .expect("map design validated against the grid");
-    mp.directions
-        .iter()
-        .map(|&direction| {
-            let run = run_key(direction);
-            let mut order = cells.clone();
-            if direction == Direction::Backward {
-                order.reverse();
-            }
-            let targets = order
-                .into_iter()
-                .map(|(ix, iy)| {
-                    let t = Target {
-                        seq: *seq,
-                        run,
-                        grid_index: iy * nx + ix,
-                        target_x_um: mp.grid.x.position(ix),
-                        target_y_um: mp.grid.y.position(iy),
-                    };
-                    *seq += 1;
-                    t
-                })
-                .collect();
-            Batch {
-                run,
-                index: 0,
-                targets,
-                target_error_um: None,
-            }
-        })
-        .collect()
-}
-
-/// A reconstructed map of one run.
-#[derive(Debug, Clone)]
-pub struct MapResult {
-    pub run: RunKey,
-    pub map: Map,
-    pub report: Report2,
-    pub samples: MapSamples,
-}
-
-/// The samples of map run `run` (the last one stored per grid point): errors in µm, θ in µrad.
-pub fn map_samples(g: &Grid2, run: RunKey, samples: &[SampleRecord]) -> MapSamples {
-    let mut by_idx = std::collections::BTreeMap::new();
-    for s in samples.iter().filter(|s| s.target.run == run) {
-        by_idx.insert(s.target.grid_index, s);
-    }
-    let nx = g.x.n;
-    let mut m = MapSamples {
-        theta: Some(Vec::new()),
-        ..MapSamples::default()
-    };
-    for (&k, s) in &by_idx {
-        m.ix.push(k % nx);
-        m.iy.push(k / nx);
-        m.ex.push(s.error_um(AxisId::X));
-        m.ey.push(s.error_um(AxisId::Y));
-        if let Some(t) = m.theta.as_mut() {
-            t.push(s.theta_mrad * 1000.0);
-        }
-    }
-    m
-}
-
-/// The worker's job when a map run is complete.
-pub fn reconstruct_run(
-    mp: &MapPlan,
-    run: RunKey,
-    samples: &[SampleRecord],
-) -> Result<MapResult, String> {
-    let s = map_samples(&mp.grid, run, samples);
-    let (map, report) = reconstruct(&mp.grid, &s, mp.method)
-        .map_err(|e| format!("map {}: {e}", run.direction.as_str()))?;
-    Ok(MapResult {
-        run,
-        map,
-        report,
-        samples: s,
-    })
-}
+use crate::types::{AxisId, Phase};
 
 /// Physical time of a full scan of the map's rectangle at `full_scan_step_um` under the same
 /// motion model and per-point times as the campaign (s): a raster of rows in +x, each row
@@ -124,8 +25,8 @@ pub fn reconstruct_run(
 /// and the approach), one step in +y between rows; per point the move, the controller's
 /// settling, `settle_s + dwell_s` and the frames.
 pub fn full_scan_estimate_s(c: &Campaign, mp: &MapPlan, motion_settle_s: f64) -> (u64, f64) {
-    let h = &c.spec.hardware.sim;
-    let a = &c.spec.acquisition;
+    let h = &c.spec().hardware.sim;
+    let a = &c.spec().acquisition;
     let step = mp.full_scan_step_um;
     let (wx, wy) = (
         mp.grid.x.end_um() - mp.grid.x.start_um,
@@ -155,7 +56,7 @@ pub fn add_to_report(
     motion_settle_s: f64,
     rep: &mut Report,
 ) -> Vec<String> {
-    let Some(mp) = &c.map else {
+    let Some(mp) = c.map() else {
         return Vec::new();
     };
     let mut problems = Vec::new();
@@ -313,7 +214,7 @@ pub fn add_to_report(
         "acquisition_saved_pct": saved,
         "runs": runs_json,
     });
-    if c.axes.is_empty() {
+    if c.axes().is_empty() {
         // No line runs: the line table's two header lines head nothing.
         rep.table = rep
             .table

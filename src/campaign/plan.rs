@@ -8,6 +8,8 @@ use super::spec::{AxisPlan, Campaign};
 use crate::sampling::{Design, DesignKind};
 use crate::types::{AxisId, Direction, Phase, RunKey, Target};
 
+pub mod map;
+
 /// A monotonic sweep of one run: approached from its direction, targets in visiting order.
 #[derive(Debug, Clone)]
 pub struct Batch {
@@ -57,8 +59,8 @@ fn axis_seed(seed: u64, axis: AxisId) -> u64 {
 
 /// Expands a validated campaign.
 pub fn plan(c: &Campaign) -> Plan {
-    let s = &c.spec.sampling;
-    let a = &c.spec.acquisition;
+    let s = &c.spec().sampling;
+    let a = &c.spec().acquisition;
     let mut batches = Vec::new();
     let mut seq = 0u64;
     let mut phases = vec![Phase::Cs];
@@ -67,7 +69,7 @@ pub fn plan(c: &Campaign) -> Plan {
     } else if s.full_scan {
         phases.push(Phase::Full);
     }
-    for ax in &c.axes {
+    for ax in c.axes() {
         let n = ax.grid.n;
         for &phase in &phases {
             let (designs, chunks): (Vec<Vec<usize>>, Vec<usize>) = match phase {
@@ -128,8 +130,8 @@ pub fn plan(c: &Campaign) -> Plan {
         }
     }
     // `[map]`: its runs come after the lines'.
-    if let Some(mp) = &c.map {
-        batches.extend(super::map::batches(mp, &mut seq));
+    if let Some(mp) = c.map() {
+        batches.extend(map::batches(mp, &mut seq));
     }
     Plan { batches }
 }
@@ -371,7 +373,7 @@ m = 20
         // 2 × 60 points fit the 201-point grid: each direction gets its own, dealt in turn.
         let c = campaign("[sampling]\nm = 60\nbatch = 20\ntarget_error_um = 0.05\n");
         let p = plan(&c);
-        let n = c.axes[0].grid.n;
+        let n = c.axes()[0].grid.n;
         let run = |d: Direction| -> Vec<Vec<usize>> {
             p.batches
                 .iter()
@@ -414,7 +416,7 @@ m = 20
     fn adaptive_batches_fill_the_largest_gaps_first() {
         let c = campaign("[sampling]\nm = 150\nbatch = 25\ntarget_error_um = 0.05\n");
         let p = plan(&c);
-        let n = c.axes[0].grid.n;
+        let n = c.axes()[0].grid.n;
         let x_fwd: Vec<&Batch> = p
             .batches
             .iter()

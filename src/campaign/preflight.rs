@@ -224,12 +224,12 @@ fn axis_err(e: AxisError) -> String {
 /// Where the campaign needs axis `a`: its grid with the approach travel, and where it stands
 /// while the other axis is characterized, µm.
 pub fn needed_span_um(c: &Campaign, a: AxisId) -> Option<(f64, f64)> {
-    let approach = c.spec.acquisition.approach_um;
+    let approach = c.spec().acquisition.approach_um;
     let mut span: Option<(f64, f64)> = None;
     let mut add = |lo: f64, hi: f64| {
         span = Some(span.map_or((lo, hi), |(l, h)| (l.min(lo), h.max(hi))));
     };
-    for p in &c.axes {
+    for p in c.axes() {
         if p.axis == a {
             add(p.grid.start_um - approach, p.grid.end_um() + approach);
         } else {
@@ -237,7 +237,7 @@ pub fn needed_span_um(c: &Campaign, a: AxisId) -> Option<(f64, f64)> {
         }
     }
     // A map moves both axes over its grid, with the approach travel on either side.
-    if let Some(m) = &c.map {
+    if let Some(m) = c.map() {
         let g = if a == AxisId::X { m.grid.x } else { m.grid.y };
         add(g.start_um - approach, g.end_um() + approach);
     }
@@ -392,7 +392,7 @@ async fn check_axis(
     let pos = axis_f64(drv, AxisQuery::Pos).await.map(|mm| mm * 1000.0);
     match (referenced, &pos) {
         (Ok(r), Ok(p)) => {
-            let how = match c.spec.hardware.kind {
+            let how = match c.spec().hardware.kind {
                 HardwareKind::Real => format!("{:?}", drv.config().reference).to_uppercase(),
                 HardwareKind::Sim => "FRF".into(),
             };
@@ -431,7 +431,7 @@ async fn axis_f64(drv: &mut C863, query: AxisQuery) -> Result<f64, String> {
 /// Where the controller is, as the campaign file names it (a simulated campaign's pty is the
 /// simulator's business).
 fn describe_port(c: &Campaign, drv: &C863) -> String {
-    match (&drv.config().transport, c.spec.hardware.kind) {
+    match (&drv.config().transport, c.spec().hardware.kind) {
         (_, HardwareKind::Sim) => "simulated".into(),
         (csmetro_gcs::Transport::Tcp { address }, _) => format!("tcp {address}"),
         (csmetro_gcs::Transport::Serial { port, .. }, _) => format!("serial {port}"),
@@ -484,7 +484,7 @@ fn limits_verdict(
     let what = format!(
         "campaign needs {} (range ± {} µm approach, other-axis positions)",
         shown(need),
-        c.spec.acquisition.approach_um
+        c.spec().acquisition.approach_um
     );
     if !inside(soft) {
         Err(format!("{what}, beyond the {limits}"))
@@ -523,11 +523,11 @@ async fn check_camera(
         }
     };
     let timeout = c
-        .spec
+        .spec()
         .hardware
         .camera
         .as_ref()
-        .filter(|_| c.spec.hardware.kind == HardwareKind::Real)
+        .filter(|_| c.spec().hardware.kind == HardwareKind::Real)
         .map_or(FRAME_TIMEOUT, |k| k.frame_timeout());
     let decoder = devices.decoder.clone();
     let r = tokio::task::spawn_blocking(move || {

@@ -258,11 +258,11 @@ pub fn service_outputs(results_dir: &Path, template: &str) -> String {
 
 pub fn out_dir(c: &Campaign, id: i64) -> PathBuf {
     PathBuf::from(
-        c.spec
+        c.spec()
             .outputs
             .dir
             .replace("{id}", &id.to_string())
-            .replace("{name}", &c.spec.campaign.name),
+            .replace("{name}", &c.spec().campaign.name),
     )
 }
 
@@ -331,7 +331,7 @@ pub fn build(
     ));
     let mut tot = [[0.0f64; 3]; 2]; // [phase][meas, acq_s, proc_s]
     let mut report_curves: Vec<ComponentCurve> = Vec::new();
-    for ax in &c.axes {
+    for ax in c.axes() {
         let a = ax.axis;
         let mut comps = Vec::new();
         let mut proc_s = [0.0f64; 2];
@@ -580,7 +580,7 @@ pub fn build(
     let mut report_error = None;
     let opts = ReportOptions {
         // Checked at validation; a stored campaign of an older csmetro has the defaults.
-        budget: c.spec.uncertainty.inputs().unwrap_or_default(),
+        budget: c.spec().uncertainty.inputs().unwrap_or_default(),
         ..ReportOptions::default()
     };
     let mut iso_figures = Vec::new();
@@ -610,8 +610,8 @@ pub fn build(
     }
     let summary = json!({
         "id": id,
-        "name": c.spec.campaign.name,
-        "stage": c.spec.campaign.stage,
+        "name": &c.spec().campaign.name,
+        "stage": c.spec().campaign.stage,
         "state": if problems.is_empty() { "done" } else { "failed" },
         "errors": problems,
         "wall_s": wall_s,

@@ -173,7 +173,7 @@ impl Rig {
 
 /// Builds the rig of a campaign.
 pub async fn build(c: &Campaign) -> Result<Rig, String> {
-    let h = &c.spec.hardware;
+    let h = &c.spec().hardware;
     let pattern = Pattern::new(h.pattern.clone()).map_err(|e| e.to_string())?;
     let decoder = Arc::new(Decoder::new(
         pattern.clone(),
@@ -199,9 +199,9 @@ struct SimParts {
 /// `faults`: whether the controllers strike `[hardware.sim.faults]` (a soak's random faults are
 /// the campaign's to meet, not the pre-flight's).
 async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimParts, String> {
-    let s = &c.spec.hardware.sim;
+    let s = &c.spec().hardware.sim;
     // The model validation loaded (and, for a submitted file, confined): never read again.
-    let model = match (&s.model, &c.model) {
+    let model = match (&s.model, c.model()) {
         (Some(_), Some(m)) => m.model.clone(),
         (Some(_), None) => return Err("the campaign's stage model was not validated".into()),
         (None, _) => StageModel::default(),
@@ -277,7 +277,7 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
     let optics = s
         .render_optics
         .clone()
-        .unwrap_or_else(|| c.spec.hardware.optics.clone());
+        .unwrap_or_else(|| c.spec().hardware.optics.clone());
     let rot_stage = stage.clone();
     let camera = SimCamera::new(pattern, optics, Box::new(source))
         .map_err(|e| e.to_string())?
@@ -297,7 +297,7 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
 }
 
 async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Result<Rig, String> {
-    let s = &c.spec.hardware.sim;
+    let s = &c.spec().hardware.sim;
     let SimParts {
         x,
         y,
@@ -364,7 +364,7 @@ impl Devices {
 /// opened, and each of its exchanges tried, at most `reconnect_attempts` + 1 times (a
 /// pre-flight reports a missing or silent controller quickly).
 pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devices, String> {
-    let h = &c.spec.hardware;
+    let h = &c.spec().hardware;
     let pattern = Pattern::new(h.pattern.clone()).map_err(|e| e.to_string())?;
     let decoder = Arc::new(Decoder::new(
         pattern.clone(),
@@ -404,7 +404,7 @@ pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devic
 }
 
 async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> {
-    let h = &c.spec.hardware;
+    let h = &c.spec().hardware;
     let connect = |a: AxisId| async move {
         let cfg = h
             .controllers
@@ -436,7 +436,7 @@ async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> 
 
 fn real_camera(c: &Campaign) -> Result<Box<dyn Camera>, String> {
     let cfg = c
-        .spec
+        .spec()
         .hardware
         .camera
         .clone()

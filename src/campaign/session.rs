@@ -4,11 +4,15 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
-use serde::Serialize;
 use serde_json::{json, Value};
 use tokio::sync::{broadcast, watch};
 
-use super::engine::{Control, EndState, Engine, EngineError, Outcome, Recorder};
+use super::attempt::Attempt;
+pub use super::attempt::Finished;
+use super::engine::{Control, EndState, Engine, EngineError, Recorder};
+use super::events::{emit, lock, store_sample};
+/// Where they lived before: the log and stream have their own module.
+pub use super::events::{Event, SharedStore};
 use super::plan::{plan, Plan};
 /// Where it lived before: results no longer imports session.
 pub use super::results::TruthSource;
@@ -16,40 +20,23 @@ use super::results::{problems, tally};
 use super::rig::{self, Rig};
 use super::spec::Campaign;
 use super::worker::{reconstruct_run, settings, Worker};
-use crate::store::Store;
 use crate::types::{CampaignState, Origin, RunKey, SampleRecord};
-
-/// A campaign event as stored and streamed (server-sent events, `csmetro watch`).
-#[derive(Debug, Clone, Serialize, serde::Deserialize)]
-pub struct Event {
-    pub id: i64,
-    pub campaign: i64,
-    pub unix_s: f64,
-    pub kind: String,
-    pub data: Value,
-}
-
-pub type SharedStore = Arc<Mutex<Store>>;
-
-pub(crate) fn lock(s: &SharedStore) -> std::sync::MutexGuard<'_, Store> {
-    s.lock().unwrap_or_else(|e| e.into_inner())
-}
 
 /// Stores a new campaign (state queued) and returns its id.
 pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, String> {
-    let planned = crate::compensation::campaign::planned(c).unwrap_or(plan(c).total() as u64);
+    let planned = super::verification::planned(c).unwrap_or(plan(c).total() as u64);
     let s = lock(store);
     let id = s
         .create_campaign(
-            &c.spec.campaign.name,
-            &c.text,
-            &c.origin,
-            &c.spec.campaign.stage,
+            &c.spec().campaign.name,
+            c.text(),
+            c.origin(),
+            &c.spec().campaign.stage,
             planned,
         )
         .map_err(|e| e.to_string())?;
     // The model it was validated with runs it, at every resume too.
-    if let Some(m) = &c.model {
+    if let Some(m) = c.model() {
         s.set_model_snapshot(id, &m.text)
             .map_err(|e| e.to_string())?;
     }
@@ -67,11 +54,10 @@ pub fn load_stored(store: &SharedStore, id: i64) -> Result<Campaign, String> {
         .map(|p| p.to_path_buf())
         .unwrap_or_default();
     let snapshot = lock(store).model_snapshot(id).map_err(|e| e.to_string())?;
-    let mut c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)
+    let c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)
         .map_err(|e| e.to_string())?;
     // `verify = ID`: the characterisation's axes.
-    crate::compensation::campaign::resolve(&mut c, &lock(store)).map_err(|e| e.to_string())?;
-    Ok(c)
+    super::verification::resolve(c, &lock(store)).map_err(|e| e.to_string())
 }
 
 struct StoreRecorder {
@@ -83,54 +69,6 @@ struct StoreRecorder {
     campaign: Campaign,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     truth_log: Option<std::fs::File>,
-}
-
-/// Commits sample `s` of campaign `id` and, when it is new (a resumed run may measure a stored
-/// target again), streams it as a live `sample` event (id 0: samples are not in the event log).
-pub(crate) fn store_sample(
-    store: &SharedStore,
-    events: &broadcast::Sender<Event>,
-    id: i64,
-    s: &SampleRecord,
-) -> Result<bool, String> {
-    let fresh = lock(store)
-        .insert_sample(id, s)
-        .map_err(|e| e.to_string())?;
-    if fresh {
-        let _ = events.send(Event {
-            id: 0,
-            campaign: id,
-            unix_s: s.unix_s,
-            kind: "sample".into(),
-            data: json!(s),
-        });
-    }
-    Ok(fresh)
-}
-
-pub(crate) fn emit(
-    store: &SharedStore,
-    events: &broadcast::Sender<Event>,
-    id: i64,
-    kind: &str,
-    data: Value,
-) {
-    let unix_s = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0);
-    match lock(store).add_event(id, kind, &data) {
-        Ok(eid) => {
-            let _ = events.send(Event {
-                id: eid,
-                campaign: id,
-                unix_s,
-                kind: kind.into(),
-                data,
-            });
-        }
-        Err(e) => tracing::warn!(error = %e, kind, "event not stored"),
-    }
 }
 
 impl Recorder for StoreRecorder {
@@ -181,17 +119,6 @@ const STOPPED: &str = "stopped (service shutdown); resumes from the last stored 
 const PAUSED_AT_STOP: &str =
     "paused by the operator; the service stopped meanwhile and keeps it paused until resumed";
 
-/// What a finished campaign reports.
-#[derive(Debug, Clone, Serialize)]
-pub struct Finished {
-    pub id: i64,
-    pub state: CampaignState,
-    pub outcome: Outcome,
-    pub summary: Option<Value>,
-    pub table: Option<String>,
-    pub out_dir: Option<PathBuf>,
-}
-
 /// Options of [`execute_with`] that only tests and soaks use.
 #[derive(Debug, Clone, Default)]
 pub struct Options {
@@ -225,12 +152,14 @@ pub async fn execute_with(
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     opts: Options,
 ) -> Result<Finished, String> {
-    if c.spec.campaign.verify.is_some() {
-        let origin = opts.origin.unwrap_or_else(Origin::service);
-        return crate::compensation::campaign::execute(
-            store, id, c, control, events, on_sample, origin,
-        )
-        .await;
+    let run = Attempt {
+        store: store.clone(),
+        events: events.clone(),
+        id,
+    };
+    let origin = opts.origin.clone().unwrap_or_else(Origin::service);
+    if c.spec().campaign.verify.is_some() {
+        return super::verification::execute(&run, c, control, on_sample, origin).await;
     }
     let truth_log = match &opts.truth_log {
         Some(p) => Some(
@@ -249,56 +178,18 @@ pub async fn execute_with(
         .into_iter()
         .map(|s| (s.target.seq, s))
         .collect();
-    let resumed = !done.is_empty();
-    let origin = opts.origin.clone().unwrap_or_else(Origin::service);
-    {
-        let s = lock(&store);
-        s.set_planned(id, p.total() as u64)
-            .map_err(|e| e.to_string())?;
-        s.set_state(id, CampaignState::Running, None)
-            .map_err(|e| e.to_string())?;
-    }
-    emit(
-        &store,
-        &events,
-        id,
-        if resumed {
-            "resumed_from_store"
-        } else {
-            "started"
-        },
-        json!({"planned": p.total(), "stored": done.len(), "name": c.spec.campaign.name,
-               "by": origin.describe(), "origin": origin}),
-    );
-    // An attempt that cannot go on: the error, then the state change, both in the log.
-    let fail = |cause: &str, msg: String| {
-        // The reason goes with the state; a state that cannot be stored is said too (the
-        // store keeps the campaign `running`, which the service's next start resumes).
-        let stored = lock(&store).set_state(id, CampaignState::Interrupted, Some(&msg));
-        let msg = match stored {
-            Ok(()) => msg,
-            Err(e) => format!("{msg}; state not stored: {e}"),
-        };
-        emit(
-            &store,
-            &events,
-            id,
-            "error",
-            json!({"cause": cause, "error": msg, "resumable": true}),
-        );
-        emit(
-            &store,
-            &events,
-            id,
-            "finished",
-            json!({"state": "interrupted", "error": msg}),
-        );
-        msg
-    };
+    run.start(
+        p.total() as u64,
+        done.len(),
+        &c.spec().campaign.name,
+        &origin,
+        None,
+    )?;
+    let fail = |cause: &str, msg: String| run.fail(cause, msg);
     // `[compensation]`: resolved (and a bad table refused) before the hardware is touched.
     let compensation = {
         let s = lock(&store);
-        crate::compensation::for_campaign(&c, &s)
+        super::compensate::for_campaign(&c, &s)
     };
     let compensation = compensation.map_err(|e| fail("compensation", format!("stopped: {e}")))?;
     let mut rig: Rig = rig::build(&c).await.map_err(|e| {
@@ -436,23 +327,7 @@ pub async fn execute_with(
             msg = PAUSED_AT_STOP;
             data = json!({"state": "paused", "reason": PAUSED_AT_STOP});
         }
-        // Not stored, an aborted campaign would be left `running` and resumed by the
-        // service's next start: an error, not a finished campaign.
-        lock(&store).set_state(id, state, Some(msg)).map_err(|e| {
-            format!(
-                "campaign {id}: motion stopped, but its state ({}) was not stored: {e}",
-                state.as_str()
-            )
-        })?;
-        emit(&store, &events, id, "finished", data);
-        return Ok(Finished {
-            id,
-            state,
-            outcome,
-            summary: None,
-            table: None,
-            out_dir: None,
-        });
+        return run.halted(state, msg, data, outcome);
     }
     // Every figure from the store: the same whatever attempts it took.
     let (samples, log) = {
@@ -494,15 +369,12 @@ pub async fn execute_with(
         motion_settle_s,
         &mut rep,
     ));
-    let (store_id, created) = {
-        let s = lock(&store);
-        let sid = s.store_id().unwrap_or_else(|e| {
-            tracing::warn!(error = %e, "store id not read");
-            "unknown".into()
-        });
-        let created = s.campaign(id).ok().flatten().map(|r| r.created_unix_s);
-        (sid, created)
-    };
+    let store_id = run.store_id();
+    let created = lock(&store)
+        .campaign(id)
+        .ok()
+        .flatten()
+        .map(|r| r.created_unix_s);
     let html = report_html(
         &c,
         id,
@@ -518,86 +390,19 @@ pub async fn execute_with(
         "text/html; charset=utf-8".into(),
         html.into_bytes(),
     ));
-    let mut store_err = None;
-    {
-        let s = lock(&store);
-        for (name, ctype, bytes) in &rep.files {
-            if let Err(e) = s.put_result(id, name, ctype, bytes) {
-                store_err = Some(e.to_string());
-            }
-        }
-    }
-    if let Some(e) = store_err {
-        errors.push(format!("results not stored: {e}"));
-    }
-    // A results folder belongs to one campaign of one store: never written over.
-    let wanted = super::results::out_dir(&c, id);
-    let written = super::results::claim_out_dir(&wanted, &store_id, id, &c.spec.campaign.name)
-        .and_then(|d| write_files(&d, &rep.files).map(|()| d));
-    if let Err(e) = &written {
-        tracing::warn!(error = %e, dir = %wanted.display(), "result files not written");
-        emit(
-            &store,
-            &events,
-            id,
-            "error",
-            json!({"cause": "results", "error": e, "resumable": false}),
-        );
-        errors.push(e.clone());
-    }
+    let written = run.put_files(&c, &store_id, &rep.files, &mut errors);
     #[cfg(feature = "nexus")]
-    if let (true, Ok(d)) = (c.spec.outputs.nexus, &written) {
-        if let Err(e) = write_nexus(&store, id, d, &c.spec.campaign.name, errors.is_empty()) {
+    if let (true, Ok(d)) = (c.spec().outputs.nexus, &written) {
+        if let Err(e) = write_nexus(&store, id, d, &c.spec().campaign.name, errors.is_empty()) {
             errors.push(format!("NeXus file not written: {e}"));
         }
     }
-    let (state, message) = if errors.is_empty() {
-        (CampaignState::Done, None)
+    let state = if errors.is_empty() {
+        CampaignState::Done
     } else {
-        (CampaignState::Failed, Some(errors.join("; ")))
+        CampaignState::Failed
     };
-    lock(&store)
-        .set_state(id, state, message.as_deref())
-        .map_err(|e| e.to_string())?;
-    let mut summary = rep.summary;
-    summary["state"] = json!(state.as_str());
-    summary["errors"] = json!(errors);
-    emit(
-        &store,
-        &events,
-        id,
-        "finished",
-        json!({"state": state.as_str(), "errors": errors, "summary": summary}),
-    );
-    Ok(Finished {
-        id,
-        state,
-        outcome,
-        summary: Some(summary),
-        table: Some(rep.table),
-        out_dir: written.ok(),
-    })
-}
-
-/// Writes the result files under `dir`; the first failure names the file (relative to `dir`).
-fn write_files(dir: &std::path::Path, files: &[(String, String, Vec<u8>)]) -> Result<(), String> {
-    let mut first = None;
-    for (name, _, bytes) in files {
-        let p = dir.join(name);
-        let r = match p.parent() {
-            Some(d) => std::fs::create_dir_all(d).and_then(|()| std::fs::write(&p, bytes)),
-            None => std::fs::write(&p, bytes),
-        };
-        if let Err(e) = r {
-            first.get_or_insert_with(|| {
-                format!(
-                    "results not written to the output directory ({name}: {}); they are in the store",
-                    e.kind()
-                )
-            });
-        }
-    }
-    first.map_or(Ok(()), Err)
+    run.finish(state, errors, rep.summary, rep.table, outcome, written.ok())
 }
 
 /// Formats a Unix time as UTC, `2026-11-27 09:50:00 UTC` (civil date from days since the epoch,
@@ -695,11 +500,11 @@ fn report_html(
             ));
         }
     }
-    rig.push(("stage name".into(), c.spec.campaign.stage.clone()));
+    rig.push(("stage name".into(), c.spec().campaign.stage.clone()));
     let state = if errors.is_empty() { "done" } else { "failed" };
     html::report_html(&html::HtmlReport {
         id,
-        name: &c.spec.campaign.name,
+        name: &c.spec().campaign.name,
         state,
         errors,
         store_id,
@@ -708,8 +513,8 @@ fn report_html(
         iso: &rep.iso,
         files: &rep.files,
         rig,
-        campaign_text: &c.text,
-        campaign_origin: &c.origin,
+        campaign_text: c.text(),
+        campaign_origin: c.origin(),
     })
 }
 

@@ -17,6 +17,8 @@ use crate::recon::{reconstruct, Method, ReconSettings};
 use crate::samples::{nearest_steps, GridSamples};
 use crate::types::{Component, Phase, RunKey, SampleRecord};
 
+pub mod map;
+
 /// A reconstructed (CS) or measured (full scan) curve of one component of one run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Curve {
@@ -312,10 +314,10 @@ fn mean_xy(p: &[(f64, f64)]) -> (f64, f64) {
 }
 
 pub fn settings(c: &Campaign) -> ReconSettings {
-    let r = &c.spec.reconstruction;
+    let r = &c.spec().reconstruction;
     ReconSettings {
-        method: c.method,
-        solver: c.solver,
+        method: c.method(),
+        solver: c.solver(),
         noise_um: r.noise_um,
         pitch_um: r.pitch_um,
         ..ReconSettings::default()
@@ -323,7 +325,7 @@ pub fn settings(c: &Campaign) -> ReconSettings {
 }
 
 /// The maps the worker reconstructed (`[map]` runs), filled as each map run completes.
-pub type Maps = std::sync::Arc<std::sync::Mutex<Vec<Result<super::map::MapResult, String>>>>;
+pub type Maps = std::sync::Arc<std::sync::Mutex<Vec<Result<map::MapResult, String>>>>;
 
 /// Handle of the worker thread.
 pub struct Worker {
@@ -339,9 +341,9 @@ impl Worker {
         c: &Campaign,
         mut on_curve: impl FnMut(Result<&Curve, String>) + Send + 'static,
     ) -> Worker {
-        let grids: BTreeMap<_, Grid> = c.axes.iter().map(|a| (a.axis, a.grid)).collect();
+        let grids: BTreeMap<_, Grid> = c.axes().iter().map(|a| (a.axis, a.grid)).collect();
         let settings = settings(c);
-        let map_plan = c.map.clone();
+        let map_plan = c.map().cloned();
         let maps = Maps::default();
         let maps2 = maps.clone();
         let (tx, rx) = mpsc::channel::<Msg>();
@@ -359,7 +361,7 @@ impl Worker {
                                 continue;
                             }
                             if let (Phase::Map, Some(mp)) = (run.phase, &map_plan) {
-                                let r = super::map::reconstruct_run(mp, run, &samples);
+                                let r = map::reconstruct_run(mp, run, &samples);
                                 maps2.lock().unwrap_or_else(|p| p.into_inner()).push(r);
                                 continue;
                             }

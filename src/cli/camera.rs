@@ -180,7 +180,7 @@ fn run_snap(a: SnapArgs) -> CliResult {
             // Validated as `csmetro run` would (a backend this build lacks is refused here).
             let c = Campaign::parse(&text, &p.display().to_string(), &base)
                 .map_err(|e| CliError::input(e.to_string()))?;
-            let h = &c.spec.hardware;
+            let h = &c.spec().hardware;
             let cam = match h.kind {
                 HardwareKind::Real => h.camera.clone(),
                 HardwareKind::Sim => None,

@@ -34,8 +34,8 @@ pub fn run(a: Args) -> CliResult {
         // drives.
         match stage_lock(
             &a.db,
-            &c.spec.campaign.stage,
-            stagelock::Scope::of(c.spec.hardware.kind),
+            &c.spec().campaign.stage,
+            stagelock::Scope::of(c.spec().hardware.kind),
         ) {
             Ok(lock) => {
                 report.push(
@@ -43,7 +43,7 @@ pub fn run(a: Args) -> CliResult {
                     Class::Device,
                     Ok(format!(
                         "`{}` not driven by another process",
-                        c.spec.campaign.stage
+                        &c.spec().campaign.stage
                     )),
                 );
                 rt.block_on(preflight::check_devices(
@@ -93,7 +93,7 @@ fn config_checks(path: &Path, report: &mut Report) -> Option<Campaign> {
             Class::Config,
             Ok(format!(
                 "{origin}: valid, kind = \"{}\", {} planned measurements",
-                match c.spec.hardware.kind {
+                match c.spec().hardware.kind {
                     crate::campaign::spec::HardwareKind::Sim => "sim",
                     crate::campaign::spec::HardwareKind::Real => "real",
                 },
@@ -111,7 +111,7 @@ fn config_checks(path: &Path, report: &mut Report) -> Option<Campaign> {
             report.push(
                 "outputs",
                 Class::Config,
-                Ok(format!("{} writable", c.spec.outputs.dir)),
+                Ok(format!("{} writable", c.spec().outputs.dir)),
             );
             Some(c)
         }

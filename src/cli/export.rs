@@ -7,7 +7,6 @@ use std::time::Instant;
 
 use super::run::DEFAULT_DB;
 use super::{CliError, CliResult};
-use crate::compensation::Compensation;
 use crate::export::controller::{self, Controller};
 use crate::export::Export;
 use crate::store::Store;
@@ -151,7 +150,7 @@ fn controller_table(a: &Args, store: &Store, f: Controller, t0: Instant) -> CliR
             "campaign {id} is an XY map campaign: its compensation_map_*.csv corrects both axes over the plane, not one axis a controller table holds"
         )));
     }
-    let comp = Compensation::from_store(store, id, &row.stage)
+    let comp = crate::campaign::compensate::stored(store, id, &row.stage)
         .map_err(|e| CliError::input(e.to_string()))?;
     let table = comp.table(axis).ok_or_else(|| {
         let have: Vec<&str> = [AxisId::X, AxisId::Y]

@@ -12,9 +12,9 @@ use serde_json::json;
 
 use super::run::DEFAULT_DB;
 use super::{CliError, CliResult};
+use crate::campaign::motion::{self, MoveError, MoveRequest};
 use crate::campaign::spec::Campaign;
 use crate::campaign::{session, stagelock};
-use crate::compensation::motion::{self, MoveError, MoveRequest};
 use crate::compensation::Compensation;
 use crate::store::Store;
 use crate::types::{AxisId, Direction};
@@ -85,11 +85,11 @@ fn hardware(a: &Args, comp: Option<&Compensation>) -> Result<(Campaign, String),
         let base = p.parent().map(Path::to_path_buf).unwrap_or_default();
         let c = Campaign::parse(&text, &p.display().to_string(), &base)
             .map_err(|e| CliError::input(e.to_string()))?;
-        if c.spec.campaign.stage != a.stage {
+        if c.spec().campaign.stage != a.stage {
             return Err(CliError::input(format!(
                 "{} is a campaign of stage {:?}, not {:?}",
                 p.display(),
-                c.spec.campaign.stage,
+                c.spec().campaign.stage,
                 a.stage
             )));
         }

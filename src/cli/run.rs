@@ -84,24 +84,22 @@ fn take_stage(
 
 pub fn run(a: Args) -> CliResult {
     let origin = origin(a.operator.as_deref())?;
-    let mut c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
+    let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
-    crate::compensation::campaign::resolve(
-        &mut c,
-        &store.lock().unwrap_or_else(|e| e.into_inner()),
-    )
-    .map_err(|e| CliError::input(e.to_string()))?;
+    let c =
+        crate::campaign::verification::resolve(c, &store.lock().unwrap_or_else(|e| e.into_inner()))
+            .map_err(|e| CliError::input(e.to_string()))?;
     let _stage = take_stage(
         &a.db,
-        &c.spec.campaign.stage,
-        stagelock::Scope::of(c.spec.hardware.kind),
+        &c.spec().campaign.stage,
+        stagelock::Scope::of(c.spec().hardware.kind),
     )?;
     preflight(&c, &a.db, "nothing was recorded or moved")?;
     let id = session::create(&store, &c).map_err(CliError::failure)?;
     // A resume is offered where it applies: at the end of a run that did not finish.
     eprintln!(
         "campaign {id} \"{}\" stored in {}",
-        c.spec.campaign.name,
+        c.spec().campaign.name,
         a.db.display()
     );
     let opts = session::Options {
@@ -205,7 +203,7 @@ fn foreground(
     opts: session::Options,
     db: &std::path::Path,
 ) -> CliResult {
-    let stage = c.spec.campaign.stage.clone();
+    let stage = c.spec().campaign.stage.clone();
     let db_arg = if db == std::path::Path::new(DEFAULT_DB) {
         String::new()
     } else {
@@ -216,7 +214,7 @@ fn foreground(
         .build()
         .map_err(|e| CliError::failure(e.to_string()))?;
     rt.block_on(async move {
-        let planned = crate::compensation::campaign::planned(&c)
+        let planned = crate::campaign::verification::planned(&c)
             .unwrap_or(crate::campaign::plan::plan(&c).total() as u64);
         let stored = store
             .lock()

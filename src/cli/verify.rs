@@ -12,8 +12,8 @@ use super::{CliError, CliResult};
 use crate::campaign::engine::Control;
 use crate::campaign::session;
 use crate::campaign::stagelock;
-use crate::compensation::verify::{self, prior_from_summary, Prior, VerifyOptions};
-use crate::compensation::verify_map;
+use crate::campaign::verify::map as verify_map;
+use crate::campaign::verify::{self, prior_from_summary, Prior, VerifyOptions};
 use crate::compensation::Compensation;
 use crate::store::Store;
 use crate::types::{AxisId, CampaignState};
@@ -92,7 +92,7 @@ pub fn run(a: Args) -> CliResult {
     // A bad table is refused here, before any hardware is touched.
     let comp = match &a.compensation {
         Some(p) => Compensation::load(p),
-        None => Compensation::from_store(&store, a.id, &row.stage),
+        None => crate::campaign::compensate::stored(&store, a.id, &row.stage),
     }
     .map_err(|e| CliError::input(e.to_string()))?;
     comp.check_stage(&row.stage)
@@ -109,7 +109,7 @@ pub fn run(a: Args) -> CliResult {
     let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&samples, ax));
     let shared = Arc::new(Mutex::new(store));
     let c = session::load_stored(&shared, a.id).map_err(CliError::failure)?;
-    if c.map.is_some() {
+    if c.map().is_some() {
         let opts = verify_map::MapVerifyOptions {
             points: a.points,
             cycles: a.cycles,
@@ -119,7 +119,7 @@ pub fn run(a: Args) -> CliResult {
         };
         return run_map(&a, &row.stage, &shared, &c, comp, &opts);
     }
-    for ax in &c.axes {
+    for ax in c.axes() {
         comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| CliError::input(e.to_string()))?;
     }
@@ -301,7 +301,7 @@ fn run_map(
     comp: Compensation,
     opts: &verify_map::MapVerifyOptions,
 ) -> CliResult {
-    if comp.map.is_none() {
+    if comp.map().is_none() {
         return Err(CliError::input(format!(
             "{}: campaign {} is a map campaign: verify it with its map (compensation_map_<direction>.csv)",
             comp.source, a.id

@@ -12,12 +12,8 @@ use std::path::Path;
 
 use crate::types::{AxisId, Direction};
 
-pub mod campaign;
 pub mod map;
-pub mod motion;
 mod table;
-pub mod verify;
-pub mod verify_map;
 
 use table::parse_num;
 pub use table::AxisTable;
@@ -81,24 +77,45 @@ pub enum CommandError {
     MapNeedsBoth,
 }
 
-/// Compensation of a stage: a table per axis (either may be absent).
+/// Compensation of a stage: line tables or an XY map.
 #[derive(Debug, Clone)]
 pub struct Compensation {
     /// The stage the tables were measured on, when known (a results directory says).
     pub stage: Option<String>,
     /// The characterisation campaign, when known.
     pub campaign: Option<i64>,
-    pub x: Option<AxisTable>,
-    pub y: Option<AxisTable>,
-    /// Where the other axis stood while each table's line was measured (x's table: y, µm;
-    /// y's table: x), when the results say (`summary.json`'s `other_at_um`): a two-axis move
-    /// needs it to take that axis's own error back out (see [`Compensation::command_xy`]).
-    pub line_other_um: [Option<f64>; 2],
-    /// An XY map's compensation (a `[map]` campaign's `compensation_map_<dir>.csv`): then `x`
-    /// and `y` are `None` and every move corrects both axes from the map.
-    pub map: Option<map::MapCompensation>,
+    pub correction: Correction,
     /// Where it came from (a directory, a file, `campaign N`).
     pub source: String,
+}
+
+/// What corrects the moves.
+#[derive(Debug, Clone)]
+pub enum Correction {
+    /// A table per axis (either may be absent), each measured along a line.
+    Lines {
+        x: Option<AxisTable>,
+        y: Option<AxisTable>,
+        /// Where the other axis stood while each table's line was measured (x's table: y, µm;
+        /// y's table: x), when the results say (`summary.json`'s `other_at_um`): a two-axis
+        /// move needs it to take that axis's own error back out (see
+        /// [`Compensation::command_xy`]).
+        line_other_um: [Option<f64>; 2],
+    },
+    /// An XY map's compensation (a `[map]` campaign's `compensation_map_<dir>.csv`): every
+    /// move corrects both axes from the map.
+    Map(map::MapCompensation),
+}
+
+impl Correction {
+    /// Line tables `x` and `y`, the lines' positions unknown; none at all: `None`.
+    fn lines(x: Option<AxisTable>, y: Option<AxisTable>) -> Option<Correction> {
+        (x.is_some() || y.is_some()).then_some(Correction::Lines {
+            x,
+            y,
+            line_other_um: [None, None],
+        })
+    }
 }
 
 /// One axis's planned command in a two-axis compensated move.
@@ -113,10 +130,47 @@ pub struct AxisCommand {
 }
 
 impl Compensation {
+    /// The line table of `axis`; `None` for a map.
     pub fn table(&self, axis: AxisId) -> Option<&AxisTable> {
-        match axis {
-            AxisId::X => self.x.as_ref(),
-            AxisId::Y => self.y.as_ref(),
+        match (&self.correction, axis) {
+            (Correction::Lines { x, .. }, AxisId::X) => x.as_ref(),
+            (Correction::Lines { y, .. }, AxisId::Y) => y.as_ref(),
+            (Correction::Map(_), _) => None,
+        }
+    }
+
+    /// The XY map; `None` for line tables.
+    pub fn map(&self) -> Option<&map::MapCompensation> {
+        match &self.correction {
+            Correction::Map(m) => Some(m),
+            Correction::Lines { .. } => None,
+        }
+    }
+
+    /// Where the other axis stood while each line table was measured (x's, y's), when known.
+    pub fn line_other_um(&self) -> [Option<f64>; 2] {
+        match &self.correction {
+            Correction::Lines { line_other_um, .. } => *line_other_um,
+            Correction::Map(_) => [None, None],
+        }
+    }
+
+    /// A summary's stage, campaign and lines' positions (`summary.json` beside the tables),
+    /// and a map's figures from the summary `v`.
+    fn read_identity(
+        &mut self,
+        (stage, campaign, lines): (Option<String>, Option<i64>, [Option<f64>; 2]),
+        v: Option<&serde_json::Value>,
+    ) {
+        self.stage = stage;
+        self.campaign = campaign;
+        match &mut self.correction {
+            Correction::Lines { line_other_um, .. } => *line_other_um = lines,
+            Correction::Map(m) => {
+                if let Some(v) = v {
+                    m.read_summary(v);
+                }
+            }
         }
     }
 
@@ -131,26 +185,14 @@ impl Compensation {
             message: format!("cannot read: {}", crate::tomlpos::io_reason(&e)),
         })?;
         if meta.is_dir() {
-            let mut c = Compensation {
-                stage: None,
-                campaign: None,
-                x: None,
-                y: None,
-                line_other_um: [None, None],
-                map: None,
-                source: origin.clone(),
-            };
-            for axis in [AxisId::X, AxisId::Y] {
+            let table = |axis: AxisId| {
                 let f = path.join(format!("compensation_{axis}.csv"));
-                if f.exists() {
-                    let t = AxisTable::load(axis, &f)?;
-                    match axis {
-                        AxisId::X => c.x = Some(t),
-                        AxisId::Y => c.y = Some(t),
-                    }
-                }
-            }
-            if c.x.is_none() && c.y.is_none() {
+                f.exists().then(|| AxisTable::load(axis, &f)).transpose()
+            };
+            let (x, y) = (table(AxisId::X)?, table(AxisId::Y)?);
+            let correction = if let Some(lines) = Correction::lines(x, y) {
+                lines
+            } else {
                 // A map campaign's results: its maps, one per measured direction.
                 let mut m = map::MapCompensation::default();
                 for d in [Direction::Forward, Direction::Backward] {
@@ -166,17 +208,22 @@ impl Compensation {
                         message: "no compensation_x.csv, compensation_y.csv or compensation_map_<direction>.csv in this directory".into(),
                     });
                 }
-                c.map = Some(m);
-            }
+                Correction::Map(m)
+            };
+            let mut c = Compensation {
+                stage: None,
+                campaign: None,
+                correction,
+                source: origin.clone(),
+            };
             let summary = path.join("summary.json");
             if summary.exists() {
-                let (stage, id, lines) = summary_identity(&summary)?;
-                c.stage = stage;
-                c.campaign = id;
-                c.line_other_um = lines;
-                if let Some(m) = c.map.as_mut() {
-                    m.read_summary(&summary_json(&summary)?);
-                }
+                let identity = summary_identity(&summary)?;
+                let v = match c.correction {
+                    Correction::Map(_) => Some(summary_json(&summary)?),
+                    Correction::Lines { .. } => None,
+                };
+                c.read_identity(identity, v.as_ref());
             }
             return Ok(c);
         }
@@ -194,10 +241,7 @@ impl Compensation {
             return Ok(Compensation {
                 stage,
                 campaign,
-                x: None,
-                y: None,
-                line_other_um: [None, None],
-                map: Some(m),
+                correction: Correction::Map(m),
                 source: origin,
             });
         }
@@ -211,51 +255,50 @@ impl Compensation {
         Ok(Compensation {
             stage,
             campaign,
-            x: (axis == AxisId::X).then(|| t.clone()),
-            y: (axis == AxisId::Y).then_some(t),
-            line_other_um,
-            map: None,
+            correction: Correction::Lines {
+                x: (axis == AxisId::X).then(|| t.clone()),
+                y: (axis == AxisId::Y).then_some(t),
+                line_other_um,
+            },
             source: origin,
         })
     }
 
-    /// Compensation of a stored campaign: its `compensation_x|y.csv` results.
-    pub fn from_store(
-        store: &crate::store::Store,
+    /// Compensation of stored campaign `id` of `stage`, from its result files
+    /// (`compensation_x|y.csv`, else `compensation_map_<direction>.csv`, and `summary.json`):
+    /// `read(name)` gives a result's bytes, `None` when the campaign has no such file. The store
+    /// stays above: the caller reads it.
+    pub fn from_results(
         id: i64,
         stage: &str,
+        read: impl Fn(&str) -> Result<Option<Vec<u8>>, String>,
     ) -> Result<Compensation, TableError> {
         let origin = format!("campaign {id}");
-        let mut c = Compensation {
-            stage: Some(stage.to_string()),
-            campaign: Some(id),
-            x: None,
-            y: None,
-            line_other_um: [None, None],
-            map: None,
-            source: origin.clone(),
-        };
-        if let Ok(Some((_, bytes))) = store.result(id, "summary.json") {
-            if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) {
-                c.line_other_um = line_positions(&v);
-            }
-        }
-        for axis in [AxisId::X, AxisId::Y] {
+        // A summary that cannot be read leaves the lines' positions unknown, as before.
+        let summary: Option<serde_json::Value> = read("summary.json")
+            .ok()
+            .flatten()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+        let text = |name: &str| stored_text(&read, &origin, name);
+        let table = |axis: AxisId| -> Result<Option<AxisTable>, TableError> {
             let name = format!("compensation_{axis}.csv");
-            if let Some((text, at)) = stored_text(store, id, &origin, &name)? {
-                let t = AxisTable::parse(axis, &text, &at)?;
-                match axis {
-                    AxisId::X => c.x = Some(t),
-                    AxisId::Y => c.y = Some(t),
-                }
+            text(&name)?
+                .map(|(text, at)| AxisTable::parse(axis, &text, &at))
+                .transpose()
+        };
+        let (x, y) = (table(AxisId::X)?, table(AxisId::Y)?);
+        let correction = if x.is_some() || y.is_some() {
+            Correction::Lines {
+                x,
+                y,
+                line_other_um: summary.as_ref().map_or([None, None], line_positions),
             }
-        }
-        if c.x.is_none() && c.y.is_none() {
+        } else {
             // A map campaign: its maps.
             let mut m = map::MapCompensation::default();
             for d in [Direction::Forward, Direction::Backward] {
                 let name = format!("compensation_map_{}.csv", d.as_str());
-                if let Some((text, at)) = stored_text(store, id, &origin, &name)? {
+                if let Some((text, at)) = text(&name)? {
                     m.set(map::MapTable::parse(d, &text, &at)?);
                 }
             }
@@ -266,14 +309,17 @@ impl Compensation {
                     message: "has no compensation table (a finished characterisation writes compensation_x|y.csv, a map campaign compensation_map_<direction>.csv)".into(),
                 });
             }
-            if let Ok(Some((_, bytes))) = store.result(id, "summary.json") {
-                if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) {
-                    m.read_summary(&v);
-                }
+            if let Some(v) = &summary {
+                m.read_summary(v);
             }
-            c.map = Some(m);
-        }
-        Ok(c)
+            Correction::Map(m)
+        };
+        Ok(Compensation {
+            stage: Some(stage.to_string()),
+            campaign: Some(id),
+            correction,
+            source: origin,
+        })
     }
 
     /// Refuses a compensation measured on another stage than `stage`.
@@ -330,7 +376,7 @@ impl Compensation {
     pub fn cross_um(&self, axis: AxisId, other_um: f64, d: Direction) -> Option<f64> {
         let o = self.table(axis.other())?;
         self.table(axis)?;
-        let line_at = self.line_other_um[match axis {
+        let line_at = self.line_other_um()[match axis {
             AxisId::X => 0,
             AxisId::Y => 1,
         }]?;
@@ -348,8 +394,7 @@ impl Compensation {
         soft_limits_um: [(f64, f64); 2],
     ) -> Result<([f64; 2], Direction), CommandError> {
         let m = self
-            .map
-            .as_ref()
+            .map()
             .ok_or(CommandError::NoTable { axis: AxisId::X })?;
         let t = m.served(dir);
         let c = t.command(wanted)?;
@@ -370,7 +415,7 @@ impl Compensation {
         dir: Direction,
         soft_limits_um: [(f64, f64); 2],
     ) -> Result<[Option<AxisCommand>; 2], CommandError> {
-        if self.map.is_some() {
+        if self.map().is_some() {
             let (Some(x), Some(y)) = (wanted[0], wanted[1]) else {
                 return Err(CommandError::MapNeedsBoth);
             };
@@ -490,19 +535,18 @@ fn read_table_file(path: &Path) -> Result<(String, String), TableError> {
     Ok((origin, text))
 }
 
-/// Result file `name` of stored campaign `id` as text, with its origin for messages
-/// (`campaign N/name`); `None` when the campaign has no such file.
+/// Result file `name` as text (`read` gives its bytes), with its origin for messages
+/// (`campaign N/name`); `None` when there is no such file.
 fn stored_text(
-    store: &crate::store::Store,
-    id: i64,
+    read: &impl Fn(&str) -> Result<Option<Vec<u8>>, String>,
     origin: &str,
     name: &str,
 ) -> Result<Option<(String, String)>, TableError> {
     let at = format!("{origin}/{name}");
-    let Some((_, bytes)) = store.result(id, name).map_err(|e| TableError {
+    let Some(bytes) = read(name).map_err(|message| TableError {
         origin: origin.to_string(),
         line: 0,
-        message: e.to_string(),
+        message,
     })?
     else {
         return Ok(None);
@@ -565,95 +609,6 @@ fn summary_identity(
         v["id"].as_i64(),
         line_positions(&v),
     ))
-}
-
-/// `[compensation]` of a campaign file: `from = ID` (a characterisation in the same store) or
-/// `file = "..."` (a results directory or a table, relative to the campaign file).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CompensationSpec {
-    #[serde(default)]
-    pub from: Option<i64>,
-    #[serde(default)]
-    pub file: Option<String>,
-}
-
-/// Checks `[compensation]` of a parsed campaign: one source; a `file` is loaded now (a bad table
-/// refuses the campaign before anything is stored or moved) and must fit the campaign's stage,
-/// axes and directions. `from = ID` is resolved when the campaign runs (it needs the store).
-/// Errors: (key, message). Submitted campaigns may only name a stored characterisation.
-pub fn check_spec(
-    c: &crate::campaign::spec::Campaign,
-    submitted: bool,
-) -> Result<(), (&'static str, String)> {
-    let Some(s) = &c.spec.compensation else {
-        return Ok(());
-    };
-    match (s.from, &s.file) {
-        (Some(id), None) if id > 0 => Ok(()),
-        (Some(_), None) => Err(("compensation.from", "must be a campaign id (> 0)".into())),
-        (None, Some(_)) if submitted => Err((
-            "compensation.file",
-            "a submitted campaign names its compensation by the characterisation's id: from = ID".into(),
-        )),
-        (None, Some(f)) => {
-            if f.is_empty() || f.len() > 1024 || f.contains('\0') {
-                return Err(("compensation.file", "must be a path of 1..=1024 bytes".into()));
-            }
-            let comp = Compensation::load(&c.resolve(f)).map_err(|e| ("compensation.file", e.to_string()))?;
-            fits(&comp, c).map_err(|e| ("compensation.file", e))
-        }
-        _ => Err((
-            "compensation",
-            "give one of from = ID (a stored characterisation) or file = \"...\" (results directory or table)".into(),
-        )),
-    }
-}
-
-/// Refuses a compensation that does not fit campaign `c`: another stage, an axis without a
-/// table or a grid short of the axis's range, a direction the table cannot serve.
-pub fn fits(comp: &Compensation, c: &crate::campaign::spec::Campaign) -> Result<(), String> {
-    comp.check_stage(&c.spec.campaign.stage)
-        .map_err(|e| e.to_string())?;
-    for ax in &c.axes {
-        comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
-            .map_err(|e| e.to_string())?;
-        let t = comp.table(ax.axis).expect("checked by check_covers");
-        for &d in &c.spec.acquisition.directions {
-            if t.served_direction(d) != d {
-                return Err(format!(
-                    "{}: no {} correction, and the campaign measures {} (approached from the other side, backlash would stay)",
-                    t.origin,
-                    d.as_str(),
-                    d.as_str()
-                ));
-            }
-        }
-    }
-    Ok(())
-}
-
-/// The compensation campaign `c` runs with, resolved against `store` (`from = ID`) or its file.
-pub fn for_campaign(
-    c: &crate::campaign::spec::Campaign,
-    store: &crate::store::Store,
-) -> Result<Option<std::sync::Arc<Compensation>>, String> {
-    let Some(s) = &c.spec.compensation else {
-        return Ok(None);
-    };
-    let comp = match (s.from, &s.file) {
-        (Some(id), _) => {
-            let row = store
-                .campaign(id)
-                .map_err(|e| e.to_string())?
-                .ok_or_else(|| format!("compensation: no campaign {id} in the store"))?;
-            Compensation::from_store(store, id, &row.stage).map_err(|e| e.to_string())?
-        }
-        (None, Some(f)) => Compensation::load(&c.resolve(f)).map_err(|e| e.to_string())?,
-        (None, None) => return Ok(None),
-    };
-    fits(&comp, c).map_err(|e| format!("compensation: {e}"))?;
-    Ok(Some(std::sync::Arc::new(comp)))
 }
 
 #[cfg(test)]
@@ -724,10 +679,11 @@ mod tests {
         let c = Compensation {
             stage: None,
             campaign: None,
-            x: Some(t),
-            y: None,
-            line_other_um: [None, None],
-            map: None,
+            correction: Correction::Lines {
+                x: Some(t),
+                y: None,
+                line_other_um: [None, None],
+            },
             source: "t".into(),
         };
         assert!(matches!(
@@ -791,10 +747,11 @@ mod tests {
         let c = Compensation {
             stage: Some("sim-xy".into()),
             campaign: Some(3),
-            x: Some(t),
-            y: None,
-            line_other_um: [None, None],
-            map: None,
+            correction: Correction::Lines {
+                x: Some(t),
+                y: None,
+                line_other_um: [None, None],
+            },
             source: "t".into(),
         };
         assert!(c.check_covers(AxisId::X, 0.0, 2000.0).is_ok());

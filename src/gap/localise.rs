@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use csmetro_effects::{AxisId, StageModel};
 
 use super::design::{demean, key_um, Rows};
-use super::report::{OtherAxis, Peak, Where};
+use super::findings::{OtherAxis, Peak, Where};
 use super::{Options, Sample};
 
 /// Wilson–Hilferty z of a χ² statistic with k degrees of freedom.

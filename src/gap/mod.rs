@@ -22,6 +22,7 @@ mod candidates;
 pub mod data;
 mod design;
 pub mod drift;
+mod findings;
 mod localise;
 mod period;
 mod report;

@@ -17,7 +17,7 @@ impl Engine<'_> {
         target_um: f64,
         sign: f64,
     ) -> Result<f64, EngineError> {
-        let pre = self.campaign.spec.acquisition.approach_um;
+        let pre = self.campaign.spec().acquisition.approach_um;
         let now = self
             .rig
             .axis(axis)
@@ -67,7 +67,7 @@ impl Engine<'_> {
         first: &Target,
         positioning: bool,
     ) -> Result<(), EngineError> {
-        let pre = self.campaign.spec.acquisition.approach_um * run.direction.sign();
+        let pre = self.campaign.spec().acquisition.approach_um * run.direction.sign();
         let mut phys = 0.0;
         for (axis, p) in [
             (AxisId::Y, first.target_y_um),

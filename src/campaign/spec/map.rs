@@ -64,6 +64,8 @@ fn default_full_step() -> f64 {
 pub struct MapPlan {
     pub grid: Grid2,
     pub design: Design2,
+    /// The design's grid cells (ix, iy), drawn at validation: the plan measures these.
+    pub points: Vec<(usize, usize)>,
     pub directions: Vec<Direction>,
     pub method: Method2,
     pub full_scan_step_um: f64,
@@ -166,10 +168,11 @@ pub(super) fn validate_map(
     } else {
         key
     };
-    design.points(&grid).map_err(|e| fail(key, e))?;
+    let points = design.points(&grid).map_err(|e| fail(key, e))?;
     Ok(MapPlan {
         grid,
         design,
+        points,
         directions: m.directions.clone(),
         method,
         full_scan_step_um: m.full_scan_step_um,

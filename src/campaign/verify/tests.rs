@@ -20,7 +20,7 @@ m = 40
 #[test]
 fn iso_targets_are_on_the_grid_and_the_others_never_are() {
     let c = campaign();
-    let ax = &c.axes[0];
+    let ax = &c.axes()[0];
     let (iso, un, ext) = targets(ax, &VerifyOptions::default());
     assert!(ext.is_empty());
     assert_eq!(iso.len(), 11);
@@ -48,7 +48,7 @@ fn iso_targets_are_on_the_grid_and_the_others_never_are() {
 #[test]
 fn targets_stay_inside_the_measured_span_and_the_ends_are_apart() {
     let c = campaign();
-    let ax = &c.axes[0];
+    let ax = &c.axes()[0];
     let sample = |p: f64, d: Direction| {
         let run = RunKey {
             phase: Phase::Cs,

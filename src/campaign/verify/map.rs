@@ -27,22 +27,22 @@
 //! noise included; the worst of the directions served) + the unidirectional repeatability R
 //! (4 × the largest standard deviation over cycles at one point and direction, from the
 //! uncompensated pass; 0 with one cycle) + the bilinear interpolation's bound between the map's
-//! grid points ([`super::map::MapTable::interpolation_bound_um`]); or `--expected-um`.
+//! grid points ([`crate::compensation::map::MapTable::interpolation_bound_um`]); or `--expected-um`.
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use serde_json::{json, Value};
+use serde_json::Value;
 use tokio::sync::watch;
 
-use super::verify::{Collect, Sink, VerifyError, MAX_CYCLES};
-use super::Compensation;
-use crate::campaign::engine::{Control, EndState, Engine};
+use super::{run_passes, Sink, VerifyError, MAX_CYCLES};
+use crate::campaign::engine::Control;
 use crate::campaign::plan::{Batch, Plan};
 use crate::campaign::rig;
 use crate::campaign::spec::Campaign;
+use crate::compensation::Compensation;
 use crate::grid::Grid;
 use crate::report::iso230_1::ls_straightness;
 use crate::types::{AxisId, Direction, Phase, RunKey, SampleRecord, Target};
@@ -112,8 +112,8 @@ pub fn points(
     comp: &Compensation,
     opts: &MapVerifyOptions,
 ) -> Result<(Vec<[f64; 2]>, usize, usize), String> {
-    let mp = c.map.as_ref().ok_or("not a map campaign")?;
-    let m = comp.map.as_ref().ok_or("not a map compensation")?;
+    let mp = c.map().ok_or("not a map campaign")?;
+    let m = comp.map().ok_or("not a map compensation")?;
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0x4d41_5056);
     let (cols, rows) = lattice(opts.points);
     let mut axes = Vec::new();
@@ -153,7 +153,7 @@ fn plan_of(c: &Campaign, pts: &[[f64; 2]], cycles: u32, seq0: u64) -> Plan {
     let mut seq = seq0;
     let mut batches = Vec::new();
     let dirs = c
-        .map
+        .map()
         .as_ref()
         .map(|m| m.directions.clone())
         .unwrap_or_default();
@@ -346,23 +346,23 @@ pub async fn run(
     control: watch::Receiver<Control>,
     sink: &mut dyn Sink,
 ) -> Result<MapVerdict, VerifyError> {
-    use VerifyError::{Failed, Halted, Refused};
+    use VerifyError::{Failed, Refused};
     if opts.cycles == 0 || opts.cycles > MAX_CYCLES {
         return Err(Refused(format!("cycles must be 1..={MAX_CYCLES}")));
     }
     if opts.points < 4 || opts.points > MAX_POINTS {
         return Err(Refused(format!("points must be 4..={MAX_POINTS}")));
     }
-    let Some(mp) = &c.map else {
+    let Some(mp) = c.map() else {
         return Err(Refused(format!("campaign {id} is not a map campaign")));
     };
-    let Some(m) = &comp.map else {
+    let Some(m) = comp.map() else {
         return Err(Refused(format!(
             "{}: not a map compensation (a map campaign is verified with its compensation_map_<direction>.csv)",
             comp.source
         )));
     };
-    comp.check_stage(&c.spec.campaign.stage)
+    comp.check_stage(&c.spec().campaign.stage)
         .map_err(|e| Refused(e.to_string()))?;
     for &d in &mp.directions {
         if m.served_direction(d) != d {
@@ -393,43 +393,17 @@ pub async fn run(
             }
         }
     }
-    let mut acquisition_s = 0.0;
-    let mut passes: Vec<Vec<SampleRecord>> = Vec::new();
-    for (k, plan) in [&before_plan, &after_plan].into_iter().enumerate() {
-        let pass = ["before", "after"][k];
-        sink.event("pass", &json!({"pass": pass, "targets": plan.total()}));
-        let mut rec = Collect {
-            samples: Vec::new(),
-            sink: &mut *sink,
-        };
-        let r = {
-            let mut e = Engine::new(c, &mut rig, &mut rec, control.clone(), BTreeMap::new());
-            if k == 1 {
-                e.compensation = Some(comp.clone());
-            }
-            e.run(plan).await
-        };
-        let out = match r {
-            Ok(o) => o,
-            Err(e) => {
-                rig.stop_all().await;
-                rig.close().await;
-                return Err(Failed(format!("stopped: {e}")));
-            }
-        };
-        if out.end != EndState::Done {
-            rig.close().await;
-            return Err(Halted(out.end));
-        }
-        acquisition_s += out
-            .stats
-            .values()
-            .map(|s| s.acquisition_s + s.positioning_s)
-            .sum::<f64>();
-        passes.push(rec.samples);
-    }
-    rig.close().await;
-    let (before, after) = (&passes[0], &passes[1]);
+    let (passes, acquisition_s) = run_passes(
+        c,
+        rig,
+        &comp,
+        [&before_plan, &after_plan],
+        control,
+        &BTreeMap::new(),
+        sink,
+    )
+    .await?;
+    let [before, after] = &passes;
     let (pb, pa) = (per_point(before), per_point(after));
     let interp = [&m.forward, &m.backward]
         .into_iter()
@@ -500,7 +474,7 @@ pub async fn run(
         squareness_ratio: (fa.squareness_urad / fb.squareness_urad).abs(),
         squareness_map_urad: map_sq,
         squareness_after_over_map: map_sq.map(|q| (fa.squareness_urad / q).abs()),
-        stage: c.spec.campaign.stage.clone(),
+        stage: c.spec().campaign.stage.clone(),
         compensation: comp.source.clone(),
         points_um: pts,
         columns: cols,
@@ -610,7 +584,7 @@ pub fn files(v: &MapVerdict) -> Vec<(String, String, Vec<u8>)> {
             table(v).into_bytes(),
         ),
         (
-            super::verify::VERDICT_FILE.into(),
+            super::VERDICT_FILE.into(),
             "application/json".into(),
             serde_json::to_vec_pretty(&json(v)).unwrap_or_default(),
         ),

@@ -10,64 +10,23 @@ use std::sync::Arc;
 use serde_json::{json, Value};
 use tokio::sync::{broadcast, watch};
 
+use super::attempt::{Attempt, Finished};
+use super::compensate::stored;
+use super::engine::{Control, EndState, Outcome};
+use super::events::{emit, lock, store_sample, Event, SharedStore};
+use super::spec::{Campaign, HardwareKind, SpecError};
 use super::verify::{self, prior_from_summary, Prior, Sink, VerifyError, VerifyOptions};
-use super::Compensation;
-use crate::campaign::engine::{Control, EndState, Outcome};
-use crate::campaign::session::{emit, lock, store_sample, Event, Finished, SharedStore};
-use crate::campaign::spec::{Campaign, CampaignSpec, HardwareKind, SpecError};
 use crate::store::Store;
 use crate::tomlpos::{line_of, span_of};
 use crate::types::{AxisId, CampaignState, Origin, SampleRecord};
 
-/// ISO 230-2's measurement cycles per direction, when the file does not set
-/// `[acquisition] cycles`.
-pub const DEFAULT_CYCLES: u32 = 5;
-
-/// Checks a verification's own keys (before any store is at hand): an id, no `[axes]`, no
-/// `[compensation]`. Errors: (key, message).
-pub fn check_spec(spec: &CampaignSpec, id: i64) -> Result<(), (&'static str, String)> {
-    if id <= 0 {
-        return Err(("campaign.verify", "must be a campaign id (> 0)".into()));
-    }
-    if !spec.axes.is_empty() {
-        return Err((
-            "axes",
-            format!("a verification measures the axes of characterisation {id}: leave out [axes]"),
-        ));
-    }
-    if spec.map.is_some() {
-        return Err((
-            "map",
-            format!("a verification measures the axes of characterisation {id}: leave out [map]"),
-        ));
-    }
-    if spec.compensation.is_some() {
-        return Err((
-            "compensation",
-            format!(
-                "a verification applies the compensation of characterisation {id}: leave out [compensation]"
-            ),
-        ));
-    }
-    if spec.acquisition.cycles > verify::MAX_CYCLES {
-        return Err((
-            "acquisition.cycles",
-            format!(
-                "a verification measures at most {} cycles",
-                verify::MAX_CYCLES
-            ),
-        ));
-    }
-    Ok(())
-}
-
 /// What a verification campaign measures: targets and cycles as `csmetro verify` chooses them;
 /// cycles from `[acquisition] cycles` when the file sets it, else ISO 230-2's 5.
 pub fn options(c: &Campaign) -> VerifyOptions {
-    let cycles = if span_of(&c.text, "acquisition.cycles").is_some() {
-        c.spec.acquisition.cycles
+    let cycles = if span_of(c.text(), "acquisition.cycles").is_some() {
+        c.spec().acquisition.cycles
     } else {
-        DEFAULT_CYCLES
+        super::spec::DEFAULT_VERIFY_CYCLES
     };
     VerifyOptions {
         cycles,
@@ -75,19 +34,19 @@ pub fn options(c: &Campaign) -> VerifyOptions {
     }
 }
 
-/// Resolves a verification campaign against `store`: its axes become the characterisation's
-/// (unchanged for any other campaign). Refused, at `campaign.verify`'s line: an id not in this
+/// Resolves a verification campaign against `store`: a new validated campaign measuring the
+/// characterisation's axes (any other campaign is returned as it is). Refused, at `campaign.verify`'s line: an id not in this
 /// store, of another stage, not finished, itself a verification, without compensation tables,
 /// or a characterisation this file's hardware or directions cannot measure.
-pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
-    let Some(id) = c.spec.campaign.verify else {
-        return Ok(());
+pub fn resolve(c: Campaign, store: &Store) -> Result<Campaign, SpecError> {
+    let Some(id) = c.spec().campaign.verify else {
+        return Ok(c);
     };
     let key = "campaign.verify";
     let err = |message: String| SpecError {
-        origin: c.origin.clone(),
-        line: span_of(&c.text, key)
-            .map(|s| line_of(&c.text, s.start))
+        origin: c.origin().to_string(),
+        line: span_of(c.text(), key)
+            .map(|s| line_of(c.text(), s.start))
             .unwrap_or(0),
         key: key.into(),
         message,
@@ -96,7 +55,7 @@ pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
         .campaign(id)
         .map_err(|e| err(format!("store: {e}")))?
         .ok_or_else(|| err(format!("no campaign {id} in this store")))?;
-    let stage = &c.spec.campaign.stage;
+    let stage = &c.spec().campaign.stage;
     if &row.stage != stage {
         return Err(err(format!(
             "campaign {id} ran on stage {:?}, not on {stage:?}",
@@ -116,7 +75,7 @@ pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
                 "campaign {id}: its stored file no longer validates"
             ))
         })?;
-    if ch.spec.campaign.verify.is_some() || ch.axes.is_empty() {
+    if ch.spec().campaign.verify.is_some() || ch.axes().is_empty() {
         return Err(err(format!(
             "campaign {id} is a verification, not a characterisation"
         )));
@@ -127,15 +86,15 @@ pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
             row.state.as_str()
         )));
     }
-    let comp = Compensation::from_store(store, id, &row.stage).map_err(|e| err(e.to_string()))?;
-    let h = &c.spec.hardware;
-    let pre = c.spec.acquisition.approach_um;
-    for ax in &ch.axes {
+    let comp = stored(store, id, &row.stage).map_err(|e| err(e.to_string()))?;
+    let h = &c.spec().hardware;
+    let pre = c.spec().acquisition.approach_um;
+    for ax in ch.axes() {
         let a = ax.axis;
         comp.check_covers(a, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| err(e.to_string()))?;
         let t = comp.table(a).expect("checked by check_covers");
-        for &d in &c.spec.acquisition.directions {
+        for &d in &c.spec().acquisition.directions {
             if t.served_direction(d) != d {
                 return Err(err(format!(
                     "campaign {id} has no {} correction of axis {a}: measure the directions it has",
@@ -179,14 +138,12 @@ pub fn resolve(c: &mut Campaign, store: &Store) -> Result<(), SpecError> {
             )));
         }
     }
-    c.spec.axes = ch.spec.axes.clone();
-    c.axes = ch.axes;
-    Ok(())
+    Ok(c.measuring_axes_of(ch))
 }
 
 /// Targets a verification campaign plans (both passes); `None` for other campaigns.
 pub fn planned(c: &Campaign) -> Option<u64> {
-    c.spec.campaign.verify?;
+    c.spec().campaign.verify?;
     let (b, a) = verify::planned(c, &options(c));
     Some(b + a)
 }
@@ -210,101 +167,66 @@ impl Sink for StoreSink {
     }
 }
 
-/// Runs (or resumes: targets stored are not measured again) verification campaign `id`,
+/// Runs (or resumes: targets stored are not measured again) verification campaign `run.id`,
 /// stores its verdict and result files, and records its final state: done when it passed,
 /// failed (with the axis that did not) when the compensated residual exceeds the expected one.
-pub async fn execute(
-    store: SharedStore,
-    id: i64,
-    mut c: Campaign,
+pub(super) async fn execute(
+    run: &Attempt,
+    c: Campaign,
     control: watch::Receiver<Control>,
-    events: broadcast::Sender<Event>,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     origin: Origin,
 ) -> Result<Finished, String> {
+    let (store, id) = (&run.store, run.id);
     let char_id = c
-        .spec
+        .spec()
         .campaign
         .verify
         .ok_or("not a verification campaign")?;
     let t0 = std::time::Instant::now();
     let fail = |msg: String| {
-        // A state that cannot be stored is said with the reason.
-        let stored = lock(&store).set_state(id, CampaignState::Interrupted, Some(&msg));
-        let msg = match stored {
-            Ok(()) => msg,
-            Err(e) => format!("{msg}; state not stored: {e}"),
-        };
-        emit(
-            &store,
-            &events,
-            id,
-            "error",
-            json!({"cause": "verification", "error": msg, "resumable": true}),
-        );
-        emit(
-            &store,
-            &events,
-            id,
-            "finished",
-            json!({"state": "interrupted", "error": msg}),
-        );
+        let msg = run.fail("verification", msg);
         format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
     };
     // Resolved again here: the characterisation may have gone since the file was loaded.
     let resolved = {
-        let s = lock(&store);
-        resolve(&mut c, &s)
-            .map_err(|e| e.to_string())
-            .and_then(|()| {
-                let comp = Compensation::from_store(&s, char_id, &c.spec.campaign.stage)
-                    .map_err(|e| e.to_string())?;
-                let summary: Value = s
-                    .result(char_id, "summary.json")
-                    .ok()
-                    .flatten()
-                    .and_then(|(_, b)| serde_json::from_slice(&b).ok())
-                    .unwrap_or_default();
-                let measured = s.samples(char_id).map_err(|e| e.to_string())?;
-                let measured =
-                    [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&measured, ax));
-                let done: BTreeMap<u64, SampleRecord> = s
-                    .samples(id)
-                    .map_err(|e| e.to_string())?
-                    .into_iter()
-                    .map(|r| (r.target.seq, r))
-                    .collect();
-                Ok((comp, summary, measured, done))
-            })
+        let s = lock(store);
+        resolve(c, &s).map_err(|e| e.to_string()).and_then(|c| {
+            let comp = stored(&s, char_id, &c.spec().campaign.stage).map_err(|e| e.to_string())?;
+            let summary: Value = s
+                .result(char_id, "summary.json")
+                .ok()
+                .flatten()
+                .and_then(|(_, b)| serde_json::from_slice(&b).ok())
+                .unwrap_or_default();
+            let measured = s.samples(char_id).map_err(|e| e.to_string())?;
+            let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&measured, ax));
+            let done: BTreeMap<u64, SampleRecord> = s
+                .samples(id)
+                .map_err(|e| e.to_string())?
+                .into_iter()
+                .map(|r| (r.target.seq, r))
+                .collect();
+            Ok((c, comp, summary, measured, done))
+        })
     };
-    let (comp, summary, measured, done) = resolved.map_err(|e| fail(format!("stopped: {e}")))?;
+    let (c, comp, summary, measured, done) = resolved.map_err(|e| fail(format!("stopped: {e}")))?;
     let opts = VerifyOptions {
         measured_span_um: measured,
         ..options(&c)
     };
     let (nb, na) = verify::planned(&c, &opts);
-    {
-        let s = lock(&store);
-        s.set_planned(id, nb + na).map_err(|e| e.to_string())?;
-        s.set_state(id, CampaignState::Running, None)
-            .map_err(|e| e.to_string())?;
-    }
-    emit(
-        &store,
-        &events,
-        id,
-        if done.is_empty() {
-            "started"
-        } else {
-            "resumed_from_store"
-        },
-        json!({"planned": nb + na, "stored": done.len(), "name": c.spec.campaign.name,
-               "verify": char_id, "by": origin.describe(), "origin": origin}),
-    );
+    run.start(
+        nb + na,
+        done.len(),
+        &c.spec().campaign.name,
+        &origin,
+        Some(char_id),
+    )?;
     let prior = move |axis: AxisId| -> Prior { prior_from_summary(&summary, axis) };
     let mut sink = StoreSink {
         store: store.clone(),
-        events: events.clone(),
+        events: run.events.clone(),
         id,
         on_sample,
     };
@@ -335,29 +257,8 @@ pub async fn execute(
                     "stopped; resumes from the last stored sample",
                 )
             };
-            // Not stored, an aborted campaign would be left `running` and resumed by the
-            // service's next start: an error, not a finished campaign.
-            lock(&store).set_state(id, state, Some(msg)).map_err(|e| {
-                format!(
-                    "campaign {id}: motion stopped, but its state ({}) was not stored: {e}",
-                    state.as_str()
-                )
-            })?;
-            emit(
-                &store,
-                &events,
-                id,
-                "finished",
-                json!({"state": state.as_str(), "reason": msg}),
-            );
-            return Ok(Finished {
-                id,
-                state,
-                outcome: outcome(end),
-                summary: None,
-                table: None,
-                out_dir: None,
-            });
+            let data = json!({"state": state.as_str(), "reason": msg});
+            return run.halted(state, msg, data, outcome(end));
         }
         Err(e) => return Err(fail(format!("stopped: {e}"))),
     };
@@ -382,7 +283,7 @@ pub async fn execute(
     };
     let mut summary = verify::json(&v);
     summary["id"] = json!(id);
-    summary["name"] = json!(c.spec.campaign.name);
+    summary["name"] = json!(&c.spec().campaign.name);
     summary["verify"] = json!(char_id);
     let table = verify::table(&v);
     let mut files = verify::files(&v);
@@ -394,33 +295,10 @@ pub async fn execute(
     files.push((
         "report.html".into(),
         "text/html; charset=utf-8".into(),
-        verify::report_html(&v, id, &c.spec.campaign.name, &c.text, &c.origin).into_bytes(),
+        verify::report_html(&v, id, &c.spec().campaign.name, c.text(), c.origin()).into_bytes(),
     ));
-    let store_id = lock(&store).store_id().unwrap_or_else(|_| "unknown".into());
-    {
-        let s = lock(&store);
-        for (name, ctype, bytes) in &files {
-            if let Err(e) = s.put_result(id, name, ctype, bytes) {
-                errors.push(format!("results not stored: {e}"));
-            }
-        }
-    }
-    let wanted = crate::campaign::results::out_dir(&c, id);
-    let written =
-        crate::campaign::results::claim_out_dir(&wanted, &store_id, id, &c.spec.campaign.name)
-            .and_then(|d| {
-                for (name, _, bytes) in &files {
-                    let p = d.join(name);
-                    p.parent()
-                        .map_or(Ok(()), std::fs::create_dir_all)
-                        .and_then(|()| std::fs::write(&p, bytes))
-                        .map_err(|e| format!("results not written ({name}: {})", e.kind()))?;
-                }
-                Ok(d)
-            });
-    if let Err(e) = &written {
-        errors.push(e.clone());
-    }
+    let store_id = run.store_id();
+    let written = run.put_files(&c, &store_id, &files, &mut errors);
     let mut state = if errors.is_empty() {
         state
     } else {
@@ -435,7 +313,7 @@ pub async fn execute(
         let json_bytes =
             serde_json::to_vec_pretty(&summary).map_err(|e| fail(format!("summary.json: {e}")))?;
         let mut failed = Vec::new();
-        let stored = lock(&store).put_result(id, "summary.json", "application/json", &json_bytes);
+        let stored = lock(store).put_result(id, "summary.json", "application/json", &json_bytes);
         if let Err(e) = stored {
             failed.push(format!("results not stored (summary.json): {e}"));
         }
@@ -451,23 +329,12 @@ pub async fn execute(
         errors.extend(failed);
         state = CampaignState::Failed;
     }
-    let message = (!errors.is_empty()).then(|| errors.join("; "));
-    lock(&store)
-        .set_state(id, state, message.as_deref())
-        .map_err(|e| e.to_string())?;
-    emit(
-        &store,
-        &events,
-        id,
-        "finished",
-        json!({"state": state.as_str(), "errors": errors, "summary": summary}),
-    );
-    Ok(Finished {
-        id,
+    run.finish(
         state,
-        outcome: outcome(EndState::Done),
-        summary: Some(summary),
-        table: Some(table),
-        out_dir: written.ok(),
-    })
+        errors,
+        summary,
+        table,
+        outcome(EndState::Done),
+        written.ok(),
+    )
 }

@@ -5,9 +5,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 
-use super::{CommandError, Compensation};
-use crate::campaign::rig::{self, Rig};
-use crate::campaign::spec::Campaign;
+use super::rig::{self, Rig};
+use super::spec::Campaign;
+use crate::compensation::{CommandError, Compensation};
 use crate::types::{AxisId, Direction};
 
 /// What to move where.
@@ -69,7 +69,7 @@ type Commands = (
     Vec<(AxisId, f64, f64, Direction, Option<f64>, Option<f64>)>,
 );
 
-fn p_dir(p: &Option<super::AxisCommand>) -> Direction {
+fn p_dir(p: &Option<crate::compensation::AxisCommand>) -> Direction {
     p.map_or(Direction::Forward, |p| p.approach)
 }
 
@@ -114,13 +114,13 @@ async fn plan_compensated(
 /// the difference.
 fn notes(
     cmp: &Compensation,
-    plan: &[Option<super::AxisCommand>; 2],
+    plan: &[Option<crate::compensation::AxisCommand>; 2],
     wanted: [Option<f64>; 2],
     now_um: [f64; 2],
 ) -> Vec<String> {
     let mut out = Vec::new();
     for (i, axis) in [AxisId::X, AxisId::Y].into_iter().enumerate() {
-        let (Some(p), Some(line_at)) = (plan[i], cmp.line_other_um[i]) else {
+        let (Some(p), Some(line_at)) = (plan[i], cmp.line_other_um()[i]) else {
             continue;
         };
         let other_at = plan[1 - i].map_or(now_um[1 - i], |q| q.command_um);
@@ -136,8 +136,8 @@ fn notes(
 }
 
 async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64, String> {
-    let timeout = Duration::from_secs_f64(c.spec.hardware.move_timeout_s);
-    let rtimeout = Duration::from_secs_f64(c.spec.hardware.reference_timeout_s);
+    let timeout = Duration::from_secs_f64(c.spec().hardware.move_timeout_s);
+    let rtimeout = Duration::from_secs_f64(c.spec().hardware.reference_timeout_s);
     let a = rig.axis(p.axis);
     let (lo, hi) = a.soft_limits_um();
     let start = (p.command_um - p.approach.sign() * pre_um).clamp(lo, hi);
@@ -298,149 +298,10 @@ pub async fn execute(
     Ok(out)
 }
 
-/// Body of `POST /stages/{name}/move`.
-#[derive(Debug, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MoveBody {
-    pub x_um: f64,
-    #[serde(default)]
-    pub y_um: Option<f64>,
-    /// `forward` (default) or `backward`.
-    #[serde(default)]
-    pub direction: Option<String>,
-    #[serde(default)]
-    pub approach_um: Option<f64>,
-    /// A stored characterisation of this stage whose compensation to apply.
-    #[serde(default)]
-    pub compensation_from: Option<i64>,
-    /// A stored campaign of this stage whose hardware to use; default the compensation's
-    /// campaign, else the stage's most recent campaign.
-    #[serde(default)]
-    pub hardware_from: Option<i64>,
-    #[serde(default)]
-    pub measure: bool,
-}
-
-/// What [`api_prepare`] resolved: the hardware's campaign, the compensation, the request and
-/// the stage lock held while the move runs.
-pub type Prepared = (
-    Campaign,
-    Option<Compensation>,
-    MoveRequest,
-    Option<crate::campaign::stagelock::StageLock>,
-);
-
-/// A server-side failure as a client sees it: what failed, not the message (it may hold server
-/// paths); the whole of it goes to the log.
-fn hidden(what: &str, e: &dyn std::fmt::Display) -> crate::api::ApiError {
-    tracing::error!(error = %e, "move: {what}");
-    crate::api::ApiError::internal(format!(
-        "{what} could not be read (the service's log has the details)"
-    ))
-}
-
-/// The service's side of a move: the body checked, the stage free (409 while a campaign of it
-/// runs or waits), its lock taken (campaigns submitted meanwhile wait for it), the hardware and
-/// compensation resolved from the store. Blocking (store).
-pub fn api_prepare(
-    m: &crate::api::Manager,
-    stage: &str,
-    body: &[u8],
-) -> Result<Prepared, crate::api::ApiError> {
-    use crate::api::ApiError;
-    if stage.is_empty() || stage.len() > crate::campaign::spec::MAX_NAME_LEN {
-        return Err(ApiError::bad_request("stage: a name of 1 to 64 bytes"));
-    }
-    let b: MoveBody = serde_json::from_slice(body).map_err(|e| {
-        ApiError::bad_request(format!(
-            "body: expected {{\"x_um\": .., \"y_um\"?, \"direction\"?, \"approach_um\"?, \"compensation_from\"?, \"hardware_from\"?, \"measure\"?}}: {e}"
-        ))
-    })?;
-    let direction = match b.direction.as_deref().unwrap_or("forward") {
-        "forward" => Direction::Forward,
-        "backward" => Direction::Backward,
-        _ => return Err(ApiError::bad_request("direction: forward or backward")),
-    };
-    let mut wanted = vec![(AxisId::X, b.x_um)];
-    if let Some(y) = b.y_um {
-        wanted.push((AxisId::Y, y));
-    }
-    let req = MoveRequest {
-        wanted,
-        direction,
-        approach_um: b.approach_um.unwrap_or(50.0),
-        measure: b.measure,
-    };
-    req.check().map_err(ApiError::bad_request)?;
-    if m.shutting_down() {
-        return Err(ApiError::conflict("the service is shutting down"));
-    }
-    if m.stage_busy(stage) {
-        return Err(ApiError::conflict(format!(
-            "a campaign runs or waits on stage {stage}: the move would cut in"
-        )));
-    }
-    let store = m.store().clone();
-    let s = store.lock().unwrap_or_else(|e| e.into_inner());
-    let of_stage = |id: i64| -> Result<crate::store::CampaignRow, ApiError> {
-        let row = s
-            .campaign(id)
-            .map_err(|e| hidden("store", &e))?
-            .ok_or_else(|| ApiError::not_found(format!("no campaign {id}")))?;
-        if row.stage != stage {
-            return Err(ApiError::bad_request(format!(
-                "campaign {id} ran on stage {}, not {stage}",
-                row.stage
-            )));
-        }
-        Ok(row)
-    };
-    let comp = match b.compensation_from {
-        Some(id) => {
-            let row = of_stage(id)?;
-            Some(
-                Compensation::from_store(&s, id, &row.stage)
-                    .map_err(|e| ApiError::bad_request(e.to_string()))?,
-            )
-        }
-        None => None,
-    };
-    let hw = match b.hardware_from.or(b.compensation_from) {
-        Some(id) => of_stage(id)?.id,
-        None => s
-            .campaigns()
-            .map_err(|e| hidden("store", &e))?
-            .into_iter()
-            .find(|r| r.stage == stage)
-            .map(|r| r.id)
-            .ok_or_else(|| {
-                ApiError::not_found(format!(
-                    "no campaign of stage {stage} in the store to take the hardware from"
-                ))
-            })?,
-    };
-    let db_path = s.path().map(std::path::Path::to_path_buf);
-    drop(s);
-    let c = crate::campaign::session::load_stored(&store, hw)
-        .map_err(|e| hidden(&format!("campaign {hw}'s hardware"), &e))?;
-    let lock = match db_path {
-        Some(p) => Some(
-            crate::campaign::stagelock::try_lock_scoped(
-                &p,
-                stage,
-                crate::campaign::stagelock::Scope::of(c.spec.hardware.kind),
-            )
-            .map_err(|e| ApiError::conflict(e.to_string()))?,
-        ),
-        None => None,
-    };
-    Ok((c, comp, req, lock))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::compensation::{AxisCommand, AxisTable};
+    use crate::compensation::{AxisCommand, AxisTable, Correction};
 
     #[test]
     fn a_move_away_from_the_line_without_the_other_table_is_noted() {
@@ -449,10 +310,11 @@ mod tests {
         let cmp = Compensation {
             stage: None,
             campaign: None,
-            x: Some(t),
-            y: None,
-            line_other_um: [Some(2100.0), None],
-            map: None,
+            correction: Correction::Lines {
+                x: Some(t),
+                y: None,
+                line_other_um: [Some(2100.0), None],
+            },
             source: "test".into(),
         };
         let plan = [

@@ -11,11 +11,11 @@ use serde::Serialize;
 use serde_json::{json, Value};
 use tokio::sync::watch;
 
-use super::Compensation;
-use crate::campaign::engine::{Control, EndState, Engine, Recorder};
-use crate::campaign::plan::{Batch, Plan};
-use crate::campaign::rig;
-use crate::campaign::spec::{AxisPlan, Campaign};
+use super::engine::{Control, EndState, Engine, Recorder};
+use super::plan::{Batch, Plan};
+use super::rig::{self, Rig};
+use super::spec::{AxisPlan, Campaign};
+use crate::compensation::Compensation;
 use crate::iso230::{evaluate, Approach, Iso230Summary};
 use crate::types::{AxisId, Direction, Phase, RunKey, SampleRecord, Target};
 
@@ -70,7 +70,7 @@ pub fn measured_span(samples: &[SampleRecord], axis: AxisId) -> Option<(f64, f64
 
 /// Most targets and cycles a verification accepts (bounds on what a flag can ask).
 pub const MAX_TARGETS: usize = 1000;
-pub const MAX_CYCLES: u32 = 50;
+pub use super::spec::MAX_VERIFY_CYCLES as MAX_CYCLES;
 
 /// The verification targets of one axis, µm, ascending: (ISO targets on the grid, unvisited,
 /// the grid's ends outside the measured span).
@@ -141,12 +141,12 @@ fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<TargetSe
     let mut batches = Vec::new();
     let mut seq = seq0;
     let mut sets = Vec::new();
-    for ax in &c.axes {
+    for ax in c.axes() {
         let (iso, un, ext) = targets(ax, opts);
         let mut all: Vec<f64> = iso.iter().chain(&un).chain(&ext).copied().collect();
         all.sort_by(f64::total_cmp);
         for cycle in 0..opts.cycles {
-            for &direction in &c.spec.acquisition.directions {
+            for &direction in &c.spec().acquisition.directions {
                 let run = RunKey {
                     phase: Phase::Full,
                     axis: ax.axis,
@@ -212,9 +212,9 @@ impl<F: FnMut(&str, &Value) + Send> Sink for Progress<F> {
 }
 
 /// Keeps the samples; commits them and the events to the sink.
-pub(crate) struct Collect<'a> {
-    pub(crate) samples: Vec<SampleRecord>,
-    pub(crate) sink: &'a mut dyn Sink,
+struct Collect<'a> {
+    samples: Vec<SampleRecord>,
+    sink: &'a mut dyn Sink,
 }
 
 impl Recorder for Collect<'_> {
@@ -450,7 +450,7 @@ pub async fn run(
     done: &BTreeMap<u64, SampleRecord>,
     sink: &mut dyn Sink,
 ) -> Result<Verdict, VerifyError> {
-    use VerifyError::{Failed, Halted, Refused};
+    use VerifyError::{Failed, Refused};
     if opts.cycles == 0 || opts.cycles > MAX_CYCLES {
         return Err(Refused(format!("cycles must be 1..={MAX_CYCLES}")));
     }
@@ -459,9 +459,9 @@ pub async fn run(
             "targets: at least 2 on the grid, at most {MAX_TARGETS} in all"
         )));
     }
-    comp.check_stage(&c.spec.campaign.stage)
+    comp.check_stage(&c.spec().campaign.stage)
         .map_err(|e| Refused(e.to_string()))?;
-    for ax in &c.axes {
+    for ax in c.axes() {
         comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
             .map_err(|e| Refused(e.to_string()))?;
     }
@@ -482,49 +482,17 @@ pub async fn run(
             return Err(Refused(format!("compensation: {e}")));
         }
     }
-    let mut acquisition_s = 0.0;
-    let mut passes: Vec<Vec<SampleRecord>> = Vec::new();
-    let split = before_plan.total() as u64;
-    for (k, plan) in [&before_plan, &after_plan].into_iter().enumerate() {
-        let pass = ["before", "after"][k];
-        sink.event("pass", &json!({"pass": pass, "targets": plan.total()}));
-        let stored: BTreeMap<u64, SampleRecord> = done
-            .iter()
-            .filter(|(&seq, _)| (seq < split) == (k == 0))
-            .map(|(&seq, s)| (seq, *s))
-            .collect();
-        let mut rec = Collect {
-            samples: stored.values().copied().collect(),
-            sink: &mut *sink,
-        };
-        let r = {
-            let mut e = Engine::new(c, &mut rig, &mut rec, control.clone(), stored);
-            if k == 1 {
-                e.compensation = Some(comp.clone());
-            }
-            e.run(plan).await
-        };
-        let out = match r {
-            Ok(o) => o,
-            Err(e) => {
-                rig.stop_all().await;
-                rig.close().await;
-                return Err(Failed(format!("stopped: {e}")));
-            }
-        };
-        if out.end != EndState::Done {
-            rig.close().await;
-            return Err(Halted(out.end));
-        }
-        acquisition_s += out
-            .stats
-            .values()
-            .map(|s| s.acquisition_s + s.positioning_s)
-            .sum::<f64>();
-        passes.push(rec.samples);
-    }
-    rig.close().await;
-    let (before, after) = (&passes[0], &passes[1]);
+    let (passes, acquisition_s) = run_passes(
+        c,
+        rig,
+        &comp,
+        [&before_plan, &after_plan],
+        control,
+        done,
+        sink,
+    )
+    .await?;
+    let [before, after] = &passes;
     let mut axes = Vec::new();
     for (axis, iso, un, ext) in &sets {
         let on = |list: &Vec<f64>| {
@@ -658,13 +626,72 @@ pub async fn run(
         campaign: id,
         passed: !axes.is_empty() && axes.iter().all(|a| a.passed),
         axes,
-        stage: c.spec.campaign.stage.clone(),
+        stage: c.spec().campaign.stage.clone(),
         compensation: comp.source.clone(),
         acquisition_s,
         samples: [before.len(), after.len()],
         command_compute_us_max: compute_us_max,
         raw,
     })
+}
+
+/// The two passes of a verification on `rig`: plain moves (`plans[0]`), then compensated
+/// (`plans[1]`, numbered after the first). Targets in `done` are not measured again; their
+/// samples count. Returns each pass's samples and the acquisition and positioning time; motion
+/// is stopped on failure and the rig closed in every case.
+pub(super) async fn run_passes(
+    c: &Campaign,
+    mut rig: Rig,
+    comp: &Arc<Compensation>,
+    plans: [&Plan; 2],
+    control: watch::Receiver<Control>,
+    done: &BTreeMap<u64, SampleRecord>,
+    sink: &mut dyn Sink,
+) -> Result<([Vec<SampleRecord>; 2], f64), VerifyError> {
+    use VerifyError::{Failed, Halted};
+    let mut acquisition_s = 0.0;
+    let mut passes: [Vec<SampleRecord>; 2] = Default::default();
+    let split = plans[0].total() as u64;
+    for (k, plan) in plans.into_iter().enumerate() {
+        let pass = ["before", "after"][k];
+        sink.event("pass", &json!({"pass": pass, "targets": plan.total()}));
+        let stored: BTreeMap<u64, SampleRecord> = done
+            .iter()
+            .filter(|(&seq, _)| (seq < split) == (k == 0))
+            .map(|(&seq, s)| (seq, *s))
+            .collect();
+        let mut rec = Collect {
+            samples: stored.values().copied().collect(),
+            sink: &mut *sink,
+        };
+        let r = {
+            let mut e = Engine::new(c, &mut rig, &mut rec, control.clone(), stored);
+            if k == 1 {
+                e.compensation = Some(comp.clone());
+            }
+            e.run(plan).await
+        };
+        let out = match r {
+            Ok(o) => o,
+            Err(e) => {
+                rig.stop_all().await;
+                rig.close().await;
+                return Err(Failed(format!("stopped: {e}")));
+            }
+        };
+        if out.end != EndState::Done {
+            rig.close().await;
+            return Err(Halted(out.end));
+        }
+        acquisition_s += out
+            .stats
+            .values()
+            .map(|s| s.acquisition_s + s.positioning_s)
+            .sum::<f64>();
+        passes[k] = rec.samples;
+    }
+    rig.close().await;
+    Ok((passes, acquisition_s))
 }
 
 fn opt(v: Option<f64>) -> String {
@@ -980,3 +1007,5 @@ pub const REPORT_FILE: &str = "verify/report.html";
 
 #[cfg(test)]
 mod tests;
+
+pub mod map;

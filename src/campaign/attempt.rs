@@ -1,0 +1,214 @@
+//! One attempt at a stored campaign, whatever it measures (a characterisation, a map, a
+//! verification): its start, its failure, its result files and its end are recorded the same
+//! way, here, once.
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use serde_json::{json, Value};
+use tokio::sync::broadcast;
+
+use super::engine::Outcome;
+use super::events::{emit, lock, Event, SharedStore};
+use super::spec::Campaign;
+use crate::types::{CampaignState, Origin};
+
+/// What a finished campaign reports.
+#[derive(Debug, Clone, Serialize)]
+pub struct Finished {
+    pub id: i64,
+    pub state: CampaignState,
+    pub outcome: Outcome,
+    pub summary: Option<Value>,
+    pub table: Option<String>,
+    pub out_dir: Option<PathBuf>,
+}
+
+/// Campaign `id` being run: where its state, events and results go.
+pub struct Attempt {
+    pub store: SharedStore,
+    pub events: broadcast::Sender<Event>,
+    pub id: i64,
+}
+
+impl Attempt {
+    pub fn emit(&self, kind: &str, data: Value) {
+        emit(&self.store, &self.events, self.id, kind, data);
+    }
+
+    /// Records the start: `planned` targets, state running, then `started` (or
+    /// `resumed_from_store` when `stored` targets were measured before). A verification names
+    /// the characterisation it verifies.
+    pub fn start(
+        &self,
+        planned: u64,
+        stored: usize,
+        name: &str,
+        origin: &Origin,
+        verify: Option<i64>,
+    ) -> Result<(), String> {
+        {
+            let s = lock(&self.store);
+            s.set_planned(self.id, planned).map_err(|e| e.to_string())?;
+            s.set_state(self.id, CampaignState::Running, None)
+                .map_err(|e| e.to_string())?;
+        }
+        let mut data = json!({"planned": planned, "stored": stored, "name": name,
+                              "by": origin.describe(), "origin": origin});
+        if let Some(v) = verify {
+            data["verify"] = json!(v);
+        }
+        let kind = if stored == 0 {
+            "started"
+        } else {
+            "resumed_from_store"
+        };
+        self.emit(kind, data);
+        Ok(())
+    }
+
+    /// An attempt that cannot go on: the error, then the state change (interrupted, so it can
+    /// be resumed), both in the log. Returns the message, with the state's own failure.
+    pub fn fail(&self, cause: &str, msg: String) -> String {
+        // A state that cannot be stored is said too (the store keeps the campaign `running`,
+        // which the service's next start resumes).
+        let stored = lock(&self.store).set_state(self.id, CampaignState::Interrupted, Some(&msg));
+        let msg = match stored {
+            Ok(()) => msg,
+            Err(e) => format!("{msg}; state not stored: {e}"),
+        };
+        self.emit(
+            "error",
+            json!({"cause": cause, "error": msg, "resumable": true}),
+        );
+        self.emit("finished", json!({"state": "interrupted", "error": msg}));
+        msg
+    }
+
+    /// Motion halted before the end (stopped or aborted): the state with its reason, then
+    /// `finished` with `data`.
+    pub fn halted(
+        &self,
+        state: CampaignState,
+        reason: &str,
+        data: Value,
+        outcome: Outcome,
+    ) -> Result<Finished, String> {
+        let id = self.id;
+        // Not stored, an aborted campaign would be left `running` and resumed by the
+        // service's next start: an error, not a finished campaign.
+        lock(&self.store)
+            .set_state(id, state, Some(reason))
+            .map_err(|e| {
+                format!(
+                    "campaign {id}: motion stopped, but its state ({}) was not stored: {e}",
+                    state.as_str()
+                )
+            })?;
+        self.emit("finished", data);
+        Ok(Finished {
+            id,
+            state,
+            outcome,
+            summary: None,
+            table: None,
+            out_dir: None,
+        })
+    }
+
+    /// The store's id (results folders are marked with it).
+    pub fn store_id(&self) -> String {
+        lock(&self.store).store_id().unwrap_or_else(|e| {
+            tracing::warn!(error = %e, "store id not read");
+            "unknown".into()
+        })
+    }
+
+    /// Stores the result `files` and writes them to the campaign's output directory, claimed
+    /// for it (a results folder belongs to one campaign of one store: never written over).
+    /// Failures are added to `errors`; returns the directory written.
+    pub fn put_files(
+        &self,
+        c: &Campaign,
+        store_id: &str,
+        files: &[(String, String, Vec<u8>)],
+        errors: &mut Vec<String>,
+    ) -> Result<PathBuf, String> {
+        let id = self.id;
+        let mut store_err = None;
+        {
+            let s = lock(&self.store);
+            for (name, ctype, bytes) in files {
+                if let Err(e) = s.put_result(id, name, ctype, bytes) {
+                    store_err = Some(e.to_string());
+                }
+            }
+        }
+        if let Some(e) = store_err {
+            errors.push(format!("results not stored: {e}"));
+        }
+        let wanted = super::results::out_dir(c, id);
+        let written = super::results::claim_out_dir(&wanted, store_id, id, &c.spec().campaign.name)
+            .and_then(|d| write_files(&d, files).map(|()| d));
+        if let Err(e) = &written {
+            tracing::warn!(error = %e, dir = %wanted.display(), "result files not written");
+            self.emit(
+                "error",
+                json!({"cause": "results", "error": e, "resumable": false}),
+            );
+            errors.push(e.clone());
+        }
+        written
+    }
+
+    /// The end of a campaign that measured to its end: its state (failed with `errors`) and
+    /// `finished` with the summary.
+    pub fn finish(
+        &self,
+        state: CampaignState,
+        errors: Vec<String>,
+        mut summary: Value,
+        table: String,
+        outcome: Outcome,
+        out_dir: Option<PathBuf>,
+    ) -> Result<Finished, String> {
+        let message = (!errors.is_empty()).then(|| errors.join("; "));
+        lock(&self.store)
+            .set_state(self.id, state, message.as_deref())
+            .map_err(|e| e.to_string())?;
+        summary["state"] = json!(state.as_str());
+        summary["errors"] = json!(errors);
+        self.emit(
+            "finished",
+            json!({"state": state.as_str(), "errors": errors, "summary": summary}),
+        );
+        Ok(Finished {
+            id: self.id,
+            state,
+            outcome,
+            summary: Some(summary),
+            table: Some(table),
+            out_dir,
+        })
+    }
+}
+
+/// Writes the result files under `dir`; the first failure names the file (relative to `dir`).
+pub fn write_files(dir: &Path, files: &[(String, String, Vec<u8>)]) -> Result<(), String> {
+    let mut first = None;
+    for (name, _, bytes) in files {
+        let p = dir.join(name);
+        let r = match p.parent() {
+            Some(d) => std::fs::create_dir_all(d).and_then(|()| std::fs::write(&p, bytes)),
+            None => std::fs::write(&p, bytes),
+        };
+        if let Err(e) = r {
+            first.get_or_insert_with(|| {
+                format!(
+                    "results not written to the output directory ({name}: {}); they are in the store",
+                    e.kind()
+                )
+            });
+        }
+    }
+    first.map_or(Ok(()), Err)
+}

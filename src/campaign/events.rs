@@ -1,0 +1,74 @@
+//! A campaign's log and stream: events stored in its store and sent to whoever watches, and
+//! samples committed and streamed (`csmetro watch`, server-sent events).
+use std::sync::{Arc, Mutex};
+
+use serde::Serialize;
+use serde_json::{json, Value};
+use tokio::sync::broadcast;
+
+use crate::store::Store;
+use crate::types::SampleRecord;
+
+/// A campaign event as stored and streamed (server-sent events, `csmetro watch`).
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+pub struct Event {
+    pub id: i64,
+    pub campaign: i64,
+    pub unix_s: f64,
+    pub kind: String,
+    pub data: Value,
+}
+
+pub type SharedStore = Arc<Mutex<Store>>;
+
+pub(crate) fn lock(s: &SharedStore) -> std::sync::MutexGuard<'_, Store> {
+    s.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Commits sample `s` of campaign `id` and, when it is new (a resumed run may measure a stored
+/// target again), streams it as a live `sample` event (id 0: samples are not in the event log).
+pub(crate) fn store_sample(
+    store: &SharedStore,
+    events: &broadcast::Sender<Event>,
+    id: i64,
+    s: &SampleRecord,
+) -> Result<bool, String> {
+    let fresh = lock(store)
+        .insert_sample(id, s)
+        .map_err(|e| e.to_string())?;
+    if fresh {
+        let _ = events.send(Event {
+            id: 0,
+            campaign: id,
+            unix_s: s.unix_s,
+            kind: "sample".into(),
+            data: json!(s),
+        });
+    }
+    Ok(fresh)
+}
+
+pub(crate) fn emit(
+    store: &SharedStore,
+    events: &broadcast::Sender<Event>,
+    id: i64,
+    kind: &str,
+    data: Value,
+) {
+    let unix_s = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0);
+    match lock(store).add_event(id, kind, &data) {
+        Ok(eid) => {
+            let _ = events.send(Event {
+                id: eid,
+                campaign: id,
+                unix_s,
+                kind: kind.into(),
+                data,
+            });
+        }
+        Err(e) => tracing::warn!(error = %e, kind, "event not stored"),
+    }
+}
