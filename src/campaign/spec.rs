@@ -654,8 +654,8 @@ mod verification;
 pub use verification::{check_verification, DEFAULT_VERIFY_CYCLES, MAX_VERIFY_CYCLES};
 mod paths;
 mod uncertainty;
-pub use uncertainty::UncertaintySpec;
 use paths::{check_submitted_outputs, load_model, probe_outputs};
+pub use uncertainty::UncertaintySpec;
 
 #[cfg(test)]
 mod tests;

@@ -152,9 +152,12 @@ pub fn run(a: Args) -> CliResult {
         std::fs::create_dir_all(d)
             .map_err(|e| CliError::failure(format!("{}: {e}", d.display())))?;
     }
-    let _lock =
-        stagelock::try_lock_scoped(&a.db, &a.stage, stagelock::Scope::of(c.spec.hardware.kind))
-            .map_err(|e| CliError::failure(e.to_string()))?;
+    let _lock = stagelock::try_lock_scoped(
+        &a.db,
+        &a.stage,
+        stagelock::Scope::of(c.spec().hardware.kind),
+    )
+    .map_err(|e| CliError::failure(e.to_string()))?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

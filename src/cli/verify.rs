@@ -126,7 +126,7 @@ pub fn run(a: Args) -> CliResult {
     let _stage = stagelock::try_lock_scoped(
         &a.db,
         &row.stage,
-        stagelock::Scope::of(c.spec.hardware.kind),
+        stagelock::Scope::of(c.spec().hardware.kind),
     )
     .map_err(|e| CliError::failure(e.to_string()))?;
     let opts = VerifyOptions {
@@ -308,7 +308,7 @@ fn run_map(
         )));
     }
     let _stage =
-        stagelock::try_lock_scoped(&a.db, stage, stagelock::Scope::of(c.spec.hardware.kind))
+        stagelock::try_lock_scoped(&a.db, stage, stagelock::Scope::of(c.spec().hardware.kind))
             .map_err(|e| CliError::failure(e.to_string()))?;
     let quiet = a.quiet;
     let id = a.id;
