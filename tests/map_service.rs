@@ -11,43 +11,11 @@ fn state(v: &Value) -> &str {
     v["state"].as_str().unwrap_or("?")
 }
 
-const MAP: &str = r#"[campaign]
-name = "svc-map"
-stage = "s1"
-
-[hardware]
-kind = "sim"
-optics = { width = 640, height = 640 }
-
-[hardware.sim]
-model = "demo_xy.toml"
-time_scale = 100
-transport = "pty"
-frame_time_s = 0.1
-seed = 4
-
-[map]
-x_range_um = [2000.0, 2950.0]
-y_range_um = [1000.0, 1450.0]
-step_um = [50.0, 50.0]
-m = 40
-design = "random"
-seed = 5
-method = "linear"
-
-[acquisition]
-settle_s = 2.0
-dwell_s = 0.5
-
-[outputs]
-dir = "svc-map-{id}"
-"#;
-
 #[test]
 fn a_map_campaign_pauses_resumes_and_reports_through_the_service() {
     let dir = tempfile::tempdir().unwrap();
     let srv = Server::start(dir.path(), None);
-    let id = srv.submit(MAP);
+    let id = srv.submit(&common::map_campaign("svc-map"));
     assert_eq!(srv.status(id)["planned"], 40);
     srv.wait_for(id, 60.0, |s| s["stored"].as_u64() > Some(3));
     let (s, v) = srv.post(&format!("/campaigns/{id}/pause"), None);

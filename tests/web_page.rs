@@ -629,39 +629,6 @@ fn the_page_adds_little_to_a_campaigns_wall_time() {
     assert!(p / a - 1.0 < 0.10, "{without:?} {with:?}");
 }
 
-/// A `[map]` campaign: stage "s1", both axes moving to random XY points (as in map_service).
-const MAP: &str = r#"[campaign]
-name = "page-map"
-stage = "s1"
-
-[hardware]
-kind = "sim"
-optics = { width = 640, height = 640 }
-
-[hardware.sim]
-model = "demo_xy.toml"
-time_scale = 100
-transport = "pty"
-frame_time_s = 0.1
-seed = 4
-
-[map]
-x_range_um = [2000.0, 2950.0]
-y_range_um = [1000.0, 1450.0]
-step_um = [50.0, 50.0]
-m = 40
-design = "random"
-seed = 5
-method = "linear"
-
-[acquisition]
-settle_s = 2.0
-dwell_s = 0.5
-
-[outputs]
-dir = "page-map-{id}"
-"#;
-
 /// A map campaign is drawn over XY, not as 1-D scatter against one axis: heat maps of e_x and
 /// e_y (the samples while it runs, the reconstructed grid at its end) and the ISO 230-1
 /// figures of the map.
@@ -673,7 +640,7 @@ fn a_map_campaign_shows_heat_maps_and_its_iso230_1_figures() {
     let dir = tempfile::tempdir().unwrap();
     let srv = Server::start(dir.path(), None);
     let b = Browser::start(&chrome, &driver, &dir.path().join("chromium-profile"));
-    let id = srv.submit(MAP);
+    let id = srv.submit(&common::map_campaign("page-map"));
     b.goto(&format!("{}/#{id}", srv.url));
     b.wait(
         "the samples over XY",

@@ -421,3 +421,28 @@ impl SimFile<'_> {
         path.to_path_buf()
     }
 }
+
+/// A small `[map]` campaign named `name` on stage "s1": both axes to 40 random XY points of a
+/// 950 × 450 µm region (the demo XY model, time scale 100), results in `<name>-<id>`.
+pub fn map_campaign(name: &str) -> String {
+    format!(
+        r#"{}
+[map]
+x_range_um = [2000.0, 2950.0]
+y_range_um = [1000.0, 1450.0]
+step_um = [50.0, 50.0]
+m = 40
+design = "random"
+seed = 5
+method = "linear"
+
+[acquisition]
+settle_s = 2.0
+dwell_s = 0.5
+
+[outputs]
+dir = "{name}-{{id}}"
+"#,
+        sim_header(name, "s1", "demo_xy.toml", 100.0, 4)
+    )
+}
