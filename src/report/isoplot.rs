@@ -7,7 +7,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::plot::{
-    finite_points, frame, padded_range, render_png, render_svg, tick, value_range, Fonts,
+    finite_points, frame, padded_range, render_png, render_svg, value_range, xy_chart, Mesh,
 };
 use super::{AxisIso230, PlotOptions, ReportError, FONT_FAMILY};
 
@@ -60,14 +60,8 @@ pub fn iso_chart_png(f: &AxisIso230, opts: &PlotOptions) -> Result<Vec<u8>, Repo
 
 fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &AxisIso230) -> Result<(), String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
-    let (
-        Fonts {
-            small,
-            label: label_font,
-            desc: desc_font,
-        },
-        body,
-    ) = frame(root, &chart_title(f))?;
+    let (fonts, body) = frame(root, &chart_title(f))?;
+    let small = fonts.small;
     // The figures, in bold, on a strip of their own above the plot: never hidden by a curve.
     let (strip, plot) = body.split_vertically(small * 2 + 8);
     strip
@@ -112,26 +106,19 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &AxisIso230) -> Re
             .copied(),
     );
     let y1 = y1 + (y1 - y0) * 0.3; // head-room for the legend
-    let mut chart = ChartBuilder::on(&plot)
-        .margin(12)
-        .margin_right(small * 2)
-        .x_label_area_size(small * 3)
-        .y_label_area_size(small * 5)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc("target position / µm")
-        .y_desc("positional deviation / µm")
-        .x_labels(((root.dim_in_pixel().0 / 110) as usize).max(3))
-        .x_label_formatter(&tick)
-        .y_label_formatter(&tick)
-        .label_style(label_font.clone())
-        .axis_desc_style(desc_font)
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(205, 205, 205))
-        .draw()
-        .map_err(|e| err(&e))?;
+    let mut chart = xy_chart(
+        &plot,
+        &fonts,
+        x0..x1,
+        y0..y1,
+        Mesh {
+            x_desc: "target position / µm",
+            y_desc: "positional deviation / µm",
+            x_labels: Some(((root.dim_in_pixel().0 / 110) as usize).max(3)),
+            y_labels: None,
+            caption: None,
+        },
+    )?;
     let line = |c: RGBColor, w: u32| {
         move |(x, y): (i32, i32)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(w))
     };
@@ -186,7 +173,7 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &AxisIso230) -> Re
         .position(SeriesLabelPosition::UpperRight)
         .background_style(WHITE.mix(0.85))
         .border_style(RGBColor(150, 150, 150))
-        .label_font(label_font)
+        .label_font(fonts.label)
         .draw()
         .map_err(|e| err(&e))?;
     Ok(())

@@ -9,6 +9,7 @@
 //! name the same family, so viewers use their own sans-serif font.
 use std::sync::Once;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::register_font;
@@ -208,20 +209,63 @@ fn legend_line(color: RGBColor, width: u32) -> impl Fn((i32, i32)) -> PathElemen
     move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(width))
 }
 
+/// What a line chart's axes say: descriptions, label counts (`None`: plotters' default) and a
+/// caption above the plot.
+pub(super) struct Mesh<'s> {
+    pub x_desc: &'s str,
+    pub y_desc: &'s str,
+    pub x_labels: Option<usize>,
+    pub y_labels: Option<usize>,
+    pub caption: Option<String>,
+}
+
+/// The cartesian chart every line chart shares (margins from the font size, a light grid, ticks
+/// without trailing zeros), its mesh drawn.
+pub(super) fn xy_chart<'a, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    fonts: &Fonts,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+    mesh: Mesh<'_>,
+) -> Result<ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>, String> {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    let small = fonts.small;
+    let mut builder = ChartBuilder::on(area);
+    builder
+        .margin(12)
+        .margin_right(small * 2)
+        .x_label_area_size(small * 3)
+        .y_label_area_size(small * 5);
+    if let Some(c) = mesh.caption {
+        builder.caption(c, fonts.desc.clone());
+    }
+    let mut chart = builder.build_cartesian_2d(x, y).map_err(|e| err(&e))?;
+    let mut m = chart.configure_mesh();
+    m.x_desc(mesh.x_desc)
+        .y_desc(mesh.y_desc)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
+        .label_style(fonts.label.clone())
+        .axis_desc_style(fonts.desc.clone())
+        .light_line_style(RGBColor(235, 235, 235))
+        .bold_line_style(RGBColor(205, 205, 205));
+    if let Some(n) = mesh.x_labels {
+        m.x_labels(n);
+    }
+    if let Some(n) = mesh.y_labels {
+        m.y_labels(n);
+    }
+    m.draw().map_err(|e| err(&e))?;
+    Ok(chart)
+}
+
 /// The drawing shared by both backends.
 fn draw<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     c: &ComponentCurve,
 ) -> Result<(), String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
-    let (
-        Fonts {
-            small,
-            label: label_font,
-            desc: desc_font,
-        },
-        body,
-    ) = frame(root, &title(c))?;
+    let (fonts, body) = frame(root, &title(c))?;
     let residual = c.residual_um();
     let (upper, lower) = match residual {
         Some(_) => {
@@ -253,26 +297,19 @@ fn draw<DB: DrawingBackend>(
     let y1 = y1 + (y1 - y0) * 0.08 * legend_rows as f64;
     let x_labels = ((root.dim_in_pixel().0 / 110) as usize).max(3);
 
-    let mut chart = ChartBuilder::on(&upper)
-        .margin(12)
-        .margin_right(small * 2)
-        .x_label_area_size(small * 3)
-        .y_label_area_size(small * 5)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc("position / µm")
-        .y_desc("error / µm")
-        .x_labels(x_labels)
-        .x_label_formatter(&tick)
-        .y_label_formatter(&tick)
-        .label_style(label_font.clone())
-        .axis_desc_style(desc_font.clone())
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(205, 205, 205))
-        .draw()
-        .map_err(|e| err(&e))?;
+    let mut chart = xy_chart(
+        &upper,
+        &fonts,
+        x0..x1,
+        y0..y1,
+        Mesh {
+            x_desc: "position / µm",
+            y_desc: "error / µm",
+            x_labels: Some(x_labels),
+            y_labels: None,
+            caption: None,
+        },
+    )?;
     if let Some(full) = &c.full_scan_um {
         chart
             .draw_series(LineSeries::new(
@@ -329,7 +366,7 @@ fn draw<DB: DrawingBackend>(
         .position(SeriesLabelPosition::UpperRight)
         .background_style(WHITE.mix(0.85))
         .border_style(RGBColor(150, 150, 150))
-        .label_font(label_font.clone())
+        .label_font(fonts.label.clone())
         .draw()
         .map_err(|e| err(&e))?;
 
@@ -342,31 +379,19 @@ fn draw<DB: DrawingBackend>(
                 .chain([0.0])
                 .chain(band.iter().flatten().map(|p| p.1)),
         );
-        let mut chart = ChartBuilder::on(&lower)
-            .margin(12)
-            .margin_right(small * 2)
-            .caption(
-                format!("residual: reconstruction − {against}"),
-                desc_font.clone(),
-            )
-            .x_label_area_size(small * 3)
-            .y_label_area_size(small * 5)
-            .build_cartesian_2d(x0..x1, r0..r1)
-            .map_err(|e| err(&e))?;
-        chart
-            .configure_mesh()
-            .x_desc("position / µm")
-            .y_desc("residual / µm")
-            .x_labels(x_labels)
-            .y_labels(5)
-            .x_label_formatter(&tick)
-            .y_label_formatter(&tick)
-            .label_style(label_font)
-            .axis_desc_style(desc_font)
-            .light_line_style(RGBColor(235, 235, 235))
-            .bold_line_style(RGBColor(205, 205, 205))
-            .draw()
-            .map_err(|e| err(&e))?;
+        let mut chart = xy_chart(
+            &lower,
+            &fonts,
+            x0..x1,
+            r0..r1,
+            Mesh {
+                x_desc: "position / µm",
+                y_desc: "residual / µm",
+                x_labels: Some(x_labels),
+                y_labels: Some(5),
+                caption: Some(format!("residual: reconstruction − {against}")),
+            },
+        )?;
         chart
             .draw_series(LineSeries::new(
                 [(x0, 0.0), (x1, 0.0)],

@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use serde::Serialize;
 
 use super::html::esc;
-use super::plot::{frame, padded_range, render_png, render_svg, tick, Fonts};
+use super::plot::{frame, padded_range, render_png, render_svg, xy_chart, Mesh};
 use super::PlotOptions;
 use crate::types::{AxisId, Direction, SampleRecord};
 
@@ -138,14 +138,7 @@ fn draw<DB: DrawingBackend>(
         c.axis,
         if c.passed { "passed" } else { "FAILED" }
     );
-    let (
-        Fonts {
-            small,
-            label: label_font,
-            desc: desc_font,
-        },
-        body,
-    ) = frame(root, &title)?;
+    let (fonts, body) = frame(root, &title)?;
     if c.checks.is_empty() {
         return Err(format!("no targets of axis {}", c.axis));
     }
@@ -161,25 +154,19 @@ fn draw<DB: DrawingBackend>(
     let (y0, y1) = padded_range(ys);
     // Head-room for the legend (six rows).
     let y1 = y1 + (y1 - y0) * 0.35;
-    let mut chart = ChartBuilder::on(&body)
-        .margin(12)
-        .margin_right(small * 2)
-        .x_label_area_size(small * 3)
-        .y_label_area_size(small * 5)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc("target / µm")
-        .y_desc("deviation / µm")
-        .x_label_formatter(&tick)
-        .y_label_formatter(&tick)
-        .label_style(label_font.clone())
-        .axis_desc_style(desc_font)
-        .light_line_style(RGBColor(235, 235, 235))
-        .bold_line_style(RGBColor(205, 205, 205))
-        .draw()
-        .map_err(|e| err(&e))?;
+    let mut chart = xy_chart(
+        &body,
+        &fonts,
+        x0..x1,
+        y0..y1,
+        Mesh {
+            x_desc: "target / µm",
+            y_desc: "deviation / µm",
+            x_labels: None,
+            y_labels: None,
+            caption: None,
+        },
+    )?;
     chart
         .draw_series(LineSeries::new(
             [(x0, 0.0), (x1, 0.0)],
@@ -261,7 +248,7 @@ fn draw<DB: DrawingBackend>(
         .position(SeriesLabelPosition::UpperRight)
         .background_style(WHITE.mix(0.85))
         .border_style(RGBColor(150, 150, 150))
-        .label_font(label_font)
+        .label_font(fonts.label)
         .draw()
         .map_err(|e| err(&e))?;
     Ok(())
