@@ -124,9 +124,17 @@ fn a_map_compensates_two_axis_moves_and_its_verification_passes() {
         "verify/verify.json",
         "verify/summary.txt",
         "verify/samples.csv",
+        "verify/verify_x.svg",
+        "verify/verify_y.png",
     ] {
         assert!(results.join(f).is_file(), "{f}");
     }
+    // The chart: before/after per point and the pass line.
+    let svg = std::fs::read_to_string(results.join("verify/verify_x.svg")).unwrap();
+    assert!(
+        svg.contains("pass line") && svg.contains("after, forward"),
+        "{svg:.300}"
+    );
 
     // Random compensated moves (results directory, then the table file on every other one).
     let table = results.join("compensation_map_forward.csv");

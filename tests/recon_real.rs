@@ -84,7 +84,8 @@ fn score(dir: &Path, c: &Curve, idx: &[usize], method: &str, extra: &[&str]) -> 
         .unwrap()
         .lines()
         .skip(1)
-        .map(|l| l.split_once(',').unwrap().1.parse().unwrap())
+        // position_um,error_um,u_um: the error is the second column.
+        .map(|l| l.split(',').nth(1).unwrap().parse().unwrap())
         .collect();
     assert_eq!(g.len(), c.f.len());
     let e = g.iter().zip(&c.f).map(|(a, b)| (a - b).abs()).sum::<f64>() / g.len() as f64;

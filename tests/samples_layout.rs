@@ -111,8 +111,8 @@ fn a_campaigns_samples_and_its_verification_feed_reconstruct_and_gap() {
         .lines()
         .skip(1)
         .map(|l| {
-            let (p, e) = l.split_once(',').unwrap();
-            (p.parse().unwrap(), e.parse().unwrap())
+            let f: Vec<&str> = l.split(',').collect();
+            (f[0].parse().unwrap(), f[1].parse().unwrap())
         })
         .collect();
     assert_eq!(rows.len(), 61, "{v}");

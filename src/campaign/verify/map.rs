@@ -45,6 +45,7 @@ use crate::campaign::spec::Campaign;
 use crate::compensation::Compensation;
 use crate::grid::Grid;
 use crate::report::iso230_1::ls_straightness;
+use crate::report::verification::{verify_chart_png, verify_chart_svg, TargetCheck, VerifyChart};
 use crate::types::{AxisId, Direction, Phase, RunKey, SampleRecord, Target};
 
 /// Most points a map verification accepts.
@@ -571,13 +572,95 @@ pub fn json(v: &MapVerdict) -> Value {
     serde_json::to_value(v).unwrap_or(Value::Null)
 }
 
-/// The verification's result files (relative to the campaign's results).
+/// Axis `axis`'s points as the line verification's chart draws its targets: each point at its
+/// coordinate on that axis (a lattice's rows share those), its before/after means per direction,
+/// the pass line ±expected, and every compensated reading.
+fn chart_checks(
+    v: &MapVerdict,
+    axis: AxisId,
+    expected_um: f64,
+) -> (Vec<TargetCheck>, Vec<(f64, f64)>) {
+    // (point, forward) -> (coordinate, before readings, after readings)
+    type Readings = (f64, Vec<f64>, Vec<f64>);
+    let mut g: BTreeMap<(usize, bool), Readings> = BTreeMap::new();
+    let mut after_samples = Vec::new();
+    for (after, r) in &v.raw {
+        let at = match axis {
+            AxisId::X => r.target.target_x_um,
+            AxisId::Y => r.target.target_y_um,
+        };
+        let key = (
+            r.target.grid_index,
+            r.target.run.direction == Direction::Forward,
+        );
+        let e = g.entry(key).or_insert((at, Vec::new(), Vec::new()));
+        let err = r.error_um(axis);
+        if *after {
+            e.2.push(err);
+            after_samples.push((at, err));
+        } else {
+            e.1.push(err);
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let checks = g
+        .into_iter()
+        .filter(|(_, (_, b, a))| !b.is_empty() && !a.is_empty())
+        .map(|((_, forward), (at, b, a))| {
+            let max_after = a.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+            TargetCheck {
+                target_um: at,
+                direction: if forward { "forward" } else { "backward" },
+                kind: "unvisited",
+                mean_before_um: mean(&b),
+                mean_after_um: mean(&a),
+                max_abs_after_um: max_after,
+                expected_um,
+                passed: max_after <= expected_um,
+            }
+        })
+        .collect();
+    (checks, after_samples)
+}
+
+/// The verification's result files (relative to the campaign's results): the table, the
+/// verdict, the samples and per axis the before/after chart with its pass line (SVG and PNG).
 pub fn files(v: &MapVerdict) -> Vec<(String, String, Vec<u8>)> {
     let mut csv = crate::samples::layout_header();
     for (after, r) in &v.raw {
         csv.push_str(&crate::samples::layout_row(r, Some(*after)));
     }
-    vec![
+    let mut charts = Vec::new();
+    for a in &v.axes {
+        let Some(axis) = AxisId::parse(&a.axis) else {
+            continue;
+        };
+        let (checks, after_samples) = chart_checks(v, axis, a.expected_um);
+        let chart = VerifyChart {
+            axis: &a.axis,
+            checks: &checks,
+            after_samples: &after_samples,
+            passed: a.passed,
+        };
+        // A chart that cannot be drawn leaves the verdict's files intact (logged).
+        match verify_chart_svg(&chart, &super::output::CHART) {
+            Ok(svg) => charts.push((
+                format!("verify/verify_{}.svg", a.axis),
+                "image/svg+xml".to_string(),
+                svg.into_bytes(),
+            )),
+            Err(e) => tracing::warn!(axis = %a.axis, error = %e, "verification chart not drawn"),
+        }
+        match verify_chart_png(&chart, &super::output::CHART) {
+            Ok(png) => charts.push((
+                format!("verify/verify_{}.png", a.axis),
+                "image/png".to_string(),
+                png,
+            )),
+            Err(e) => tracing::warn!(axis = %a.axis, error = %e, "verification chart not drawn"),
+        }
+    }
+    let mut files = vec![
         (
             "verify/summary.txt".to_string(),
             "text/plain".to_string(),
@@ -593,7 +676,9 @@ pub fn files(v: &MapVerdict) -> Vec<(String, String, Vec<u8>)> {
             "text/csv".into(),
             csv.into_bytes(),
         ),
-    ]
+    ];
+    files.extend(charts);
+    files
 }
 
 #[cfg(test)]

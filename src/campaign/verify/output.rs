@@ -144,7 +144,7 @@ fn after_samples(v: &Verdict, a: &AxisVerdict) -> Vec<(f64, f64)> {
 }
 
 /// Size of the verification charts.
-const CHART: crate::report::PlotOptions = crate::report::PlotOptions {
+pub(super) const CHART: crate::report::PlotOptions = crate::report::PlotOptions {
     width: 1200,
     height: 700,
 };
