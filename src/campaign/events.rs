@@ -25,6 +25,18 @@ pub(crate) fn lock(s: &SharedStore) -> std::sync::MutexGuard<'_, Store> {
     s.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// Runs a store write (the lock, then an SQLite commit that waits on fsync) without stalling the
+/// async runtime: on a multi-threaded runtime's worker the worker hands its other tasks (the API,
+/// the other stage's campaign) to another thread for the duration; elsewhere (a plain or blocking
+/// thread, a current-thread runtime, where `block_in_place` is not allowed) it runs as it is.
+fn off_runtime<T>(f: impl FnOnce() -> T) -> T {
+    use tokio::runtime::{Handle, RuntimeFlavor};
+    match Handle::try_current() {
+        Ok(h) if h.runtime_flavor() == RuntimeFlavor::MultiThread => tokio::task::block_in_place(f),
+        _ => f(),
+    }
+}
+
 /// Commits sample `s` of campaign `id` and, when it is new (a resumed run may measure a stored
 /// target again), streams it as a live `sample` event (id 0: samples are not in the event log).
 pub(crate) fn store_sample(
@@ -33,9 +45,7 @@ pub(crate) fn store_sample(
     id: i64,
     s: &SampleRecord,
 ) -> Result<bool, String> {
-    let fresh = lock(store)
-        .insert_sample(id, s)
-        .map_err(|e| e.to_string())?;
+    let fresh = off_runtime(|| lock(store).insert_sample(id, s)).map_err(|e| e.to_string())?;
     if fresh {
         let _ = events.send(Event {
             id: 0,
@@ -59,7 +69,7 @@ pub(crate) fn emit(
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs_f64())
         .unwrap_or(0.0);
-    match lock(store).add_event(id, kind, &data) {
+    match off_runtime(|| lock(store).add_event(id, kind, &data)) {
         Ok(eid) => {
             let _ = events.send(Event {
                 id: eid,
