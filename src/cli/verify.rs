@@ -169,30 +169,31 @@ pub fn run(a: Args) -> CliResult {
     })?;
     // Results next to the characterisation's: in the store (so `report` and the API serve
     // them) and in its output directory.
-    let files = verify::files(&v);
-    {
-        let s = shared.lock().unwrap_or_else(|e| e.into_inner());
-        for (name, ctype, bytes) in &files {
-            if let Err(e) = s.put_result(a.id, name, ctype, bytes) {
-                eprintln!("warning: {name} not stored: {e}");
-            }
-        }
-    }
-    let dir = crate::campaign::results::out_dir(&c, a.id);
-    let mut written = true;
-    for (name, _, bytes) in &files {
-        let p = dir.join(name);
-        let ok = p
-            .parent()
-            .map_or(Ok(()), std::fs::create_dir_all)
-            .and_then(|()| std::fs::write(&p, bytes));
-        written &= ok.is_ok();
-    }
+    let (written, dir) = keep_files(&shared, &c, a.id, &verify::files(&v));
     link_report(&shared, &dir, a.id, verify::REPORT_FILE, v.passed);
+    finish(
+        &a,
+        written,
+        &dir,
+        verify::json(&v),
+        &verify::table(&v),
+        v.passed,
+    )
+}
+
+/// The verdict on stdout (JSON or the table), where the files went, exit 1 when it failed.
+fn finish(
+    a: &Args,
+    written: bool,
+    dir: &Path,
+    json: serde_json::Value,
+    table: &str,
+    passed: bool,
+) -> CliResult {
     if a.json {
-        outln!("{}", verify::json(&v));
+        outln!("{json}");
     } else {
-        out!("{}", verify::table(&v));
+        out!("{table}");
     }
     if written && !a.quiet {
         eprintln!(
@@ -201,7 +202,7 @@ pub fn run(a: Args) -> CliResult {
             a.id
         );
     }
-    Ok(if v.passed {
+    Ok(if passed {
         ExitCode::SUCCESS
     } else {
         ExitCode::FAILURE
@@ -331,21 +332,12 @@ fn run_map(
     })?;
     let (written, dir) = keep_files(shared, c, a.id, &verify_map::files(&v));
     link_report(shared, &dir, a.id, "verify/summary.txt", v.passed);
-    if a.json {
-        outln!("{}", verify_map::json(&v));
-    } else {
-        out!("{}", verify_map::table(&v));
-    }
-    if written && !a.quiet {
-        eprintln!(
-            "results: {} (and in the store, campaign {})",
-            dir.join("verify").display(),
-            a.id
-        );
-    }
-    Ok(if v.passed {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::FAILURE
-    })
+    finish(
+        a,
+        written,
+        &dir,
+        verify_map::json(&v),
+        &verify_map::table(&v),
+        v.passed,
+    )
 }

@@ -227,11 +227,6 @@ pub fn iso230_axis_with(
             recon_rows,
         )
     };
-    let reported = match source {
-        IsoSource::FullScan => full_scan.as_ref(),
-        IsoSource::Measured => measured.as_ref(),
-        IsoSource::Reconstructed => Some(&reconstructed),
-    };
     let row_u = match source {
         IsoSource::Reconstructed => {
             let band = |forward: bool| {
@@ -252,14 +247,7 @@ pub fn iso230_axis_with(
         }
         _ => Some(measured_row_u(&chart_rows, budget.sensor_u_um)),
     };
-    let uncertainty = match (reported, row_u) {
-        (Some(r), Some(ru)) => Some(iso_uncertainty(r, &chart_rows, &ru, budget)),
-        _ => {
-            notes.push("no pointwise band for the reconstruction: U not computed".into());
-            None
-        }
-    };
-    Ok(Some(AxisIso230 {
+    let mut fig = AxisIso230 {
         axis: axis.as_str().into(),
         forward_component: fwd.map(|c| c.component.clone()),
         backward_component: bwd.map(|c| c.component.clone()),
@@ -269,9 +257,23 @@ pub fn iso230_axis_with(
         source,
         source_label,
         notes,
-        uncertainty,
+        uncertainty: None,
         chart_rows,
-    }))
+    };
+    match row_u {
+        Some(ru) => {
+            fig.uncertainty = Some(iso_uncertainty(
+                fig.reported(),
+                &fig.chart_rows,
+                &ru,
+                budget,
+            ));
+        }
+        None => fig
+            .notes
+            .push("no pointwise band for the reconstruction: U not computed".into()),
+    }
+    Ok(Some(fig))
 }
 
 /// How far the curve misses the samples on either side of `p` (the larger of the two

@@ -191,10 +191,11 @@ pub fn evaluate(approaches: &[Approach], tol_um: f64) -> Option<Iso230Summary> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn ap(p: f64, fwd: bool, d: f64) -> Approach {
+    /// One approach (test data).
+    pub(crate) fn ap(p: f64, fwd: bool, d: f64) -> Approach {
         Approach {
             target_um: p,
             forward: fwd,

@@ -368,15 +368,8 @@ pub fn iso_uncertainty(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::iso230::{evaluate, Approach};
-
-    fn ap(p: f64, fwd: bool, d: f64) -> Approach {
-        Approach {
-            target_um: p,
-            forward: fwd,
-            deviation_um: d,
-        }
-    }
+    use crate::iso230::evaluate;
+    use crate::iso230::tests::ap;
 
     /// The budget of a small test worked by hand (published here so a reader can check it).
     ///

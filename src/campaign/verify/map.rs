@@ -37,7 +37,7 @@ use serde::Serialize;
 use serde_json::Value;
 use tokio::sync::watch;
 
-use super::{run_passes, Sink, VerifyError, MAX_CYCLES};
+use super::{precheck, run_passes, Sink, VerifyError, MAX_CYCLES};
 use crate::campaign::engine::Control;
 use crate::campaign::plan::{Batch, Plan};
 use crate::campaign::rig;
@@ -382,18 +382,22 @@ pub async fn run(
         .await
         .map_err(|e| Failed(format!("hardware: {e}")))?;
     let limits = [AxisId::X, AxisId::Y].map(|a| rig.axis(a).soft_limits_um());
-    let mut compute_us_max: f64 = 0.0;
-    for &d in &mp.directions {
-        for p in &pts {
-            let t0 = std::time::Instant::now();
-            let r = comp.command_point(d, *p, limits);
-            compute_us_max = compute_us_max.max(t0.elapsed().as_secs_f64() * 1e6);
-            if let Err(e) = r {
-                rig.close().await;
-                return Err(Refused(format!("compensation: {e}")));
-            }
+    let points = mp
+        .directions
+        .iter()
+        .flat_map(|&d| pts.iter().map(move |p| (d, *p)));
+    let checked = precheck(&mut rig, points, |_, (d, p)| {
+        comp.command_point(d, p, limits)
+            .map(drop)
+            .map_err(|e| e.to_string())
+    });
+    let compute_us_max = match checked {
+        Ok(us) => us,
+        Err(e) => {
+            rig.close().await;
+            return Err(Refused(format!("compensation: {e}")));
         }
-    }
+    };
     let (passes, acquisition_s) = run_passes(
         c,
         rig,

@@ -470,18 +470,20 @@ pub async fn run(
     let mut rig = rig::build(c)
         .await
         .map_err(|e| Failed(format!("hardware: {e}")))?;
-    // Every compensated command before anything moves; the time of the computation per move.
-    let mut compute_us_max: f64 = 0.0;
-    for t in after_plan.batches.iter().flat_map(|b| &b.targets) {
+    let targets = after_plan.batches.iter().flat_map(|b| &b.targets);
+    let checked = precheck(&mut rig, targets, |rig, t| {
         let limits = rig.axis(t.run.axis).soft_limits_um();
-        let t0 = std::time::Instant::now();
-        let r = comp.command(t.run.axis, t.run.direction, t.target_um(), limits);
-        compute_us_max = compute_us_max.max(t0.elapsed().as_secs_f64() * 1e6);
-        if let Err(e) = r {
+        comp.command(t.run.axis, t.run.direction, t.target_um(), limits)
+            .map(drop)
+            .map_err(|e| e.to_string())
+    });
+    let compute_us_max = match checked {
+        Ok(us) => us,
+        Err(e) => {
             rig.close().await;
             return Err(Refused(format!("compensation: {e}")));
         }
-    }
+    };
     let (passes, acquisition_s) = run_passes(
         c,
         rig,
@@ -692,6 +694,23 @@ pub(super) async fn run_passes(
     }
     rig.close().await;
     Ok((passes, acquisition_s))
+}
+
+/// Every compensated command of a verification computed before anything moves: the longest
+/// computation (µs), or the first refusal (the caller closes the rig).
+pub(super) fn precheck<T>(
+    rig: &mut Rig,
+    items: impl IntoIterator<Item = T>,
+    mut command: impl FnMut(&mut Rig, T) -> Result<(), String>,
+) -> Result<f64, String> {
+    let mut compute_us_max: f64 = 0.0;
+    for item in items {
+        let t0 = std::time::Instant::now();
+        let r = command(rig, item);
+        compute_us_max = compute_us_max.max(t0.elapsed().as_secs_f64() * 1e6);
+        r?;
+    }
+    Ok(compute_us_max)
 }
 
 mod output;
