@@ -112,14 +112,22 @@ fn round_trip_every_method_writes_the_whole_grid_and_beats_a_lookup_table() {
         }
         let (g, u) = read_curve_u(&out);
         assert_eq!(g.len(), 1901);
-        // The pointwise u (k = 1) for the methods with a band; bp asked directly has none.
-        match u {
-            Some(u) => {
-                assert_ne!(method, "bp");
-                assert!(u.iter().all(|v| v.is_finite() && *v > 0.0), "{method}");
-            }
-            None => assert_eq!(method, "bp"),
-        }
+        // The pointwise u (k = 1) for every method (bp asked directly: from its own folds), and
+        // its ±2u band holds this test's truth at most grid points.
+        let u = u.unwrap_or_else(|| panic!("{method}: no u_um column"));
+        assert!(u.iter().all(|v| v.is_finite() && *v > 0.0), "{method}");
+        let inside = g
+            .iter()
+            .zip(&truth)
+            .zip(&u)
+            .filter(|((a, b), u)| (a.1 - b.1).abs() <= 2.0 * **u)
+            .count() as f64
+            / 1901.0;
+        eprintln!("{method}: band coverage {inside:.3}");
+        assert!(
+            (0.85..=1.0).contains(&inside),
+            "{method}: band coverage {inside}"
+        );
         let e = g
             .iter()
             .zip(&truth)

@@ -165,8 +165,9 @@ pub struct Reconstruction {
     pub candidates: Vec<CvScore>,
     #[serde(skip)]
     pub values: Vec<f64>,
-    /// Pointwise standard uncertainty (k = 1) of `values`, µm ([`band`]); empty where not
-    /// computed (bp and bpdn asked for directly: their cross-validation would double the solve).
+    /// Pointwise standard uncertainty (k = 1) of `values`, µm ([`band`]): the method's
+    /// cross-validation residuals by distance to the nearest sample (bp and bpdn asked for
+    /// directly: k more solves on the folds), for `auto` with the model-choice term.
     #[serde(skip)]
     pub u_um: Vec<f64>,
     /// Mean and largest of `u_um`, µm.
@@ -174,6 +175,10 @@ pub struct Reconstruction {
     pub u_mean_um: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub u_max_um: Option<f64>,
+    /// The held-out (distance to the nearest training sample µm, residual µm) pairs of the
+    /// method's cross-validation that calibrated `u_um`.
+    #[serde(skip)]
+    pub cv_residuals: Vec<(f64, f64)>,
 }
 
 /// Reconstructs the curve at every grid point from the samples.
@@ -215,11 +220,23 @@ pub fn reconstruct(
         u_um: Vec::new(),
         u_mean_um: None,
         u_max_um: None,
+        cv_residuals: Vec::new(),
     };
     // Held-out (distance to the nearest training sample, residual) pairs of the method used.
     let mut held: Vec<(f64, f64)> = Vec::new();
+    // The model-choice variance at every grid point (`auto`; empty otherwise).
+    let mut choice: Vec<f64> = Vec::new();
     match s.method {
-        Method::Bp | Method::Bpdn => solve_bp(s.method, samples, s, &mut out),
+        Method::Bp | Method::Bpdn => {
+            solve_bp(s.method, samples, s, &mut out);
+            // The band's residuals: the same method on the folds (k more solves of a smaller
+            // problem; the fast solver whichever solved the curve).
+            CrossValidation::new(grid, samples, s).score_bp(
+                s.method,
+                f64::INFINITY,
+                Some(&mut held),
+            );
+        }
         Method::Linear | Method::Pchip => {
             out.values = interpolate(s.method, grid, &samples.idx, &samples.values);
             CrossValidation::new(grid, samples, s).score_interp(s.method, Some(&mut held));
@@ -273,6 +290,9 @@ pub fn reconstruct(
                     && (best_params.periods_um.contains(&p.period_um) || (k == 1 && as_chirp))
             });
             let mut chosen = (Method::Physics, best_err);
+            // Every method's held-out residuals (fold by fold, in the same order), for the
+            // model-choice term of the band.
+            let mut residuals: Vec<(Method, f64, Vec<(f64, f64)>)> = Vec::new();
             if s.method == Method::Auto {
                 // bpdn is not a candidate yet: its solver takes ~0.5 s per solve at m = 100.
                 for base in [Method::Linear, Method::Pchip, Method::Bp] {
@@ -280,10 +300,12 @@ pub fn reconstruct(
                     if base == Method::Bp && n > limits::MAX_BP_POINTS {
                         continue;
                     }
+                    let mut sink = Vec::new();
                     let e = match base {
-                        Method::Bp | Method::Bpdn => cv.score_bp(base, chosen.1, None),
-                        _ => cv.score_interp(base, None),
+                        Method::Bp | Method::Bpdn => cv.score_bp(base, chosen.1, Some(&mut sink)),
+                        _ => cv.score_interp(base, Some(&mut sink)),
                     };
+                    residuals.push((base, e, sink));
                     scores.push(CvScore {
                         method: base.as_str().into(),
                         cv_error_um: e,
@@ -307,28 +329,57 @@ pub fn reconstruct(
             };
             match chosen.0 {
                 Method::Physics => {
-                    let p = &best_params;
-                    let (start, step) = (grid.start_um, grid.step_um);
-                    let rows = physics::design(p, n, start, step, &samples.idx);
-                    let all: Vec<usize> = (0..n).collect();
-                    let fitted =
-                        physics::fit(p, &rows, n, step, &samples.idx, &samples.values, s.noise_um)
-                            .ok_or("physics model fit failed (singular system)")?;
-                    out.values = fitted.predict(&physics::design(p, n, start, step, &all), &all);
-                    out.params = Some(best_params);
+                    out.values = physics_curve(grid, samples, s, &best_params)?;
+                    out.params = Some(best_params.clone());
                 }
                 Method::Bp | Method::Bpdn => solve_bp(chosen.0, samples, s, &mut out),
                 _ => out.values = interpolate(chosen.0, grid, &samples.idx, &samples.values),
+            }
+            if s.method == Method::Auto {
+                // The model choice: the candidates whose held-out residuals are not clearly
+                // worse than the chosen one's, weighted by how likely each is the better.
+                if chosen.0 != Method::Physics && best_err <= CHOICE_SCREEN * chosen.1 {
+                    let mut sink = Vec::new();
+                    cv.score_physics(&best_params, Some(&mut sink));
+                    residuals.push((Method::Physics, best_err, sink));
+                }
+                residuals.retain(|r| r.0 != chosen.0 && r.1 <= CHOICE_SCREEN * chosen.1);
+                let mut alternatives = Vec::new();
+                for (method, _, r) in &residuals {
+                    let w = band::choice_weight(&held, r);
+                    if w < band::MIN_CHOICE_WEIGHT {
+                        continue;
+                    }
+                    let g = match method {
+                        Method::Physics => physics_curve(grid, samples, s, &best_params)?,
+                        Method::Bp | Method::Bpdn => bp_curve(*method, n, samples, s),
+                        _ => interpolate(*method, grid, &samples.idx, &samples.values),
+                    };
+                    alternatives.push((w, g));
+                }
+                choice = band::choice_variance(&out.values, &alternatives);
             }
         }
     }
     let positions: Vec<f64> = (0..n).map(|i| grid.position(i)).collect();
     let at: Vec<f64> = samples.idx.iter().map(|&i| grid.position(i)).collect();
-    out.u_um = band::pointwise_u(&positions, &at, &held, s.noise_um);
+    let misfit: Vec<f64> = samples
+        .idx
+        .iter()
+        .zip(&samples.values)
+        .filter_map(|(&i, &y)| out.values.get(i).map(|g| g - y))
+        .collect();
+    out.u_um = band::pointwise_u(&positions, &at, &misfit, &held, s.noise_um);
+    if choice.len() == out.u_um.len() {
+        for (u, v) in out.u_um.iter_mut().zip(&choice) {
+            *u = (*u * *u + v).sqrt();
+        }
+    }
     if !out.u_um.is_empty() {
         out.u_mean_um = Some(out.u_um.iter().sum::<f64>() / out.u_um.len() as f64);
         out.u_max_um = out.u_um.iter().copied().reduce(f64::max);
     }
+    out.cv_residuals = held;
     out.solve_ms = t0.elapsed().as_secs_f64() * 1e3;
     Ok(out)
 }
@@ -349,6 +400,46 @@ pub fn calibrate(raw_um: f64, m: usize, n: usize, noise_um: f64) -> f64 {
         .sqrt();
     let seen = (m as f64 / n as f64).clamp(0.0, 1.0);
     (1.0 - seen) * clean + seen * clean.min(noise_mae)
+}
+
+/// Candidates of `auto` within this factor of the chosen one's cross-validated error are weighed
+/// for the model-choice term of the band; beyond it (as [`CrossValidation::score_bp`]'s early
+/// stop) a candidate is not plausibly the better (its weight would be < 0.001 at m ≥ 100).
+const CHOICE_SCREEN: f64 = 1.3;
+
+/// The physics model `p` fitted to all samples, at every grid point.
+fn physics_curve(
+    grid: &Grid,
+    samples: &GridSamples,
+    s: &ReconSettings,
+    p: &PhysicsParams,
+) -> Result<Vec<f64>, String> {
+    let (n, start, step) = (grid.n, grid.start_um, grid.step_um);
+    let rows = physics::design(p, n, start, step, &samples.idx);
+    let all: Vec<usize> = (0..n).collect();
+    let fitted = physics::fit(p, &rows, n, step, &samples.idx, &samples.values, s.noise_um)
+        .ok_or("physics model fit failed (singular system)")?;
+    Ok(fitted.predict(&physics::design(p, n, start, step, &all), &all))
+}
+
+/// The bp or bpdn curve of all samples (fast solver), for the model-choice term.
+fn bp_curve(method: Method, n: usize, samples: &GridSamples, s: &ReconSettings) -> Vec<f64> {
+    let m = samples.len();
+    let problem = if method == Method::Bp {
+        Problem::BasisPursuit
+    } else {
+        Problem::Denoising {
+            epsilon: s.noise_um * (m as f64).sqrt(),
+        }
+    };
+    Dct::with_cached(n, |dct| {
+        let mut sol = bp::solve_fast(dct, &samples.idx, &samples.values, problem, &s.fast);
+        sol.signal.take().unwrap_or_else(|| {
+            let mut g = std::mem::take(&mut sol.theta);
+            dct.inverse(&mut g);
+            g
+        })
+    })
 }
 
 /// Runs bp or bpdn on all samples and stores the curve and solve figures in `out`.
