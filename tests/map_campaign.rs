@@ -160,7 +160,10 @@ fn check_map(out: &Path, dir: &str, yaw: bool) -> Vec<Vec<f64>> {
     let d = if dir == "forward" { 1.0 } else { -1.0 };
     let csv = std::fs::read_to_string(out.join(format!("map_{dir}.csv"))).unwrap();
     let mut lines = csv.lines();
-    assert_eq!(lines.next(), Some("x_um,y_um,ex_um,ey_um,theta_urad"));
+    assert_eq!(
+        lines.next(),
+        Some("x_um,y_um,ex_um,ey_um,theta_urad,u_ex_um,u_ey_um")
+    );
     let rows: Vec<Vec<f64>> = lines
         .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
         .collect();

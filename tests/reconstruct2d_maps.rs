@@ -94,11 +94,14 @@ fn write_samples(path: &Path, g: &Grid2, s: &MapSamples) {
 fn read_map(path: &Path, g: &Grid2) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let text = std::fs::read_to_string(path).unwrap();
     let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("x_um,y_um,ex_um,ey_um,theta_urad"));
+    assert_eq!(
+        lines.next(),
+        Some("x_um,y_um,ex_um,ey_um,theta_urad,u_ex_um,u_ey_um")
+    );
     let (mut ex, mut ey, mut th) = (vec![], vec![], vec![]);
     for (k, l) in lines.enumerate() {
         let v: Vec<f64> = l.split(',').map(|f| f.parse().unwrap()).collect();
-        assert_eq!(v.len(), 5);
+        assert_eq!(v.len(), 7);
         assert_eq!(v[0], g.x.position(k % g.x.n), "line {}", k + 2);
         assert_eq!(v[1], g.y.position(k / g.x.n), "line {}", k + 2);
         ex.push(v[2]);

@@ -119,12 +119,16 @@ fn write_samples(path: &std::path::Path, g: &Grid2, s: &MapSamples) {
     std::fs::write(path, t).unwrap();
 }
 
-/// e_x and e_y columns of a map CSV written by the CLI (x fastest, checked).
-fn read_map(path: &std::path::Path, g: &Grid2) -> (Vec<f64>, Vec<f64>) {
+/// e_x, e_y and their u (k = 1) columns of a map CSV written by the CLI (x fastest, checked).
+type MapColumns = (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
+fn read_map(path: &std::path::Path, g: &Grid2) -> MapColumns {
     let text = std::fs::read_to_string(path).unwrap();
     let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("x_um,y_um,ex_um,ey_um,theta_urad"));
-    let (mut ex, mut ey) = (Vec::new(), Vec::new());
+    assert_eq!(
+        lines.next(),
+        Some("x_um,y_um,ex_um,ey_um,theta_urad,u_ex_um,u_ey_um")
+    );
+    let (mut ex, mut ey, mut ux, mut uy) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for (k, l) in lines.enumerate() {
         let v: Vec<f64> = l.split(',').map(|f| f.parse().unwrap()).collect();
         assert_eq!(
@@ -133,9 +137,32 @@ fn read_map(path: &std::path::Path, g: &Grid2) -> (Vec<f64>, Vec<f64>) {
         );
         ex.push(v[2]);
         ey.push(v[3]);
+        ux.push(v[5]);
+        uy.push(v[6]);
     }
     assert_eq!(ex.len(), g.len());
-    (ex, ey)
+    (ex, ey, ux, uy)
+}
+
+/// Share of the grid with |map − truth| ≤ 2u, and mean(2u) / mean |map − truth|, of e_x and e_y.
+fn band_figures(stage: &Stage, g: &Grid2, map: [&[f64]; 4]) -> [(f64, f64); 2] {
+    let [ex, ey, ux, uy] = map;
+    let mut out = [(0.0, 0.0); 2];
+    for (c, (v, u)) in [(ex, ux), (ey, uy)].into_iter().enumerate() {
+        let (mut inside, mut err, mut band) = (0usize, 0.0, 0.0);
+        for j in 0..g.y.n {
+            for i in 0..g.x.n {
+                let t = stage.truth(g.x.position(i), g.y.position(j));
+                let k = j * g.x.n + i;
+                let e = (v[k] - if c == 0 { t.0 } else { t.1 }).abs();
+                inside += usize::from(e <= 2.0 * u[k]);
+                err += e;
+                band += 2.0 * u[k];
+            }
+        }
+        out[c] = (inside as f64 / g.len() as f64, band / err);
+    }
+    out
 }
 
 /// Whether `periods` (JSON array of {period_um}) holds `want` within 1 %.
@@ -181,8 +208,18 @@ fn rough_maps_meet_the_2_percent_targets_through_the_binary() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let (ex, ey) = read_map(&out, &g);
+    let (ex, ey, ux, uy) = read_map(&out, &g);
     let [(mx, xx), (my, xy)] = errors(&stage, &g, &ex, &ey);
+    // The pointwise band (u_ex_um, u_ey_um) against this test's own truth.
+    let [(cx, sx), (cy, sy)] = band_figures(&stage, &g, [&ex, &ey, &ux, &uy]);
+    eprintln!("band: e_x coverage {cx:.3} sharpness {sx:.2}, e_y {cy:.3} / {sy:.2}");
+    for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
+        assert!(
+            (0.85..=0.99).contains(&cover) && sharp <= 4.0,
+            "{what}: band coverage {cover} sharpness {sharp}"
+        );
+    }
+    assert!(j["u_ex_mean_um"].as_f64().unwrap() > 0.0, "{j}");
     let lin = recon2d::reconstruct(&g, &s, Method2::Linear).unwrap().0;
     let [(lmx, lxx), (lmy, lxy)] = errors(&stage, &g, &lin.ex, &lin.ey);
     eprintln!(
@@ -224,6 +261,14 @@ fn rough_maps_meet_the_half_percent_targets() {
         "0.5 %: m {} knot {:?} e_x {mx:.4}/{xx:.4} e_y {my:.4}/{xy:.4} µm",
         r.m, r.knot_um
     );
+    let [(cx, sx), (cy, sy)] = band_figures(&stage, &g, [&map.ex, &map.ey, &map.u_ex, &map.u_ey]);
+    eprintln!("band 0.5 %: e_x coverage {cx:.3} sharpness {sx:.2}, e_y {cy:.3} / {sy:.2}");
+    for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
+        assert!(
+            (0.85..=0.99).contains(&cover) && sharp <= 4.0,
+            "{what}: band coverage {cover} sharpness {sharp}"
+        );
+    }
     // The 0.5 % targets: mean ≤ 0.05 µm, max ≤ 0.5 µm.
     for (what, mean, max) in [("e_x", mx, xx), ("e_y", my, xy)] {
         assert!(
@@ -274,7 +319,7 @@ fn bp_through_the_binary_is_feasible_with_a_certified_gap() {
     assert_eq!(j["method"], "bp", "{j}");
     let solves = j["bp"].as_array().unwrap();
     assert_eq!(solves.len(), 3, "e_x, e_y and θ: {j}");
-    let (ex, ey) = read_map(&out, &g);
+    let (ex, ey, _, _) = read_map(&out, &g);
     for (c, (solve, map)) in solves.iter().zip([&ex, &ey]).enumerate() {
         // Weak duality: the dual bound lies below ‖c‖₁, and the reported gap is theirs.
         let (l1, dual) = (

@@ -115,10 +115,26 @@ pub fn add_to_report(
         }
         let mut j = json!({"direction": dir, "method": r.report.method, "m": r.report.m,
             "cv_error_um": r.report.cv_error_um, "solve_ms": r.report.solve_ms,
-            "knot_um": r.report.knot_um, "iso230_1": iso_json(&iso)});
+            "knot_um": r.report.knot_um, "iso230_1": iso_json(&iso),
+            "u_ex_mean_um": r.report.u_ex_mean_um, "u_ex_max_um": r.report.u_ex_max_um,
+            "u_ey_mean_um": r.report.u_ey_mean_um, "u_ey_max_um": r.report.u_ey_max_um});
         if let Some([tx, ty, tt]) = truth.map_truth(g, r.run.direction) {
             j["vs_truth"] =
                 json!({"ex": diff_stats(&r.map.ex, &tx), "ey": diff_stats(&r.map.ey, &ty)});
+            // Share of the grid inside ±2u of the truth, per component.
+            let cover = |v: &[f64], u: &[f64], t: &[f64]| {
+                (u.len() == v.len() && !v.is_empty()).then(|| {
+                    let inside = v
+                        .iter()
+                        .zip(u)
+                        .zip(t)
+                        .filter(|((v, u), t)| (*v - *t).abs() <= 2.0 * *u)
+                        .count();
+                    inside as f64 / v.len() as f64
+                })
+            };
+            j["vs_truth"]["ex"]["band_coverage"] = json!(cover(&r.map.ex, &r.map.u_ex, &tx));
+            j["vs_truth"]["ey"]["band_coverage"] = json!(cover(&r.map.ey, &r.map.u_ey, &ty));
             j["truth_iso230_1"] = iso_json(&iso230_1(g, &tx, &ty));
             let res = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p - q).collect();
             // The baseline side by side: linear interpolation on a triangulation of the same

@@ -101,11 +101,22 @@ pub fn interpolate(g: &Grid2, s: &MapSamples) -> Map {
     let theta = (out.len() > 2).then(|| out.pop().expect("three components"));
     let ey = out.pop().expect("e_y");
     let ex = out.pop().expect("e_x");
-    Map { ex, ey, theta }
+    Map {
+        ex,
+        ey,
+        theta,
+        u_ex: Vec::new(),
+        u_ey: Vec::new(),
+    }
 }
 
 /// k-fold cross-validation error (RMS over e_x, e_y, µm) of the linear interpolation.
 pub fn cv_error(g: &Grid2, s: &MapSamples) -> f64 {
+    rms_xy(s, &cv_predictions(g, s))
+}
+
+/// Held-out predictions of e_x and e_y at every sample (`pred[c][k]`).
+pub fn cv_predictions(g: &Grid2, s: &MapSamples) -> Vec<Vec<f64>> {
     let m = s.len();
     let fold = folds(m, CV_FOLDS);
     let mut pred = vec![vec![0.0; m]; 2];
@@ -119,7 +130,7 @@ pub fn cv_error(g: &Grid2, s: &MapSamples) -> f64 {
             pred[1][k] = r[1][at];
         }
     }
-    rms_xy(s, &pred)
+    pred
 }
 
 #[cfg(test)]

@@ -101,6 +101,10 @@ pub struct Map {
     pub ex: Vec<f64>,
     pub ey: Vec<f64>,
     pub theta: Option<Vec<f64>>,
+    /// Pointwise standard uncertainty (k = 1, µm) of e_x and e_y at every grid point (see
+    /// [`map_band`]); empty where not computed.
+    pub u_ex: Vec<f64>,
+    pub u_ey: Vec<f64>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -156,6 +160,15 @@ pub struct Report2 {
     pub periods_y: Vec<Period>,
     /// Basis-pursuit solves of the returned map (e_x, e_y[, θ]), when bp was chosen.
     pub bp: Option<Vec<bp::BpSolve>>,
+    /// Mean and largest pointwise u (k = 1, µm) of e_x and of e_y over the grid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub u_ex_mean_um: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub u_ex_max_um: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub u_ey_mean_um: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub u_ey_max_um: Option<f64>,
 }
 
 /// Assigns each of m samples to one of k folds, at random but reproducibly.
@@ -202,8 +215,9 @@ fn bp_map(
         .unzip()
 }
 
-/// Held-out RMS over e_x and e_y of basis pursuit on one fold (trained on the others).
-fn bp_cv_error(g: &Grid2, s: &MapSamples, sigma: &[f64]) -> f64 {
+/// Held-out RMS over e_x and e_y of basis pursuit on one fold (trained on the others), and the
+/// held-out predictions `pred[c][k]` (NaN for the samples of the other folds).
+fn bp_cv_error(g: &Grid2, s: &MapSamples, sigma: &[f64]) -> (f64, Vec<Vec<f64>>) {
     let fold = folds(s.len(), CV_FOLDS);
     let train: Vec<usize> = (0..s.len()).filter(|&k| fold[k] != 0).collect();
     let test: Vec<usize> = (0..s.len()).filter(|&k| fold[k] == 0).collect();
@@ -221,7 +235,48 @@ fn bp_cv_error(g: &Grid2, s: &MapSamples, sigma: &[f64]) -> f64 {
                 .collect()
         })
         .collect();
-    rms_xy(&held, &pred)
+    let mut all = vec![vec![f64::NAN; s.len()]; pred.len()];
+    for (a, p) in all.iter_mut().zip(&pred) {
+        for (&k, &v) in test.iter().zip(p) {
+            a[k] = v;
+        }
+    }
+    (rms_xy(&held, &pred), all)
+}
+
+/// Pointwise standard uncertainty (k = 1, µm) of e_x and e_y at every grid point, as the 1D
+/// curve's ([`crate::recon::band`]): the chosen method's held-out residuals `pred[c][k] − value`
+/// paired with each held-out sample's distance to the nearest training sample of its fold (in
+/// the plane), calibrated into u(d), read at every grid point's distance to the nearest sample.
+/// Samples without a prediction (NaN: basis pursuit holds one fold out) are left out. The
+/// sensor noise is not taken out (a map has no noise setting: the band stays on the safe side).
+fn map_band(g: &Grid2, s: &MapSamples, pred: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
+    let m = s.len();
+    let fold = folds(m, CV_FOLDS);
+    let mut dist = vec![f64::NAN; m];
+    for f in 0..CV_FOLDS {
+        let held: Vec<usize> = (0..m)
+            .filter(|&k| fold[k] == f && pred.iter().take(2).all(|p| p[k].is_finite()))
+            .collect();
+        if held.is_empty() {
+            continue;
+        }
+        let train: Vec<usize> = (0..m).filter(|&k| fold[k] != f).collect();
+        let t = s.subset(&train);
+        let d = nearest_sample_distance(g, &t.ix, &t.iy);
+        for k in held {
+            dist[k] = d[s.iy[k] * g.x.n + s.ix[k]];
+        }
+    }
+    let all = nearest_sample_distance(g, &s.ix, &s.iy);
+    let comp = |c: usize, value: &[f64]| {
+        let cv: Vec<(f64, f64)> = (0..m)
+            .filter(|&k| dist[k].is_finite())
+            .map(|k| (dist[k], pred[c][k] - value[k]))
+            .collect();
+        crate::recon::band::u_at_distances(&all, &cv, 0.0)
+    };
+    (comp(0, &s.ex), comp(1, &s.ey))
 }
 
 /// Smallest share of the grid's area the samples' convex hull may cover: below it most of the
@@ -369,10 +424,13 @@ pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, R
             fit
         }),
     };
+    let mut lin_pred = None;
     let lin_cv = if matches!(method, Method2::Auto | Method2::Linear)
         || (method == Method2::Bp && phys.is_none())
     {
-        let e = linear::cv_error(g, s);
+        let pred = linear::cv_predictions(g, s);
+        let e = rms_xy(s, &pred);
+        lin_pred = Some(pred);
         candidates.push(Candidate {
             method: "linear",
             knot_um: None,
@@ -389,8 +447,13 @@ pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, R
         Some(p) => p.residual_rms(g, s),
         None => vec![lin_cv.unwrap_or(0.0); s.components().len()],
     };
+    let mut bp_pred = None;
     let bp_cv = match method {
-        Method2::Auto if g.len() <= BP_AUTO_MAX_POINTS => Some(bp_cv_error(g, s, &sigma)),
+        Method2::Auto if g.len() <= BP_AUTO_MAX_POINTS => {
+            let (e, pred) = bp_cv_error(g, s, &sigma);
+            bp_pred = Some(pred);
+            Some(e)
+        }
         _ => None,
     };
     if let Some(e) = bp_cv {
@@ -423,7 +486,7 @@ pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, R
         }
     };
     let mut bp_report = None;
-    let (map, cv, knot) = match choice {
+    let (mut map, cv, knot) = match choice {
         "physics" => {
             let p = phys.as_ref().expect("physics fitted");
             (p.evaluate(g), p.cv_error_um, Some(p.knot_um))
@@ -434,10 +497,36 @@ pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, R
             let theta = (out.len() > 2).then(|| out.pop().expect("three components"));
             let ey = out.pop().expect("e_y");
             let ex = out.pop().expect("e_x");
-            (Map { ex, ey, theta }, bp_cv.unwrap_or(f64::NAN), None)
+            let map = Map {
+                ex,
+                ey,
+                theta,
+                u_ex: Vec::new(),
+                u_ey: Vec::new(),
+            };
+            (map, bp_cv.unwrap_or(f64::NAN), None)
         }
         _ => (linear::interpolate(g, s), lin_cv.unwrap_or(f64::NAN), None),
     };
+    // The band from the chosen method's held-out predictions (basis pursuit asked for directly
+    // had none: one held-out fold, as `auto` scores it).
+    let held = match choice {
+        "physics" => phys.as_ref().and_then(|p| p.held_out(g, s)),
+        "bp" => bp_pred.or_else(|| Some(bp_cv_error(g, s, &sigma).1)),
+        _ => lin_pred.or_else(|| Some(linear::cv_predictions(g, s))),
+    };
+    if let Some(pred) = held {
+        (map.u_ex, map.u_ey) = map_band(g, s, &pred);
+    }
+    let stats = |u: &[f64]| {
+        (!u.is_empty()).then(|| {
+            (
+                u.iter().sum::<f64>() / u.len() as f64,
+                u.iter().copied().fold(0.0, f64::max),
+            )
+        })
+    };
+    let (ux, uy) = (stats(&map.u_ex), stats(&map.u_ey));
     let (periods_x, periods_y) = match &phys {
         Some(p) => (p.periods_x.clone(), p.periods_y.clone()),
         None => (Vec::new(), Vec::new()),
@@ -455,8 +544,100 @@ pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, R
         periods_x,
         periods_y,
         bp: bp_report,
+        u_ex_mean_um: ux.map(|v| v.0),
+        u_ex_max_um: ux.map(|v| v.1),
+        u_ey_mean_um: uy.map(|v| v.0),
+        u_ey_max_um: uy.map(|v| v.1),
     };
     Ok((map, report))
+}
+
+/// Distance (µm) from every grid point (x fastest) to the nearest of the grid points
+/// `(ix[k], iy[k])`: an exact Euclidean distance transform (squared distances along each row,
+/// then the lower envelope of parabolas down each column; Felzenszwalb & Huttenlocher 2012),
+/// linear in the grid's size whatever the number of samples. Empty `ix`: every distance infinite.
+pub fn nearest_sample_distance(g: &Grid2, ix: &[usize], iy: &[usize]) -> Vec<f64> {
+    let (nx, ny) = (g.x.n, g.y.n);
+    let mut f = vec![f64::INFINITY; nx * ny];
+    for (&i, &j) in ix.iter().zip(iy) {
+        if i < nx && j < ny {
+            f[j * nx + i] = 0.0;
+        }
+    }
+    let mut buf = Vec::new();
+    for row in f.chunks_exact_mut(nx) {
+        buf.clear();
+        buf.extend_from_slice(row);
+        squared_distance_1d(&buf, g.x.step_um, row);
+    }
+    let mut col = vec![0.0; ny];
+    let mut out = vec![0.0; ny];
+    for i in 0..nx {
+        for j in 0..ny {
+            col[j] = f[j * nx + i];
+        }
+        squared_distance_1d(&col, g.y.step_um, &mut out);
+        for j in 0..ny {
+            f[j * nx + i] = out[j];
+        }
+    }
+    for v in &mut f {
+        *v = v.sqrt();
+    }
+    f
+}
+
+/// `out[q] = min_p f[p] + (step·(q − p))²` (the lower envelope of the parabolas rooted at the
+/// finite `f[p]`); all infinite if none is.
+fn squared_distance_1d(f: &[f64], step: f64, out: &mut [f64]) {
+    let n = f.len();
+    // Parabola roots (grid indices) and the boundaries between them, in index units scaled by
+    // the step.
+    let mut v: Vec<usize> = Vec::with_capacity(n);
+    let mut z: Vec<f64> = Vec::with_capacity(n + 1);
+    let s2 = step * step;
+    // Intersection (in index units) of the parabolas rooted at p and q (p < q).
+    let cross = |p: usize, q: usize| {
+        ((f[q] + s2 * (q * q) as f64) - (f[p] + s2 * (p * p) as f64)) / (2.0 * s2 * (q - p) as f64)
+    };
+    for q in (0..n).filter(|&q| f[q].is_finite()) {
+        loop {
+            match v.last() {
+                None => {
+                    v.push(q);
+                    z.clear();
+                    z.push(f64::NEG_INFINITY);
+                    break;
+                }
+                Some(&p) => {
+                    let x = cross(p, q);
+                    if x <= *z.last().expect("one boundary per parabola") {
+                        v.pop();
+                        z.pop();
+                        if v.is_empty() {
+                            continue;
+                        }
+                    } else {
+                        v.push(q);
+                        z.push(x);
+                        break;
+                    }
+                }
+            }
+        }
+    }
+    if v.is_empty() {
+        out.iter_mut().for_each(|o| *o = f64::INFINITY);
+        return;
+    }
+    let mut k = 0;
+    for (q, o) in out.iter_mut().enumerate() {
+        while k + 1 < v.len() && z[k + 1] < q as f64 {
+            k += 1;
+        }
+        let d = q as f64 - v[k] as f64;
+        *o = f[v[k]] + s2 * d * d;
+    }
 }
 
 /// At most 40 characters of a field for an error message.
@@ -559,20 +740,30 @@ pub fn parse_map_samples_csv(text: &str, g: &Grid2) -> Result<MapSamples, (usize
 }
 
 /// Writes the map with the samples' header at every grid point, x fastest.
+/// With the band, `u_ex_um,u_ey_um` (k = 1) are appended as the last columns.
 pub fn write_map(w: &mut impl std::io::Write, g: &Grid2, map: &Map) -> std::io::Result<()> {
-    match map.theta {
-        Some(_) => writeln!(w, "x_um,y_um,ex_um,ey_um,theta_urad")?,
-        None => writeln!(w, "x_um,y_um,ex_um,ey_um")?,
+    let band = map.u_ex.len() == map.ex.len() && map.u_ey.len() == map.ey.len();
+    write!(w, "x_um,y_um,ex_um,ey_um")?;
+    if map.theta.is_some() {
+        write!(w, ",theta_urad")?;
     }
+    if band {
+        write!(w, ",u_ex_um,u_ey_um")?;
+    }
+    writeln!(w)?;
     for j in 0..g.y.n {
         let y = g.y.position(j);
         for i in 0..g.x.n {
             let k = j * g.x.n + i;
             let x = g.x.position(i);
-            match &map.theta {
-                Some(t) => writeln!(w, "{x},{y},{},{},{}", map.ex[k], map.ey[k], t[k])?,
-                None => writeln!(w, "{x},{y},{},{}", map.ex[k], map.ey[k])?,
+            write!(w, "{x},{y},{},{}", map.ex[k], map.ey[k])?;
+            if let Some(t) = &map.theta {
+                write!(w, ",{}", t[k])?;
             }
+            if band {
+                write!(w, ",{},{}", map.u_ex[k], map.u_ey[k])?;
+            }
+            writeln!(w)?;
         }
     }
     Ok(())

@@ -377,6 +377,19 @@ fn cv_error(
     d: &Design,
     mu: f64,
 ) -> Option<f64> {
+    cv_predictions(g, s, comps, fold, d, mu).map(|pred| rms_xy(s, &pred))
+}
+
+/// Held-out predictions of e_x and e_y at every sample (`pred[c][k]`, sample k predicted by the
+/// fold that left it out); None if singular.
+fn cv_predictions(
+    g: &Grid2,
+    s: &MapSamples,
+    comps: &[&[f64]],
+    fold: &[usize],
+    d: &Design,
+    mu: f64,
+) -> Option<Vec<Vec<f64>>> {
     let m = s.len();
     let nc = comps.len();
     let p = d.unknowns();
@@ -410,7 +423,7 @@ fn cv_error(
             }
         }
     }
-    Some(rms_xy(s, &pred))
+    Some(pred)
 }
 
 /// `f` over `items` on up to 2 threads (the target machine's cores), results in order.
@@ -636,6 +649,13 @@ impl PhysicsFit {
             .collect()
     }
 
+    /// Held-out predictions of e_x and e_y at every sample by the chosen structure and penalty
+    /// (the selection's folds), for the pointwise band; None if singular.
+    pub fn held_out(&self, g: &Grid2, s: &MapSamples) -> Option<Vec<Vec<f64>>> {
+        let fold = folds(s.len(), CV_FOLDS);
+        cv_predictions(g, s, &s.components(), &fold, &self.design, self.penalty)
+    }
+
     /// The model at every grid point, x fastest, separably: the x families on the x grid, the y
     /// families on the y grid.
     pub fn evaluate(&self, g: &Grid2) -> Map {
@@ -688,7 +708,13 @@ impl PhysicsFit {
             *ex += self.rough_x.get(k % nx).copied().unwrap_or(0.0);
             *ey += self.rough_y.get(k / nx).copied().unwrap_or(0.0);
         }
-        Map { ex, ey, theta }
+        Map {
+            ex,
+            ey,
+            theta,
+            u_ex: Vec::new(),
+            u_ey: Vec::new(),
+        }
     }
 }
 
