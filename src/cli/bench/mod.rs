@@ -42,7 +42,8 @@ enum What {
     /// `auto` (no pitch) on curves the simulator did not make (the generator the tests share,
     /// eight families; leadscrew and rough on 4,303 points at 2.5 µm with m scaled to the same
     /// sampling fraction): against `physics` told the true period, `bp` and `pchip`; period
-    /// detections; cv_error_um against the true error.
+    /// detections; cv_error_um against the true error. `real`: the band on the measured curves
+    /// of tests/data/real when run from the repository.
     Families {
         #[arg(long, default_value_t = 20)]
         seeds: u64,
@@ -248,9 +249,10 @@ pub fn run(a: Args) -> CliResult {
                 )));
             }
             let rows = families::run(seeds, &ms, &fams).map_err(CliError::failure)?;
+            let real = families::real(seeds, &ms).map_err(CliError::failure)?;
             outln!(
                 "{}",
-                json!({"benchmark": "families", "n": 1901, "rows": rows})
+                json!({"benchmark": "families", "n": 1901, "rows": rows, "real": real})
             );
         }
         What::Gap { seeds } => {
