@@ -3,8 +3,7 @@
 //! targets), ISO 230-2 fixed targets and single lines, two base models, and effects inside and
 //! outside the library. `full_sweep` (ignored; run it in release) prints the rates the issue's
 //! targets are about; the other tests run a few cases in a debug build.
-#[path = "../common/gapgen.rs"]
-mod gapgen;
+use crate::gapgen;
 
 use csmetro::gap::{diagnose, Diagnosis, Options};
 use csmetro_sim::{AxisId, Effect, EffectKind, StageModel};

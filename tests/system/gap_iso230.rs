@@ -3,8 +3,7 @@
 //! a coarse fixed-target grid, a large scale error, tens of µm of backlash, a sensor
 //! nonlinearity outside the library and a slow drift. Data from the independent generator
 //! (tests/common/gapgen.rs), run through the binary.
-#[path = "../common/gapgen.rs"]
-mod gapgen;
+use crate::gapgen;
 
 use std::fmt::Write as _;
 use std::path::Path;

@@ -11,6 +11,9 @@
 
 #[path = "../common/mod.rs"]
 mod common;
+// The second gap generator, shared by gap_independent and gap_iso230.
+#[path = "../common/gapgen.rs"]
+mod gapgen;
 
 mod api_service;
 mod campaign_abort;
