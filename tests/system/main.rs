@@ -46,6 +46,7 @@ mod map_campaign;
 mod map_loop;
 mod map_service;
 mod ppp_cli;
+mod recon_band;
 mod recon_bpdn;
 mod recon_periods;
 mod recon_real;
