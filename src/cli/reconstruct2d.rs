@@ -22,8 +22,8 @@ pub struct Args {
     /// auto | bp | physics | linear (auto: the smallest cross-validation error)
     #[arg(long, default_value = "auto")]
     method: String,
-    /// Output CSV with the samples' header at every grid point, x fastest (default: stdout
-    /// unless --json).
+    /// Output CSV with the samples' header at every grid point, x fastest, then `u_ex_um,u_ey_um`
+    /// (pointwise standard uncertainty, k = 1) (default: stdout unless --json).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Print exactly one JSON object with the solve figures on stdout.
