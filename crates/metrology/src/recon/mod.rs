@@ -292,7 +292,7 @@ pub fn reconstruct(
             let mut chosen = (Method::Physics, best_err);
             // Every method's held-out residuals (fold by fold, in the same order), for the
             // model-choice term of the band.
-            let mut residuals: Vec<(Method, f64, Vec<(f64, f64)>)> = Vec::new();
+            let mut residuals: Vec<(Method, f64, HeldOut)> = Vec::new();
             if s.method == Method::Auto {
                 // bpdn is not a candidate yet: its solver takes ~0.5 s per solve at m = 100.
                 for base in [Method::Linear, Method::Pchip, Method::Bp] {
@@ -497,6 +497,9 @@ struct NormalEq {
     ata: nalgebra::DMatrix<f64>,
     aty: nalgebra::DVector<f64>,
 }
+
+/// Held-out (distance to the nearest training sample µm, residual µm) pairs, fold by fold.
+type HeldOut = Vec<(f64, f64)>;
 
 /// Physics structure: trend_k, harmonics, envelope degree, periods (bits).
 type StructureKey = (usize, usize, usize, Vec<u64>);
