@@ -331,7 +331,7 @@ fn run_map(
         e => CliError::failure(e.to_string()),
     })?;
     let (written, dir) = keep_files(shared, c, a.id, &verify_map::files(&v));
-    link_report(shared, &dir, a.id, "verify/summary.txt", v.passed);
+    link_report(shared, &dir, a.id, verify::REPORT_FILE, v.passed);
     finish(
         a,
         written,

@@ -300,13 +300,15 @@ img{max-width:100%;height:auto;display:block;margin:.5em 0}.note{color:#555;font
 
 /// `verify/report.html`: the verdict, the before/after table per axis (E, mean |e|, max |after|
 /// vs expected, pass/fail), the per-target table, the charts (PNG embedded, SVG linked) and
-/// the side-by-side text table. Self-contained but for the links next to it.
+/// the side-by-side text table. Self-contained but for the links next to it. `extra_html`
+/// (already escaped) goes under the before/after table: a map's ISO 230-1 figures and points.
 pub fn verify_html(
     title: &str,
     lead: &str,
     passed: bool,
     axes: &[AxisPage<'_>],
     table: &str,
+    extra_html: &str,
 ) -> String {
     let mut h = format!(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head><body>\n<h1>{t}</h1>\n",
@@ -339,6 +341,7 @@ pub fn verify_html(
         ));
     }
     h.push_str("</table>\n");
+    h.push_str(extra_html);
     for a in axes {
         h.push_str(&format!(
             "<h2>Axis {}</h2>\n<p class=\"note\">{}</p>\n",
@@ -538,7 +541,14 @@ mod tests {
             png: Some(&[1, 2, 3]),
             svg_name: Some("verify_x.svg".into()),
         };
-        let h = verify_html("verification <1>", "Stage s", false, &[a], "table & text");
+        let h = verify_html(
+            "verification <1>",
+            "Stage s",
+            false,
+            &[a],
+            "table & text",
+            "",
+        );
         assert!(h.contains("verification &lt;1&gt;") && h.contains("expected &lt;given&gt;"));
         assert!(
             h.contains("<td class=\"fail\">FAIL</td>")
