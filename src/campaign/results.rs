@@ -211,6 +211,18 @@ pub fn claim_out_dir(dir: &Path, store_id: &str, id: i64, name: &str) -> Result<
     Err(refused("it and its fallback hold other campaigns' results"))
 }
 
+/// The results folder campaign `id` of store `store_id` claimed from the template's `dir`
+/// ([`claim_out_dir`]: `dir` or its fallback), when it exists and is marked as its own; nothing
+/// is created.
+pub fn owned_out_dir(dir: &Path, store_id: &str, id: i64) -> Option<PathBuf> {
+    let mine = json!({"store_id": store_id, "campaign": id});
+    let base = dir.file_name()?.to_string_lossy().into_owned();
+    let fallback = dir.with_file_name(format!("{base}.store-{store_id}-c{id}"));
+    [dir.to_path_buf(), fallback]
+        .into_iter()
+        .find(|d| matches!(owner(d), Owner::Marked(m) if m == mine))
+}
+
 #[derive(Debug, PartialEq)]
 enum Owner {
     /// Missing, or holds no results and no marker.

@@ -392,29 +392,46 @@ const LINK_START: &str = "<!-- csmetro:verification -->";
 const LINK_END: &str = "<!-- /csmetro:verification -->";
 
 /// `report` (a characterisation's `report.html`) with a paragraph under its title linking to
-/// its verification at `href` (relative); a link an earlier verification left is replaced.
-/// `None` when the document has no title to put it under.
+/// its verification at `href` (relative), one paragraph per verification: the one an earlier
+/// verification at the same `href` left is replaced (`csmetro verify` writes one place), the
+/// others (verification campaigns, each its own results) are kept. `None` when the document
+/// has no title to put it under.
 pub fn with_verification_link(
     report: &str,
     href: &str,
     passed: bool,
     note: &str,
 ) -> Option<String> {
-    let block = format!(
-        "{LINK_START}<p>Verification: <a href=\"{}\">{}</a> {}</p>{LINK_END}\n",
-        esc(href),
+    let target = format!("href=\"{}\"", esc(href));
+    let entry = format!(
+        "<p>Verification: <a {target}>{}</a> {}</p>",
         if passed { "passed" } else { "FAILED" },
         esc(note)
     );
     if let (Some(a), Some(b)) = (report.find(LINK_START), report.find(LINK_END)) {
         if a < b {
+            let mut entries: Vec<&str> = report[a + LINK_START.len()..b]
+                .split_inclusive("</p>")
+                .map(str::trim)
+                .filter(|p| !p.is_empty() && !p.contains(&target))
+                .collect();
+            entries.push(&entry);
             let end = b + LINK_END.len();
             let end = end + usize::from(report[end..].starts_with('\n'));
-            return Some(format!("{}{block}{}", &report[..a], &report[end..]));
+            return Some(format!(
+                "{}{LINK_START}{}{LINK_END}\n{}",
+                &report[..a],
+                entries.concat(),
+                &report[end..]
+            ));
         }
     }
     let at = report.find("</h1>\n")? + "</h1>\n".len();
-    Some(format!("{}{block}{}", &report[..at], &report[at..]))
+    Some(format!(
+        "{}{LINK_START}{entry}{LINK_END}\n{}",
+        &report[..at],
+        &report[at..]
+    ))
 }
 
 #[cfg(test)]
@@ -564,6 +581,22 @@ mod tests {
         assert_eq!(two.matches(LINK_START).count(), 1, "{two}");
         assert!(two.contains("passed</a> (run 2)") && !two.contains("run 1"));
         assert!(two.ends_with("<p>State</p>\n"));
+        // A verification campaign's link is added beside it, and replaced by its own again.
+        let three =
+            with_verification_link(&two, "../../2/results/report.html", true, "(c 2)").unwrap();
+        let four =
+            with_verification_link(&three, "../../2/results/report.html", false, "(c 2)").unwrap();
+        assert_eq!(four.matches(LINK_START).count(), 1, "{four}");
+        assert_eq!(four.matches("<p>Verification: ").count(), 2, "{four}");
+        assert!(
+            four.contains("href=\"verify/report.html\">passed</a> (run 2)"),
+            "{four}"
+        );
+        assert!(
+            four.contains("href=\"../../2/results/report.html\">FAILED</a> (c 2)</p>"),
+            "{four}"
+        );
+        assert!(four.ends_with("<p>State</p>\n"));
         assert!(with_verification_link("<p>no title</p>", "x", true, "").is_none());
     }
 }
