@@ -177,9 +177,12 @@ impl Attempt {
             .map_err(|e| e.to_string())?;
         summary["state"] = json!(state.as_str());
         summary["errors"] = json!(errors);
+        // `out_dir`: where the results folder went, so a later verification campaign can link
+        // the report in it to its own.
         self.emit(
             "finished",
-            json!({"state": state.as_str(), "errors": errors, "summary": summary}),
+            json!({"state": state.as_str(), "errors": errors, "summary": summary,
+                   "out_dir": out_dir.as_ref().map(|d| d.display().to_string())}),
         );
         Ok(Finished {
             id: self.id,

@@ -278,9 +278,14 @@ pub async fn execute(
         .iter()
         .zip(&encoders)
         .map(|(p, e)| {
+            // Where the compensated move is expected to land around the wanted position (k = 1):
+            // the table's u there with the characterisation's repeatability.
+            let landing = comp.zip(p.u_um).map(|(c, u)| c.landing_u_um(p.axis, u));
+            let repeat = comp.and_then(|c| c.repeatability_um[p.axis as usize]);
             json!({"axis": p.axis.as_str(), "wanted_um": p.wanted_um, "command_um": p.command_um,
                    "correction_um": p.command_um - p.wanted_um, "approach": p.approach.as_str(),
-                   "cross_um": p.cross_um, "u_um": p.u_um, "encoder_um": e, "compute_us": p.compute_us})
+                   "cross_um": p.cross_um, "u_um": p.u_um, "encoder_um": e, "compute_us": p.compute_us,
+                   "landing_u_um": landing, "repeatability_um": repeat})
         })
         .collect();
     let mut out = json!({"compensation": comp.map(|c| c.source.clone()), "axes": axes});
@@ -316,6 +321,7 @@ mod tests {
                 line_other_um: [Some(2100.0), None],
             },
             source: "test".into(),
+            repeatability_um: [None, None],
         };
         let plan = [
             Some(AxisCommand {

@@ -211,6 +211,18 @@ pub fn claim_out_dir(dir: &Path, store_id: &str, id: i64, name: &str) -> Result<
     Err(refused("it and its fallback hold other campaigns' results"))
 }
 
+/// The results folder campaign `id` of store `store_id` claimed from the template's `dir`
+/// ([`claim_out_dir`]: `dir` or its fallback), when it exists and is marked as its own; nothing
+/// is created.
+pub fn owned_out_dir(dir: &Path, store_id: &str, id: i64) -> Option<PathBuf> {
+    let mine = json!({"store_id": store_id, "campaign": id});
+    let base = dir.file_name()?.to_string_lossy().into_owned();
+    let fallback = dir.with_file_name(format!("{base}.store-{store_id}-c{id}"));
+    [dir.to_path_buf(), fallback]
+        .into_iter()
+        .find(|d| matches!(owner(d), Owner::Marked(m) if m == mine))
+}
+
 #[derive(Debug, PartialEq)]
 enum Owner {
     /// Missing, or holds no results and no marker.
@@ -535,10 +547,11 @@ pub fn build(
             };
             let saved_targets = m.map(|m| planned as u64 - m.min(planned as u64));
             table.push_str(&format!(
-                "adaptive {}: {} at m = {} of {planned} (estimate {} µm, target {} µm), {} targets saved\n",
+                "adaptive {}: {} at m = {} of {planned} (band {} µm, estimate {} µm, target {} µm), {} targets saved\n",
                 b.run.label(),
                 if stop { "stopped" } else { "whole design" },
                 m.map_or("-".into(), |m| m.to_string()),
+                d["band_error_um"].as_f64().map_or("-".into(), |e| format!("{e:.4}")),
                 d["error_estimate_um"].as_f64().map_or("-".into(), |e| format!("{e:.4}")),
                 d["target_error_um"].as_f64().map_or("-".into(), |e| format!("{e}")),
                 saved_targets.map_or("-".into(), |n| n.to_string()),
@@ -548,7 +561,8 @@ pub fn build(
                 "cycle": b.run.cycle, "planned": planned, "stopped": stop, "m": m,
                 "saved_targets": saved_targets, "target_error_um": d["target_error_um"],
                 "error_estimate_um": d["error_estimate_um"], "scatter_um": d["scatter_um"],
-                "cv_error_um": d["cv_error_um"]}),
+                "cv_error_um": d["cv_error_um"], "band_error_um": d["band_error_um"],
+                "u_mean_um": d["u_mean_um"], "true_error_um": d["true_error_um"]}),
             );
         }
         // `other_at_um`: where the line's static axis stood; a two-axis compensation needs it
@@ -714,19 +728,28 @@ impl TruthSource {
     /// the moving axis approached in its run's direction and the static one from below (as
     /// the engine places it), so the static axis's own error at `other_at_um` is in it.
     pub fn curve(&self, curve: &Curve, other_at_um: f64) -> Option<Vec<f64>> {
+        self.line(curve.run, curve.component, &curve.positions_um, other_at_um)
+    }
+
+    /// [`TruthSource::curve`] of `component` of `run` at `positions_um`.
+    pub fn line(
+        &self,
+        run: RunKey,
+        component: Component,
+        positions_um: &[f64],
+        other_at_um: f64,
+    ) -> Option<Vec<f64>> {
         let m = self.model.as_ref()?;
-        let run = curve.run;
         let d = run.direction.sign();
         Some(
-            curve
-                .positions_um
+            positions_um
                 .iter()
                 .map(|&p| {
                     let v = match run.axis {
                         AxisId::X => m.deviation_2d(p, other_at_um, d, 1.0, 0.0),
                         AxisId::Y => m.deviation_2d(other_at_um, p, 1.0, d, 0.0),
                     };
-                    match curve.component.measured {
+                    match component.measured {
                         AxisId::X => v.x_um,
                         AxisId::Y => v.y_um,
                     }

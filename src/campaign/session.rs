@@ -69,6 +69,9 @@ struct StoreRecorder {
     campaign: Campaign,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     truth_log: Option<std::fs::File>,
+    /// Simulation: the stage's truth, so each adaptive decision records the true error of the
+    /// curve it judged (how far the stop is from the best one in hindsight).
+    truth: TruthSource,
 }
 
 impl Recorder for StoreRecorder {
@@ -110,8 +113,28 @@ impl Recorder for StoreRecorder {
     fn stop_estimate(&mut self, run: RunKey) -> Option<super::worker::StopEstimate> {
         let grid = self.campaign.axis(run.axis)?.grid;
         let st = settings(&self.campaign);
-        tokio::task::block_in_place(|| super::worker::stop_estimate(&grid, &st, run, &self.samples))
-            .ok()
+        let mut e = tokio::task::block_in_place(|| {
+            super::worker::stop_estimate(&grid, &st, run, &self.samples)
+        })
+        .ok()?;
+        let other_at = self.campaign.axis(run.axis)?.other_at_um;
+        let component = run
+            .components()
+            .into_iter()
+            .find(|c| c.measured == run.axis)?;
+        e.true_error_um = self
+            .truth
+            .line(run, component, &grid.positions(), other_at)
+            .filter(|t| t.len() == e.values_um.len() && !t.is_empty())
+            .map(|t| {
+                let n = t.len() as f64;
+                t.iter()
+                    .zip(&e.values_um)
+                    .map(|(t, v)| (v - t).abs())
+                    .sum::<f64>()
+                    / n
+            });
+        Some(e)
     }
 }
 
@@ -254,6 +277,7 @@ pub async fn execute_with(
         campaign: c.clone(),
         on_sample,
         truth_log,
+        truth: TruthSource::new(&rig, &c),
     };
     let outcome = {
         let mut engine = Engine::new(&c, &mut rig, &mut rec, control, done);

@@ -299,6 +299,31 @@ pub(super) async fn execute(
     ));
     let store_id = run.store_id();
     let written = run.put_files(&c, &store_id, &files, &mut errors);
+    // The characterisation's report links to this verification (a failure to is logged: the
+    // verification's own results are in place).
+    let note = format!("(verification campaign {id})");
+    let (passed, dir) = (v.passed, written.as_ref().ok());
+    let warnings = {
+        let s = lock(store);
+        let char_dir = finished_out_dir(&s, char_id)
+            .and_then(|d| super::results::owned_out_dir(&d, &store_id, char_id));
+        let file_href = char_dir
+            .as_deref()
+            .zip(dir)
+            .and_then(|(from, to)| relative_href(from, &to.join("report.html")));
+        let store_href = format!("../../{id}/results/report.html");
+        link_report(
+            &s,
+            char_id,
+            char_dir.as_deref().zip(file_href.as_deref()),
+            &store_href,
+            passed,
+            &note,
+        )
+    };
+    for w in warnings {
+        tracing::warn!(campaign = char_id, "{w}");
+    }
     let mut state = if errors.is_empty() {
         state
     } else {
@@ -337,4 +362,94 @@ pub(super) async fn execute(
         outcome(EndState::Done),
         written.ok(),
     )
+}
+
+/// Where campaign `id`'s results folder went (its last `finished` event's `out_dir`).
+fn finished_out_dir(store: &Store, id: i64) -> Option<std::path::PathBuf> {
+    let events = store.events_after(id, 0).ok()?;
+    events
+        .iter()
+        .rev()
+        .filter(|e| e.kind == "finished")
+        .find_map(|e| e.data["out_dir"].as_str().map(std::path::PathBuf::from))
+}
+
+/// `to` relative to the folder `from` (both made absolute), `/`-separated for a link.
+fn relative_href(from: &std::path::Path, to: &std::path::Path) -> Option<String> {
+    let (from, to) = (
+        std::path::absolute(from).ok()?,
+        std::path::absolute(to).ok()?,
+    );
+    let (a, b): (Vec<_>, Vec<_>) = (from.components().collect(), to.components().collect());
+    let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    if common == 0 {
+        return None;
+    }
+    let mut parts: Vec<String> = vec!["..".into(); a.len() - common];
+    parts.extend(
+        b[common..]
+            .iter()
+            .map(|c| c.as_os_str().to_string_lossy().into_owned()),
+    );
+    Some(parts.join("/"))
+}
+
+/// Links campaign `id`'s `report.html` to a verification: the stored copy at `store_href`
+/// (relative to the API's `/campaigns/{id}/results/report.html`), and the copy in its results
+/// folder, when given as (folder, href relative to it). A report that cannot be updated keeps
+/// its content; what could not be done comes back as warnings.
+pub fn link_report(
+    store: &Store,
+    id: i64,
+    file: Option<(&std::path::Path, &str)>,
+    store_href: &str,
+    passed: bool,
+    note: &str,
+) -> Vec<String> {
+    use crate::report::verification::with_verification_link;
+    let mut warnings = Vec::new();
+    if let Ok(Some((ctype, bytes))) = store.result(id, "report.html") {
+        if let Some(h) = std::str::from_utf8(&bytes)
+            .ok()
+            .and_then(|t| with_verification_link(t, store_href, passed, note))
+        {
+            if let Err(e) = store.put_result(id, "report.html", &ctype, h.as_bytes()) {
+                warnings.push(format!("report.html not updated in the store: {e}"));
+            }
+        }
+    }
+    if let Some((dir, href)) = file {
+        let p = dir.join("report.html");
+        if let Some(h) = std::fs::read_to_string(&p)
+            .ok()
+            .and_then(|t| with_verification_link(&t, href, passed, note))
+        {
+            if let Err(e) = std::fs::write(&p, h) {
+                warnings.push(format!("{}: not updated: {e}", p.display()));
+            }
+        }
+    }
+    warnings
+}
+
+#[cfg(test)]
+mod link_tests {
+    use super::relative_href;
+    use std::path::Path;
+
+    #[test]
+    fn a_sibling_folder_is_one_level_up() {
+        assert_eq!(
+            relative_href(Path::new("/r/char-1"), Path::new("/r/ver-2/report.html")).as_deref(),
+            Some("../ver-2/report.html")
+        );
+        assert_eq!(
+            relative_href(
+                Path::new("/r/a/char-1"),
+                Path::new("/r/b/ver-2/report.html")
+            )
+            .as_deref(),
+            Some("../../b/ver-2/report.html")
+        );
+    }
 }

@@ -146,6 +146,29 @@ pub struct StopEstimate {
     pub m: usize,
     /// The opposite direction's samples the curve pooled (0 when it stands alone).
     pub pooled_m: usize,
+    /// Mean over the grid of the curve's pointwise band u (k = 1), µm; `None` without a band.
+    pub u_mean_um: Option<f64>,
+    /// The band's expected mean |error| of the curve, [`band_mean_abs_um`], µm: what the
+    /// adaptive stop decides on.
+    pub band_error_um: Option<f64>,
+    /// Simulation only: the curve's true mean |error| over the grid, µm (filled by the
+    /// recorder that knows the truth; for the record, never for the decision).
+    pub true_error_um: Option<f64>,
+    /// The curve from the samples so far (the truth is compared with it).
+    #[serde(skip)]
+    pub values_um: Vec<f64>,
+}
+
+/// Expected mean |error| over the grid that a pointwise band (k = 1) implies: each point's
+/// error taken as N(0, u²), whose mean absolute value is u·√(2/π). The same quantity as the
+/// target (a mean |error|), with no factor chosen on data; mean u itself would be a 1.25x
+/// margin in disguise. `None` when the band is empty.
+pub fn band_mean_abs_um(u_um: &[f64]) -> Option<f64> {
+    if u_um.is_empty() || u_um.iter().any(|u| !u.is_finite()) {
+        return None;
+    }
+    let mean = u_um.iter().sum::<f64>() / u_um.len() as f64;
+    Some((2.0 / std::f64::consts::PI).sqrt() * mean)
 }
 
 /// Error of the curve against the distance to its nearest sample, from held-out samples, then
@@ -302,6 +325,10 @@ pub fn stop_estimate(
         method: whole.method,
         m,
         pooled_m: if pooled { other.idx.len() } else { 0 },
+        u_mean_um: whole.u_mean_um,
+        band_error_um: band_mean_abs_um(&whole.u_um),
+        true_error_um: None,
+        values_um: whole.values,
     })
 }
 

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use super::run::DEFAULT_DB;
 use super::{CliError, CliResult};
-use crate::export::controller::{self, Controller};
+use crate::export::controller::{self, Controller, LsecUnit};
 use crate::export::Export;
 use crate::store::Store;
 use crate::types::AxisId;
@@ -52,6 +52,11 @@ pub struct Args {
     /// (default 0.01; twincat-lsec 0.06: its values are integers of 0.1 µm).
     #[arg(long, allow_hyphen_values = true)]
     max_deviation_um: Option<f64>,
+    /// twincat-lsec only: lengths in encoder increments of this many µm (`kw.ssfk.unit = 0`,
+    /// the axis's increment from its CNC parameters) instead of 0.1 µm; default deviation
+    /// bound half an increment + 0.01 µm.
+    #[arg(long, allow_hyphen_values = true)]
+    increment_um: Option<f64>,
     #[arg(long, env = "CSMETRO_DB", default_value = DEFAULT_DB)]
     db: PathBuf,
     /// One JSON object on stdout: the file, its size and the time taken.
@@ -71,9 +76,9 @@ pub fn run(a: Args) -> CliResult {
     if let Some(f) = a.format.controller() {
         return controller_table(&a, &store, f, t0);
     }
-    if a.axis.is_some() || a.max_deviation_um.is_some() {
+    if a.axis.is_some() || a.max_deviation_um.is_some() || a.increment_um.is_some() {
         return Err(CliError::input(
-            "--axis and --max-deviation-um apply to --format linuxcnc, twincat-lsec and csv",
+            "--axis, --max-deviation-um and --increment-um apply to --format linuxcnc, twincat-lsec and csv",
         ));
     }
     let e = Export::gather(&store, a.id).map_err(|e| match e {
@@ -128,9 +133,27 @@ fn controller_table(a: &Args, store: &Store, f: Controller, t0: Instant) -> CliR
             )))
         }
     };
-    let max_dev = a
-        .max_deviation_um
-        .unwrap_or_else(|| f.default_max_deviation_um());
+    let unit = match a.increment_um {
+        None => LsecUnit::Metric,
+        Some(_) if f != Controller::TwinCatLsec => {
+            return Err(CliError::input(
+                "--increment-um applies to --format twincat-lsec (its kw.ssfk.unit = 0)",
+            ))
+        }
+        Some(q) => {
+            let (lo, hi) = LsecUnit::INCREMENT_RANGE_UM;
+            if !(q.is_finite() && (lo..=hi).contains(&q)) {
+                return Err(CliError::input(format!(
+                    "--increment-um must be a number of µm in [{lo}, {hi}]"
+                )));
+            }
+            LsecUnit::Increments(q)
+        }
+    };
+    let max_dev = a.max_deviation_um.unwrap_or_else(|| match f {
+        Controller::TwinCatLsec => unit.default_max_deviation_um(),
+        _ => f.default_max_deviation_um(),
+    });
     if !(max_dev.is_finite() && max_dev > 0.0) {
         return Err(CliError::input(
             "--max-deviation-um must be a positive number of µm",
@@ -163,7 +186,8 @@ fn controller_table(a: &Args, store: &Store, f: Controller, t0: Instant) -> CliR
             have.join(", ")
         ))
     })?;
-    let w = controller::write(table, f, id, max_dev).map_err(|e| CliError::input(e.to_string()))?;
+    let w = controller::write_in(table, f, unit, id, max_dev)
+        .map_err(|e| CliError::input(e.to_string()))?;
     write_new(&a.out, w.text.as_bytes())?;
     let secs = t0.elapsed().as_secs_f64();
     let entries = w.table.nominal_um.len();
@@ -174,10 +198,11 @@ fn controller_table(a: &Args, store: &Store, f: Controller, t0: Instant) -> CliR
             serde_json::json!({"id": id, "format": format, "axis": axis.as_str(),
                 "out": a.out.display().to_string(), "bytes": w.text.len(), "entries": entries,
                 "range_um": [lo, hi], "max_deviation_um": w.max_deviation_um,
-                "units": match f {
-                    Controller::LinuxCnc => "mm",
-                    Controller::TwinCatLsec => "0.1 µm",
-                    Controller::Csv => "µm",
+                "units": match (f, unit) {
+                    (Controller::LinuxCnc, _) => "mm".to_string(),
+                    (Controller::TwinCatLsec, LsecUnit::Metric) => "0.1 µm".to_string(),
+                    (Controller::TwinCatLsec, LsecUnit::Increments(q)) => format!("{q} µm (encoder increments)"),
+                    (Controller::Csv, _) => "µm".to_string(),
                 },
                 "export_s": secs})
         );

@@ -187,6 +187,18 @@ pub fn run(a: Args) -> CliResult {
                 p["approach"].as_str().unwrap_or(""),
                 p["compute_us"].as_f64().unwrap_or(f64::NAN)
             );
+            if let Some(u) = p["landing_u_um"].as_f64() {
+                let from = if p["repeatability_um"].is_number() {
+                    "table u and repeatability"
+                } else {
+                    "table u; no repeatability measured"
+                };
+                outln!(
+                    "{}: expected landing ±{:.4} µm (k = 2; {from})",
+                    p["axis"].as_str().unwrap_or(""),
+                    2.0 * u
+                );
+            }
         }
         if let (Some(x), Some(y)) = (out["measured_x_um"].as_f64(), out["measured_y_um"].as_f64()) {
             outln!("measured: x {x:.4} µm, y {y:.4} µm");

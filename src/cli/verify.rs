@@ -213,29 +213,12 @@ fn finish(
 /// the verification (`href`, relative to the results). A report that cannot be updated keeps
 /// its old content: the verification's own files are written already.
 fn link_report(shared: &Arc<Mutex<Store>>, dir: &Path, id: i64, href: &str, passed: bool) {
-    use crate::report::verification::with_verification_link;
     let note = "(before / after figures and charts of the last `csmetro verify`)";
+    let s = shared.lock().unwrap_or_else(|e| e.into_inner());
+    for w in
+        crate::campaign::verification::link_report(&s, id, Some((dir, href)), href, passed, note)
     {
-        let s = shared.lock().unwrap_or_else(|e| e.into_inner());
-        if let Ok(Some((ctype, bytes))) = s.result(id, "report.html") {
-            if let Some(h) = std::str::from_utf8(&bytes)
-                .ok()
-                .and_then(|t| with_verification_link(t, href, passed, note))
-            {
-                if let Err(e) = s.put_result(id, "report.html", &ctype, h.as_bytes()) {
-                    eprintln!("warning: report.html not updated in the store: {e}");
-                }
-            }
-        }
-    }
-    let p = dir.join("report.html");
-    if let Some(h) = std::fs::read_to_string(&p)
-        .ok()
-        .and_then(|t| with_verification_link(&t, href, passed, note))
-    {
-        if let Err(e) = std::fs::write(&p, h) {
-            eprintln!("warning: {}: not updated: {e}", p.display());
-        }
+        eprintln!("warning: {w}");
     }
 }
 
@@ -331,7 +314,7 @@ fn run_map(
         e => CliError::failure(e.to_string()),
     })?;
     let (written, dir) = keep_files(shared, c, a.id, &verify_map::files(&v));
-    link_report(shared, &dir, a.id, "verify/summary.txt", v.passed);
+    link_report(shared, &dir, a.id, verify::REPORT_FILE, v.passed);
     finish(
         a,
         written,

@@ -87,6 +87,9 @@ pub struct Compensation {
     pub correction: Correction,
     /// Where it came from (a directory, a file, `campaign N`).
     pub source: String,
+    /// Unidirectional repeatability of x and y (the larger of R↑ and R↓ of the
+    /// characterisation's ISO 230-2 measured figures), µm, when its results give it.
+    pub repeatability_um: [Option<f64>; 2],
 }
 
 /// What corrects the moves.
@@ -137,6 +140,15 @@ impl Compensation {
             (Correction::Lines { y, .. }, AxisId::Y) => y.as_ref(),
             (Correction::Map(_), _) => None,
         }
+    }
+
+    /// Expected landing uncertainty (k = 1) of a compensated move of `axis` whose correction
+    /// has standard uncertainty `u_um` (the table's u there): u combined in quadrature with the
+    /// repeatability's standard deviation, R / 4 (ISO 230-2: R↑ = 4 s↑), when the results give
+    /// R; else u alone. µm.
+    pub fn landing_u_um(&self, axis: AxisId, u_um: f64) -> f64 {
+        let s = self.repeatability_um[axis as usize].map_or(0.0, |r| r / 4.0);
+        u_um.hypot(s)
     }
 
     /// The XY map; `None` for line tables.
@@ -215,13 +227,18 @@ impl Compensation {
                 campaign: None,
                 correction,
                 source: origin.clone(),
+                repeatability_um: [None, None],
             };
             let summary = path.join("summary.json");
             if summary.exists() {
                 let identity = summary_identity(&summary)?;
                 let v = match c.correction {
                     Correction::Map(_) => Some(summary_json(&summary)?),
-                    Correction::Lines { .. } => None,
+                    Correction::Lines { .. } => {
+                        // Unreadable as JSON: summary_identity refused it already.
+                        c.repeatability_um = repeatabilities(&summary_json(&summary)?);
+                        None
+                    }
                 };
                 c.read_identity(identity, v.as_ref());
             }
@@ -243,15 +260,20 @@ impl Compensation {
                 campaign,
                 correction: Correction::Map(m),
                 source: origin,
+                repeatability_um: [None, None],
             });
         }
         let axis = table_axis(path)?;
         let t = AxisTable::load(axis, path)?;
         // A table inside a results directory: the directory's summary names its stage.
-        let (stage, campaign, line_other_um) = match path.parent().map(|d| d.join("summary.json")) {
-            Some(s) if s.is_file() => summary_identity(&s)?,
-            _ => (None, None, [None, None]),
-        };
+        let (stage, campaign, line_other_um, repeatability_um) =
+            match path.parent().map(|d| d.join("summary.json")) {
+                Some(s) if s.is_file() => {
+                    let (stage, id, lines) = summary_identity(&s)?;
+                    (stage, id, lines, repeatabilities(&summary_json(&s)?))
+                }
+                _ => (None, None, [None, None], [None, None]),
+            };
         Ok(Compensation {
             stage,
             campaign,
@@ -261,6 +283,7 @@ impl Compensation {
                 line_other_um,
             },
             source: origin,
+            repeatability_um,
         })
     }
 
@@ -319,6 +342,7 @@ impl Compensation {
             campaign: Some(id),
             correction,
             source: origin,
+            repeatability_um: summary.as_ref().map_or([None, None], repeatabilities),
         })
     }
 
@@ -573,6 +597,20 @@ fn line_positions(v: &serde_json::Value) -> [Option<f64>; 2] {
     out
 }
 
+/// Unidirectional repeatability of x and y from a results summary: the larger of R↑ and R↓ of
+/// `iso230.<axis>.measured` (the bidirectional R holds the reversal, which the compensation
+/// corrects per direction), µm; `None` where the characterisation did not measure it.
+fn repeatabilities(v: &serde_json::Value) -> [Option<f64>; 2] {
+    [AxisId::X, AxisId::Y].map(|a| {
+        let m = &v["iso230"][a.as_str()]["measured"];
+        [m["r_up_um"].as_f64(), m["r_down_um"].as_f64()]
+            .into_iter()
+            .flatten()
+            .filter(|r| r.is_finite() && *r >= 0.0)
+            .reduce(f64::max)
+    })
+}
+
 /// A results directory's summary.json as JSON.
 fn summary_json(path: &Path) -> Result<serde_json::Value, TableError> {
     let origin = path.display().to_string();
@@ -685,6 +723,7 @@ mod tests {
                 line_other_um: [None, None],
             },
             source: "t".into(),
+            repeatability_um: [None, None],
         };
         assert!(matches!(
             c.command(AxisId::X, Direction::Forward, 2500.0, (-500.0, 13_500.0)),
@@ -753,11 +792,39 @@ mod tests {
                 line_other_um: [None, None],
             },
             source: "t".into(),
+            repeatability_um: [None, None],
         };
         assert!(c.check_covers(AxisId::X, 0.0, 2000.0).is_ok());
         assert!(c.check_covers(AxisId::X, 0.0, 9500.0).is_err());
         assert!(c.check_covers(AxisId::Y, 0.0, 100.0).is_err());
         assert!(c.check_stage("sim-xy").is_ok());
         assert!(c.check_stage("lab-xy").is_err());
+    }
+
+    #[test]
+    fn the_landing_uncertainty_adds_the_repeatability_from_the_results() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("compensation_x.csv"), table_text(5.0, true)).unwrap();
+        // x measured R↑ 0.08, R↓ 0.12 µm (cycles ≥ 2); y not measured.
+        let summary = serde_json::json!({"stage": "sim-xy", "id": 4,
+            "axes": [{"axis": "x", "other_at_um": 2100.0}],
+            "iso230": {"x": {"measured": {"r_um": 2.1, "r_up_um": 0.08, "r_down_um": 0.12}}}});
+        std::fs::write(dir.path().join("summary.json"), summary.to_string()).unwrap();
+        let from_dir = Compensation::load(dir.path()).unwrap();
+        let from_file = Compensation::load(&dir.path().join("compensation_x.csv")).unwrap();
+        let read = |name: &str| Ok::<_, String>(std::fs::read(dir.path().join(name)).ok());
+        let stored = Compensation::from_results(4, "sim-xy", read).unwrap();
+        for c in [&from_dir, &from_file, &stored] {
+            // The unidirectional R (the larger), not the bidirectional one.
+            assert_eq!(c.repeatability_um, [Some(0.12), None], "{}", c.source);
+            // s = R / 4 in quadrature with the table's u.
+            let l = c.landing_u_um(AxisId::X, 0.04);
+            assert!(
+                (l - (0.04f64.powi(2) + 0.03f64.powi(2)).sqrt()).abs() < 1e-12,
+                "{l}"
+            );
+            // Without R: the table's u alone.
+            assert_eq!(c.landing_u_um(AxisId::Y, 0.04), 0.04);
+        }
     }
 }

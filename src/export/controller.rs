@@ -61,6 +61,37 @@ impl Controller {
     }
 }
 
+/// The length unit of a TwinCAT list (P-COMP-00017 `kw.ssfk.unit`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LsecUnit {
+    /// `unit = 1`: integers of 0.1 µm (the default: it needs nothing of the machine).
+    Metric,
+    /// `unit = 0`: integers of the axis's encoder increment, this many µm (from the CNC's
+    /// axis parameters): finer than 0.1 µm on a stage like the M-111.1DG.
+    Increments(f64),
+}
+
+impl LsecUnit {
+    /// Smallest and largest increment accepted, µm.
+    pub const INCREMENT_RANGE_UM: (f64, f64) = (1e-4, 10.0);
+
+    /// One unit of the list, µm.
+    pub fn um(self) -> f64 {
+        match self {
+            LsecUnit::Metric => 0.1,
+            LsecUnit::Increments(q) => q,
+        }
+    }
+
+    /// The default deviation bound: half a unit of rounding plus 0.01 µm of interpolation.
+    pub fn default_max_deviation_um(self) -> f64 {
+        match self {
+            LsecUnit::Metric => Controller::TwinCatLsec.default_max_deviation_um(),
+            LsecUnit::Increments(q) => q / 2.0 + 0.01,
+        }
+    }
+}
+
 /// A bilateral table as the controller reads it: at nominal (programmed) position w, µm, the
 /// command is w + correction of the direction of motion, interpolated linearly between rows.
 #[derive(Debug, Clone, PartialEq)]
@@ -108,6 +139,8 @@ pub enum ControllerError {
         lo_um: f64,
         hi_um: f64,
     },
+    #[error("{origin}: a setpoint in units of {unit_um} µm does not fit the list's 32-bit integers (a larger --increment-um)")]
+    Unit { origin: String, unit_um: f64 },
     #[error("{format}: with at most {points} entries the controller would command up to {deviation_um:.4} µm away from `csmetro move` (allowed {allowed_um} µm; raise --max-deviation-um or characterise a shorter travel)")]
     TooCoarse {
         format: &'static str,
@@ -273,12 +306,23 @@ pub fn write(
     campaign: i64,
     max_deviation_um: f64,
 ) -> Result<Written, ControllerError> {
+    write_in(t, format, LsecUnit::Metric, campaign, max_deviation_um)
+}
+
+/// [`write`] with the TwinCAT list's length unit (ignored by the other formats).
+pub fn write_in(
+    t: &AxisTable,
+    format: Controller,
+    unit: LsecUnit,
+    campaign: i64,
+    max_deviation_um: f64,
+) -> Result<Written, ControllerError> {
     let (full, range) = exact(t)?;
     let reduced = reduce(&full, format.max_points());
     let (text, table) = match format {
         Controller::LinuxCnc => linuxcnc(&reduced),
         Controller::Csv => csv(&reduced),
-        Controller::TwinCatLsec => twincat(t, &reduced, campaign)?,
+        Controller::TwinCatLsec => twincat(t, &reduced, unit, campaign)?,
     };
     // Every kink of the exact commands and every row of the table: both sides are linear in
     // between, so the largest difference is at one of them.
@@ -377,7 +421,7 @@ fn csv(b: &Bilateral) -> (String, Bilateral) {
 /// "Leadscrew error compensation" (the position setpoint is changed by a compensation value,
 /// interpolated linearly between interpolation points; bilateral = one table per direction of
 /// motion), "Compensation value lists" and "Comments in the ASCII file" (`# ` comment lines),
-/// the parameters P-COMP-00017 `unit` (1: metric, 0.1 µm), P-COMP-00018 `interval` (0: each
+/// the parameters P-COMP-00017 `unit` (1: metric, 0.1 µm; 0: encoder increments), P-COMP-00018 `interval` (0: each
 /// interpolation point given), P-COMP-00019 `kw_startpos`, P-COMP-00020 `kw_nr_max` (<
 /// P-COMP-00059, default 1500), P-COMP-00021 `bilateral`, P-COMP-00023/24 `table[i].pos|neg`
 /// (SGN32, "specified as absolute position errors": in the documented example
@@ -388,21 +432,29 @@ fn csv(b: &Bilateral) -> (String, Bilateral) {
 /// it by the uncompensated setpoint. So the value at setpoint s is s - c(s): what the stage
 /// would be off by if commanded s without correction, to the extent that the CNC's output
 /// s - Δ(s) is csmetro's command c(s). Setpoints and values are written as integers of
-/// 0.1 µm (SGN32 before CNC Build V3.1.3132.0); the logical axis number is 1 for x, 2 for y
-/// (edit `kopf.achs_nr` if the CNC numbers them otherwise).
+/// the unit, 0.1 µm or the given encoder increment (SGN32 before CNC Build V3.1.3132.0); the
+/// logical axis number is 1 for x, 2 for y (edit `kopf.achs_nr` if the CNC numbers them
+/// otherwise).
 fn twincat(
     t: &AxisTable,
     b: &Bilateral,
+    unit: LsecUnit,
     campaign: i64,
 ) -> Result<(String, Bilateral), ControllerError> {
     let n = b.nominal_um.len();
-    // Setpoints on the 0.1 µm lattice, inside the served range (ceil the first, floor the last).
+    let q_um = unit.um();
+    // Units per µm: exactly 10 for the metric list (as written before increments existed).
+    let per_um = match unit {
+        LsecUnit::Metric => 10.0,
+        LsecUnit::Increments(q) => 1.0 / q,
+    };
+    // Setpoints on the unit's lattice, inside the served range (ceil the first, floor the last).
     let mut s: Vec<i64> = b
         .nominal_um
         .iter()
         .enumerate()
         .map(|(k, &w)| {
-            let q = w * 10.0;
+            let q = w * per_um;
             (if k == 0 {
                 q.ceil()
             } else if k == n - 1 {
@@ -414,7 +466,7 @@ fn twincat(
         .collect();
     s.dedup();
     if s.len() < 2 || s.windows(2).any(|p| p[0] >= p[1]) {
-        // A served range shorter than the 0.1 µm lattice.
+        // A served range shorter than the unit's lattice.
         let (lo_um, hi_um) = t.range_um();
         return Err(ControllerError::EmptyRange {
             origin: t.origin.clone(),
@@ -429,8 +481,14 @@ fn twincat(
     };
     let mut pos = Vec::new();
     let mut neg = Vec::new();
+    if s.iter().any(|v| i32::try_from(*v).is_err()) {
+        return Err(ControllerError::Unit {
+            origin: t.origin.clone(),
+            unit_um: q_um,
+        });
+    }
     for &si in &s {
-        let w = si as f64 / 10.0;
+        let w = si as f64 / per_um;
         let err = |d: Direction| -> Result<i64, ControllerError> {
             let c = t
                 .command_um(d, w)
@@ -438,15 +496,24 @@ fn twincat(
                     origin: t.origin.clone(),
                     source,
                 })?;
-            Ok(((w - c) * 10.0).round() as i64)
+            Ok(((w - c) * per_um).round() as i64)
         };
         let (p, q) = (err(Direction::Forward)?, err(Direction::Backward)?);
         pos.push(p);
         neg.push(q);
         back.nominal_um.push(w);
-        back.forward_um.push(-(p as f64) / 10.0);
-        back.backward_um.push(-(q as f64) / 10.0);
+        back.forward_um.push(-(p as f64) / per_um);
+        back.backward_um.push(-(q as f64) / per_um);
     }
+    let (unit_flag, unit_line) = match unit {
+        LsecUnit::Metric => (1, "Lengths in 0.1 um (kw.ssfk.unit = 1).".to_string()),
+        LsecUnit::Increments(q) => (
+            0,
+            format!(
+                "Lengths in encoder increments of {q} um (kw.ssfk.unit = 0): valid only on an axis whose increment is {q} um."
+            ),
+        ),
+    };
     let name = t.axis.as_str().to_ascii_uppercase();
     let nr = match t.axis {
         AxisId::X => 1,
@@ -454,12 +521,13 @@ fn twincat(
     };
     let mut text = format!(
         "# csmetro campaign {campaign}, axis {name}: bilateral leadscrew error compensation (LSEC)\n\
-         # Lengths in 0.1 um (kw.ssfk.unit = 1). pos/neg: the position error at the setpoint for\n\
-         # motion in the positive/negative direction, taken off the setpoint (linear in between).\n\
-         # Served setpoints {} to {} (0.1 um); positions in the stage's own coordinates.\n\
+         # {unit_line}\n\
+         # pos/neg: the position error at the setpoint for motion in the positive/negative\n\
+         # direction, taken off the setpoint (linear in between).\n\
+         # Served setpoints {} to {} (list units); positions in the stage's own coordinates.\n\
          kopf.achs_nr                 {nr}\n\
          kopf.log_achs_name           {name}\n\
-         kw.ssfk.unit                 1\n\
+         kw.ssfk.unit                 {unit_flag}\n\
          kw.ssfk.bilateral            1\n\
          kw.ssfk.modulo               0\n\
          kw.ssfk.interval             0\n\
@@ -593,5 +661,31 @@ mod tests {
         assert!(c
             .text
             .starts_with("nominal_um,forward_correction_um,backward_correction_um\n"));
+    }
+
+    #[test]
+    fn encoder_increments_are_unit_0_and_round_to_half_an_increment() {
+        let t = table(10.0, 200.0, true);
+        let unit = LsecUnit::Increments(0.0035);
+        let tw = write_in(&t, Controller::TwinCatLsec, unit, 7, 0.01).unwrap();
+        assert!(tw.text.contains("kw.ssfk.unit                 0\n"));
+        assert!(tw.text.contains("increments of 0.0035 um"));
+        // Rounding to 0.0035 µm: at most half of it off (the metric list: 0.05 µm).
+        assert!(
+            tw.max_deviation_um <= 0.0035 / 2.0 + 1e-9,
+            "{}",
+            tw.max_deviation_um
+        );
+        let m = write(&t, Controller::TwinCatLsec, 7, 0.06).unwrap();
+        assert!(m.max_deviation_um > tw.max_deviation_um);
+        // A setpoint past the list's 32-bit integers is refused, not wrapped.
+        let far = write_in(
+            &t,
+            Controller::TwinCatLsec,
+            LsecUnit::Increments(1e-8),
+            7,
+            1.0,
+        );
+        assert!(matches!(far, Err(ControllerError::Unit { .. })), "{far:?}");
     }
 }

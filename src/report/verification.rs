@@ -300,13 +300,15 @@ img{max-width:100%;height:auto;display:block;margin:.5em 0}.note{color:#555;font
 
 /// `verify/report.html`: the verdict, the before/after table per axis (E, mean |e|, max |after|
 /// vs expected, pass/fail), the per-target table, the charts (PNG embedded, SVG linked) and
-/// the side-by-side text table. Self-contained but for the links next to it.
+/// the side-by-side text table. Self-contained but for the links next to it. `extra_html`
+/// (already escaped) goes under the before/after table: a map's ISO 230-1 figures and points.
 pub fn verify_html(
     title: &str,
     lead: &str,
     passed: bool,
     axes: &[AxisPage<'_>],
     table: &str,
+    extra_html: &str,
 ) -> String {
     let mut h = format!(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head><body>\n<h1>{t}</h1>\n",
@@ -339,6 +341,7 @@ pub fn verify_html(
         ));
     }
     h.push_str("</table>\n");
+    h.push_str(extra_html);
     for a in axes {
         h.push_str(&format!(
             "<h2>Axis {}</h2>\n<p class=\"note\">{}</p>\n",
@@ -389,29 +392,46 @@ const LINK_START: &str = "<!-- csmetro:verification -->";
 const LINK_END: &str = "<!-- /csmetro:verification -->";
 
 /// `report` (a characterisation's `report.html`) with a paragraph under its title linking to
-/// its verification at `href` (relative); a link an earlier verification left is replaced.
-/// `None` when the document has no title to put it under.
+/// its verification at `href` (relative), one paragraph per verification: the one an earlier
+/// verification at the same `href` left is replaced (`csmetro verify` writes one place), the
+/// others (verification campaigns, each its own results) are kept. `None` when the document
+/// has no title to put it under.
 pub fn with_verification_link(
     report: &str,
     href: &str,
     passed: bool,
     note: &str,
 ) -> Option<String> {
-    let block = format!(
-        "{LINK_START}<p>Verification: <a href=\"{}\">{}</a> {}</p>{LINK_END}\n",
-        esc(href),
+    let target = format!("href=\"{}\"", esc(href));
+    let entry = format!(
+        "<p>Verification: <a {target}>{}</a> {}</p>",
         if passed { "passed" } else { "FAILED" },
         esc(note)
     );
     if let (Some(a), Some(b)) = (report.find(LINK_START), report.find(LINK_END)) {
         if a < b {
+            let mut entries: Vec<&str> = report[a + LINK_START.len()..b]
+                .split_inclusive("</p>")
+                .map(str::trim)
+                .filter(|p| !p.is_empty() && !p.contains(&target))
+                .collect();
+            entries.push(&entry);
             let end = b + LINK_END.len();
             let end = end + usize::from(report[end..].starts_with('\n'));
-            return Some(format!("{}{block}{}", &report[..a], &report[end..]));
+            return Some(format!(
+                "{}{LINK_START}{}{LINK_END}\n{}",
+                &report[..a],
+                entries.concat(),
+                &report[end..]
+            ));
         }
     }
     let at = report.find("</h1>\n")? + "</h1>\n".len();
-    Some(format!("{}{block}{}", &report[..at], &report[at..]))
+    Some(format!(
+        "{}{LINK_START}{entry}{LINK_END}\n{}",
+        &report[..at],
+        &report[at..]
+    ))
 }
 
 #[cfg(test)]
@@ -538,7 +558,14 @@ mod tests {
             png: Some(&[1, 2, 3]),
             svg_name: Some("verify_x.svg".into()),
         };
-        let h = verify_html("verification <1>", "Stage s", false, &[a], "table & text");
+        let h = verify_html(
+            "verification <1>",
+            "Stage s",
+            false,
+            &[a],
+            "table & text",
+            "",
+        );
         assert!(h.contains("verification &lt;1&gt;") && h.contains("expected &lt;given&gt;"));
         assert!(
             h.contains("<td class=\"fail\">FAIL</td>")
@@ -554,6 +581,22 @@ mod tests {
         assert_eq!(two.matches(LINK_START).count(), 1, "{two}");
         assert!(two.contains("passed</a> (run 2)") && !two.contains("run 1"));
         assert!(two.ends_with("<p>State</p>\n"));
+        // A verification campaign's link is added beside it, and replaced by its own again.
+        let three =
+            with_verification_link(&two, "../../2/results/report.html", true, "(c 2)").unwrap();
+        let four =
+            with_verification_link(&three, "../../2/results/report.html", false, "(c 2)").unwrap();
+        assert_eq!(four.matches(LINK_START).count(), 1, "{four}");
+        assert_eq!(four.matches("<p>Verification: ").count(), 2, "{four}");
+        assert!(
+            four.contains("href=\"verify/report.html\">passed</a> (run 2)"),
+            "{four}"
+        );
+        assert!(
+            four.contains("href=\"../../2/results/report.html\">FAILED</a> (c 2)</p>"),
+            "{four}"
+        );
+        assert!(four.ends_with("<p>State</p>\n"));
         assert!(with_verification_link("<p>no title</p>", "x", true, "").is_none());
     }
 }

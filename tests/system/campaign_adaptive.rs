@@ -7,7 +7,6 @@ use crate::common;
 use std::path::Path;
 
 use common::{bin, json_of, repo};
-use csmetro::campaign::engine::CV_PLAUSIBLE;
 use csmetro::store::Store;
 
 const BUDGET: u64 = 160;
@@ -106,13 +105,16 @@ fn an_adaptive_sweep_stops_at_the_first_batch_whose_estimate_meets_the_target() 
             let scatter = d["scatter_um"].as_f64().unwrap();
             let cv = d["cv_error_um"].as_f64().unwrap();
             assert!(est > 0.0 && scatter >= 0.0 && cv > 0.0, "{d}");
-            // A pooled curve's cross-validated error is taken as it is.
-            let plausible = if d["pooled_m"].as_u64() > Some(0) {
-                1.0
-            } else {
-                CV_PLAUSIBLE
-            };
-            let meets = (est + scatter).max(cv / plausible) <= goal;
+            // The stop is on the band: its expected mean |error| u·√(2/π), mean u over the grid.
+            let band = d["band_error_um"].as_f64().unwrap();
+            let u_mean = d["u_mean_um"].as_f64().unwrap();
+            assert!(
+                (band - u_mean * (2.0 / std::f64::consts::PI).sqrt()).abs() < 1e-12,
+                "{d}"
+            );
+            let meets = band <= goal;
+            // Simulation: the decision records the true error of the curve it judged.
+            assert!(d["true_error_um"].as_f64().unwrap() > 0.0, "{d}");
             assert_eq!(d["stop"].as_bool(), Some(meets), "{d}");
             // Only the last decision of a sweep may stop it.
             assert_eq!(meets, k + 1 == decisions.len(), "{run}: {d}");

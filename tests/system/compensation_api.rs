@@ -123,6 +123,66 @@ fn a_verification_campaign_runs_on_the_service_and_its_verdict_is_served() {
         );
     }
     assert!(x["max_abs_after_um"].is_number() && x["expected_um"].is_number());
+    // The characterisation's report links to the verification: the served copy to the
+    // verification's served report, the one in its results folder to the file beside it.
+    let (s, page, _) = srv.request(
+        "GET",
+        &format!("/campaigns/{id}/results/report.html"),
+        None,
+        None,
+    );
+    assert_eq!(s, 200);
+    let page = String::from_utf8(page).unwrap();
+    let href = format!("../../{vid}/results/report.html");
+    assert!(
+        page.contains(&format!("<a href=\"{href}\">")),
+        "{:.600}",
+        &page[page.find("<h1>").unwrap_or(0)..]
+    );
+    // Resolved against /campaigns/{id}/results/report.html.
+    let (s, linked, _) = srv.request(
+        "GET",
+        &format!("/campaigns/{vid}/results/report.html"),
+        None,
+        None,
+    );
+    assert_eq!(s, 200);
+    assert!(String::from_utf8_lossy(&linked).contains(&format!("verification of campaign {id}")));
+    let finished_dir = |c: i64| -> std::path::PathBuf {
+        let ev = csmetro::store::Store::open(&srv.db())
+            .unwrap()
+            .events_after(c, 0)
+            .unwrap();
+        let d = ev
+            .iter()
+            .rev()
+            .find(|e| e.kind == "finished")
+            .and_then(|e| e.data["out_dir"].as_str().map(std::path::PathBuf::from))
+            .expect("finished event with out_dir");
+        if d.is_absolute() {
+            d
+        } else {
+            dir.path().join(d)
+        }
+    };
+    let (char_dir, ver_dir) = (finished_dir(id), finished_dir(vid));
+    let file = std::fs::read_to_string(char_dir.join("report.html")).unwrap();
+    let start = file
+        .find("<!-- csmetro:verification -->")
+        .expect("no link block");
+    let block = &file[start..file.find("<!-- /csmetro:verification -->").unwrap()];
+    let at = block.find("href=\"").unwrap() + 6;
+    let rel = &block[at..at + block[at..].find('"').unwrap()];
+    assert!(
+        rel.ends_with("/report.html") && !rel.starts_with('/'),
+        "{block}"
+    );
+    let resolved = char_dir.join(rel);
+    assert!(resolved.is_file(), "{} from {block}", resolved.display());
+    assert_eq!(
+        std::fs::canonicalize(resolved).unwrap(),
+        std::fs::canonicalize(ver_dir.join("report.html")).unwrap()
+    );
     // Both passes' samples are the campaign's (2 cycles x 2 directions x each target).
     let targets: usize = [
         "iso_targets_um",

@@ -105,6 +105,9 @@ fn compensated_two_axis_moves_land_within_the_verified_residual_on_both_axes() {
         for (i, (axis, want)) in [("x", x), ("y", y)].into_iter().enumerate() {
             let key = format!("measured_{axis}_um");
             let u = comp["axes"][i]["u_um"].as_f64().unwrap();
+            // No repeated cycles in the characterisation: no R, the landing's u is the table's.
+            assert!(comp["axes"][i]["repeatability_um"].is_null(), "{comp}");
+            assert_eq!(comp["axes"][i]["landing_u_um"].as_f64(), Some(u), "{comp}");
             let expected = [3.0 * u + repeat[i]; 2];
             let e0 = plain[&key].as_f64().unwrap() - want;
             let e1 = comp[&key].as_f64().unwrap() - want;
@@ -119,6 +122,24 @@ fn compensated_two_axis_moves_land_within_the_verified_residual_on_both_axes() {
         // Both axes moved, and each took the other's error on it into account.
         let axes = comp["axes"].as_array().unwrap();
         assert!(axes.iter().all(|a| a["cross_um"].is_number()), "{comp}");
+    }
+    // The text output says where the move is expected to land, at k = 2.
+    let o = bin()
+        .args(["move", "--stage", STAGE, "--db"])
+        .arg(db)
+        .args(["--x-um", "1234.5", "--y-um", "2100", "--compensation"])
+        .arg(results)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{text}");
+    for axis in ["x", "y"] {
+        assert!(
+            text.lines()
+                .any(|l| l.starts_with(&format!("{axis}: expected landing ±"))
+                    && l.contains("µm (k = 2; table u; no repeatability measured)")),
+            "{text}"
+        );
     }
     // The stage's error shows without the compensation (both axes), and is taken out with it.
     for i in 0..2 {

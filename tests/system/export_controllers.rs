@@ -142,11 +142,12 @@ fn linuxcnc_moves_to(t: &Table, d: Direction, w: f64) -> f64 {
 }
 
 /// TwinCAT CNC leadscrew error compensation list (Beckhoff Information System, TF5200 axis
-/// compensation, P-COMP-00017..00025): `name value` lines, `# ` comments; unit 1 = 0.1 µm;
+/// compensation, P-COMP-00017..00025): `name value` lines, `# ` comments; unit 1 = 0.1 µm,
+/// unit 0 = encoder increments (`increment_um`: what the CNC's axis parameters say);
 /// bilateral; interval 0 = each setpoint listed; pos/neg the position error (actual - setpoint)
 /// for motion in the positive/negative direction, which the CNC takes off the setpoint,
 /// interpolating linearly between setpoints. Returned as nominal + what the CNC adds.
-fn read_twincat(text: &str) -> Table {
+fn read_twincat(text: &str, increment_um: Option<f64>) -> Table {
     let mut kv = std::collections::HashMap::new();
     for line in text.lines() {
         let line = line.trim();
@@ -161,7 +162,11 @@ fn read_twincat(text: &str) -> Table {
         );
     }
     let int = |k: &str| -> i64 { kv[k].parse().unwrap_or_else(|_| panic!("{k} = {}", kv[k])) };
-    assert_eq!(int("kw.ssfk.unit"), 1);
+    let q = match (int("kw.ssfk.unit"), increment_um) {
+        (1, None) => 0.1,
+        (0, Some(q)) => q,
+        (u, q) => panic!("kw.ssfk.unit {u} on an axis with increment {q:?}"),
+    };
     assert_eq!(int("kw.ssfk.bilateral"), 1);
     assert_eq!(int("kw.ssfk.interval"), 0);
     assert_eq!(int("kopf.achs_nr"), 1);
@@ -173,17 +178,17 @@ fn read_twincat(text: &str) -> Table {
         backward: vec![],
     };
     for i in 0..n {
-        let s = int(&format!("kw.ssfk.table[{i}].setpoint")) as f64 / 10.0;
+        let s = int(&format!("kw.ssfk.table[{i}].setpoint")) as f64 * q;
         if let Some(&last) = t.nominal.last() {
             assert!(s > last);
         }
         t.nominal.push(s);
         t.forward
-            .push(-(int(&format!("kw.ssfk.table[{i}].pos")) as f64) / 10.0);
+            .push(-(int(&format!("kw.ssfk.table[{i}].pos")) as f64) * q);
         t.backward
-            .push(-(int(&format!("kw.ssfk.table[{i}].neg")) as f64) / 10.0);
+            .push(-(int(&format!("kw.ssfk.table[{i}].neg")) as f64) * q);
     }
-    assert_eq!(int("kw.ssfk.kw_startpos") as f64 / 10.0, t.nominal[0]);
+    assert_eq!(int("kw.ssfk.kw_startpos") as f64 * q, t.nominal[0]);
     t
 }
 
@@ -239,14 +244,23 @@ fn controllers_reading_the_exported_tables_command_what_csmetro_move_commands() 
     // What `csmetro move --compensation RESULTS` commands (its library function).
     let comp = Compensation::load(results).unwrap();
     let x = comp.table(AxisId::X).unwrap();
-    for (format, tol) in [("linuxcnc", 0.01), ("csv", 0.01), ("twincat-lsec", 0.051)] {
-        let out = dir.path().join(format!("x.{format}"));
+    // TwinCAT twice: in its metric unit (integers of 0.1 µm: within 0.05 µm + interpolation)
+    // and in encoder increments of 0.0035 µm (kw.ssfk.unit = 0: within the 0.01 µm).
+    for (format, increment, tol) in [
+        ("linuxcnc", None, 0.01),
+        ("csv", None, 0.01),
+        ("twincat-lsec", None, 0.051),
+        ("twincat-lsec", Some("0.0035"), 0.01),
+    ] {
+        let out = dir
+            .path()
+            .join(format!("x.{format}{}", increment.unwrap_or("")));
         let t0 = std::time::Instant::now();
-        let v = json_of(&export(
-            "1",
-            &["--format", format, "--axis", "x", "--json"],
-            &out,
-        ));
+        let mut args = vec!["--format", format, "--axis", "x", "--json"];
+        if let Some(q) = increment {
+            args.extend(["--increment-um", q]);
+        }
+        let v = json_of(&export("1", &args, &out));
         eprintln!("{format}: {v} ({:.2} s)", t0.elapsed().as_secs_f64());
         assert_eq!(v["axis"], "x");
         let text = std::fs::read_to_string(&out).unwrap();
@@ -254,7 +268,7 @@ fn controllers_reading_the_exported_tables_command_what_csmetro_move_commands() 
         let table = match format {
             "linuxcnc" => read_linuxcnc(&text),
             "csv" => read_csv(&text),
-            _ => read_twincat(&text),
+            _ => read_twincat(&text, increment.map(|q| q.parse().unwrap())),
         };
         assert_eq!(v["entries"].as_u64(), Some(table.nominal.len() as u64));
         let (lo, hi) = (
@@ -365,6 +379,41 @@ fn bad_requests_exit_2_and_write_nothing() {
         "--axis",
         &out,
     );
+    // An encoder increment only for TwinCAT, and a sane one.
+    refused(
+        &export(
+            "1",
+            &[
+                "--format",
+                "linuxcnc",
+                "--axis",
+                "x",
+                "--increment-um",
+                "0.0035",
+            ],
+            &out,
+        ),
+        "--increment-um applies to --format twincat-lsec",
+        &out,
+    );
+    for q in ["0", "-0.1", "nan", "11"] {
+        refused(
+            &export(
+                "1",
+                &[
+                    "--format",
+                    "twincat-lsec",
+                    "--axis",
+                    "x",
+                    "--increment-um",
+                    q,
+                ],
+                &out,
+            ),
+            "--increment-um must be a number of µm",
+            &out,
+        );
+    }
     refused(
         &export(
             "1",

@@ -126,9 +126,36 @@ fn a_map_compensates_two_axis_moves_and_its_verification_passes() {
         "verify/samples.csv",
         "verify/verify_x.svg",
         "verify/verify_y.png",
+        "verify/report.html",
     ] {
         assert!(results.join(f).is_file(), "{f}");
     }
+    // Its page: before/after per axis, ISO 230-1 before/after, every point, the charts.
+    let page = std::fs::read_to_string(results.join("verify/report.html")).unwrap();
+    for want in [
+        "<tr data-axis=\"x\">",
+        "<tr data-axis=\"y\">",
+        "<table data-table=\"iso230-1\">",
+        "squareness X to Y (µrad)",
+        "straightness X, e_y along x (µm)",
+        "<table data-table=\"points\">",
+        "href=\"verify_x.svg\"",
+        "data:image/png;base64,",
+        "href=\"../report.html\"",
+    ] {
+        assert!(page.contains(want), "{want} not in verify/report.html");
+    }
+    let rows = page.matches("<tr><td class=\"num\">").count();
+    assert!(
+        rows >= v["points_um"].as_array().unwrap().len(),
+        "{rows} rows"
+    );
+    // The characterisation's report links to it, and the link resolves.
+    let report = std::fs::read_to_string(results.join("report.html")).unwrap();
+    assert!(
+        report.contains("<a href=\"verify/report.html\">passed</a>"),
+        "no link in report.html"
+    );
     // The chart: before/after per point and the pass line.
     let svg = std::fs::read_to_string(results.join("verify/verify_x.svg")).unwrap();
     assert!(

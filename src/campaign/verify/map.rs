@@ -627,14 +627,177 @@ fn chart_checks(
     (checks, after_samples)
 }
 
+/// What a map's expected residual is made of, in words.
+fn basis(a: &MapAxisVerdict) -> String {
+    match a.expected_from {
+        "given" => format!("expected {:.3} µm (given)", a.expected_um),
+        _ => format!(
+            "expected {:.3} µm at every point: 3 x map CV error {} + unidirectional R {} + interpolation {:.3} µm; mean |error| reduced {:.1}x (needs ≥ 10x)",
+            a.expected_um,
+            opt(a.cv_error_um),
+            opt(a.repeatability_um),
+            a.interpolation_um,
+            a.mean_reduction
+        ),
+    }
+}
+
+/// `verify/report.html` of a map: before/after per axis (E n/a: ISO 230-2's E is a figure of
+/// one line's targets, not of scattered XY points), ISO 230-1 squareness and straightness
+/// before/after, every never-visited point's before/after means, the per-axis charts (`pngs`,
+/// embedded; their SVG beside the page) and the text table.
+pub fn page_html(v: &MapVerdict, pngs: &[(String, Vec<u8>)]) -> String {
+    use crate::report::html::esc;
+    use crate::report::verification::{verify_html, AxisPage};
+    let checks: Vec<Vec<TargetCheck>> = v
+        .axes
+        .iter()
+        .map(|a| {
+            AxisId::parse(&a.axis).map_or_else(Vec::new, |ax| chart_checks(v, ax, a.expected_um).0)
+        })
+        .collect();
+    let axes: Vec<AxisPage<'_>> = v
+        .axes
+        .iter()
+        .zip(&checks)
+        .map(|(a, c)| AxisPage {
+            axis: &a.axis,
+            e_before_um: f64::NAN,
+            e_after_um: f64::NAN,
+            mean_abs_before_um: a.mean_abs_before_um,
+            mean_abs_after_um: a.mean_abs_after_um,
+            max_abs_after_um: a.max_abs_after_um,
+            expected_um: a.expected_um,
+            expected_basis: basis(a),
+            passed: a.passed,
+            checks: c,
+            png: pngs
+                .iter()
+                .find(|(n, _)| *n == a.axis)
+                .map(|(_, b)| b.as_slice()),
+            svg_name: Some(format!("verify_{}.svg", a.axis)),
+        })
+        .collect();
+    let (b, f) = (&v.iso230_1_before, &v.iso230_1_after);
+    let num = |x: f64, d: usize| {
+        if x.is_finite() {
+            format!("{x:.d$}")
+        } else {
+            "n/a".into()
+        }
+    };
+    let mut extra = String::from(
+        "<h2>ISO 230-1 at the points</h2>\n<table data-table=\"iso230-1\"><tr><th>figure</th><th>before</th><th>after</th></tr>\n",
+    );
+    for (name, x, y, d) in [
+        (
+            "squareness X to Y (µrad)",
+            b.squareness_urad,
+            f.squareness_urad,
+            2,
+        ),
+        (
+            "straightness X, e_y along x (µm)",
+            b.straightness_x_um,
+            f.straightness_x_um,
+            3,
+        ),
+        (
+            "straightness Y, e_x along y (µm)",
+            b.straightness_y_um,
+            f.straightness_y_um,
+            3,
+        ),
+    ] {
+        extra.push_str(&format!(
+            "<tr><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td></tr>\n",
+            esc(name),
+            num(x, d),
+            num(y, d)
+        ));
+    }
+    extra.push_str("</table>\n");
+    extra.push_str(&format!(
+        "<p class=\"note\">From the lines of the {} x {} lattice (a few points per line: straightness is a lower bound). After / before squareness: {:.1} %.{}</p>\n",
+        v.columns,
+        v.rows,
+        100.0 * v.squareness_ratio,
+        match (v.squareness_map_urad, v.squareness_after_over_map) {
+            (Some(q), Some(r)) => format!(
+                " The map's own squareness (whole grid) {q:+.2} µrad: after is {:.1} % of it.",
+                100.0 * r
+            ),
+            _ => String::new(),
+        }
+    ));
+    // Each never-visited point: the mean error over cycles before and after, per direction.
+    let mut pts: BTreeMap<(usize, bool), [[Vec<f64>; 2]; 2]> = BTreeMap::new();
+    for (after, r) in &v.raw {
+        let key = (
+            r.target.grid_index,
+            r.target.run.direction == Direction::Forward,
+        );
+        let e = pts.entry(key).or_default();
+        for (k, ax) in [AxisId::X, AxisId::Y].into_iter().enumerate() {
+            e[usize::from(*after)][k].push(r.error_um(ax));
+        }
+    }
+    let mean = |x: &[f64]| {
+        if x.is_empty() {
+            f64::NAN
+        } else {
+            x.iter().sum::<f64>() / x.len() as f64
+        }
+    };
+    extra.push_str(
+        "<h2>Never-visited points</h2>\n<table data-table=\"points\"><tr><th>x (µm)</th><th>y (µm)</th><th>direction</th>\
+         <th>e_x before (µm)</th><th>e_x after (µm)</th><th>e_y before (µm)</th><th>e_y after (µm)</th></tr>\n",
+    );
+    for ((i, forward), e) in &pts {
+        let Some(p) = v.points_um.get(*i) else {
+            continue;
+        };
+        extra.push_str(&format!(
+            "<tr><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td></tr>\n",
+            num(p[0], 1),
+            num(p[1], 1),
+            if *forward { "forward" } else { "backward" },
+            num(mean(&e[0][0]), 3),
+            num(mean(&e[1][0]), 3),
+            num(mean(&e[0][1]), 3),
+            num(mean(&e[1][1]), 3),
+        ));
+    }
+    extra.push_str("</table>\n");
+    verify_html(
+        &format!(
+            "Verification of map campaign {} on stage {}",
+            v.campaign, v.stage
+        ),
+        &format!(
+            "Compensation: {}. {} never-visited XY points, directions {}, {} cycles; E (ISO 230-2) n/a: not a figure of scattered XY points.",
+            v.compensation,
+            v.points_um.len(),
+            v.directions.join(", "),
+            v.cycles
+        ),
+        v.passed,
+        &axes,
+        &table(v),
+        &extra,
+    )
+}
+
 /// The verification's result files (relative to the campaign's results): the table, the
-/// verdict, the samples and per axis the before/after chart with its pass line (SVG and PNG).
+/// verdict, the samples, per axis the before/after chart with its pass line (SVG and PNG), and
+/// `verify/report.html` with all of them.
 pub fn files(v: &MapVerdict) -> Vec<(String, String, Vec<u8>)> {
     let mut csv = crate::samples::layout_header();
     for (after, r) in &v.raw {
         csv.push_str(&crate::samples::layout_row(r, Some(*after)));
     }
     let mut charts = Vec::new();
+    let mut pngs = Vec::new();
     for a in &v.axes {
         let Some(axis) = AxisId::parse(&a.axis) else {
             continue;
@@ -656,11 +819,14 @@ pub fn files(v: &MapVerdict) -> Vec<(String, String, Vec<u8>)> {
             Err(e) => tracing::warn!(axis = %a.axis, error = %e, "verification chart not drawn"),
         }
         match verify_chart_png(&chart, &super::output::CHART) {
-            Ok(png) => charts.push((
-                format!("verify/verify_{}.png", a.axis),
-                "image/png".to_string(),
-                png,
-            )),
+            Ok(png) => {
+                pngs.push((a.axis.clone(), png.clone()));
+                charts.push((
+                    format!("verify/verify_{}.png", a.axis),
+                    "image/png".to_string(),
+                    png,
+                ));
+            }
             Err(e) => tracing::warn!(axis = %a.axis, error = %e, "verification chart not drawn"),
         }
     }
@@ -682,6 +848,11 @@ pub fn files(v: &MapVerdict) -> Vec<(String, String, Vec<u8>)> {
         ),
     ];
     files.extend(charts);
+    files.push((
+        super::REPORT_FILE.to_string(),
+        "text/html; charset=utf-8".to_string(),
+        page_html(v, &pngs).into_bytes(),
+    ));
     files
 }
 

@@ -216,6 +216,7 @@ pub fn page_html(v: &Verdict, pngs: &[(String, Vec<u8>)]) -> String {
         v.passed,
         &axes,
         &table(v),
+        "",
     )
 }
 
