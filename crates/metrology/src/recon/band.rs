@@ -335,8 +335,9 @@ mod tests {
         let chosen: Vec<(f64, f64)> = (0..200)
             .map(|i| (1.0, if i % 2 == 0 { 0.1 } else { -0.12 }))
             .collect();
+        // As good on average: |residual| 0.11 throughout against 0.10 / 0.12 alternately.
         let twin: Vec<(f64, f64)> = (0..200)
-            .map(|i| (1.0, if i % 3 == 0 { 0.1 } else { -0.11 }))
+            .map(|i| (1.0, if i % 4 < 2 { 0.11 } else { -0.11 }))
             .collect();
         let worse: Vec<(f64, f64)> = chosen.iter().map(|&(d, r)| (d, 2.0 * r)).collect();
         let w = choice_weight(&chosen, &twin);

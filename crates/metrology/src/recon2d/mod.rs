@@ -857,6 +857,26 @@ mod tests {
     }
 
     #[test]
+    fn the_distance_transform_matches_brute_force() {
+        let g = Grid2::new("0:5:60".parse().unwrap(), "0:2:30".parse().unwrap()).unwrap();
+        let (ix, iy) = (vec![0, 7, 12, 3], vec![2, 15, 0, 9]);
+        let d = nearest_sample_distance(&g, &ix, &iy);
+        for j in 0..g.y.n {
+            for i in 0..g.x.n {
+                let want = ix
+                    .iter()
+                    .zip(&iy)
+                    .map(|(&a, &b)| {
+                        (5.0 * (i as f64 - a as f64)).hypot(2.0 * (j as f64 - b as f64))
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                assert!((d[j * g.x.n + i] - want).abs() < 1e-9, "({i}, {j})");
+            }
+        }
+        assert!(nearest_sample_distance(&g, &[], &[])[0].is_infinite());
+    }
+
+    #[test]
     fn map_grids_are_bounded() {
         let x: Grid = "0:1:99999".parse().unwrap();
         let y: Grid = "0:1:99".parse().unwrap();
