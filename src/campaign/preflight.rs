@@ -11,11 +11,11 @@ use std::time::Duration;
 
 use csmetro_gcs::C863;
 use csmetro_gcs::{AxisQuery, Command};
-use csmetro_hal::{AxisError, Frame};
+use csmetro_hal::{AxisError, CameraError, Frame};
 use serde::Serialize;
 use serde_json::{json, Value};
 
-use super::rig::{self, Devices};
+use super::rig::{self, Devices, RigError};
 use super::spec::{Campaign, HardwareKind};
 use crate::types::AxisId;
 
@@ -201,7 +201,7 @@ pub async fn check_devices(c: &Campaign, opts: Options<'_>, report: &mut Report)
     let mut devices = match rig::open_devices(c, RECONNECT_ATTEMPTS).await {
         Ok(d) => d,
         Err(e) => {
-            report.push("rig", Class::Device, Err(e));
+            report.push("rig", Class::Device, Err(e.to_string()));
             return;
         }
     };
@@ -248,14 +248,14 @@ pub fn needed_span_um(c: &Campaign, a: AxisId) -> Option<(f64, f64)> {
 async fn check_axis(
     c: &Campaign,
     a: AxisId,
-    slot: &mut Result<C863, String>,
+    slot: &mut Result<C863, RigError>,
     report: &mut Report,
 ) -> Option<f64> {
     let names = ["controller", "axis", "limits", "referenced"].map(|n| format!("{a}: {n}"));
     let drv = match slot {
         Ok(d) => d,
         Err(e) => {
-            report.push(&names[0], Class::Device, Err(e.clone()));
+            report.push(&names[0], Class::Device, Err(e.to_string()));
             for n in &names[1..] {
                 report.skip(n, Class::Device, format!("controller {a} did not answer"));
             }
@@ -277,7 +277,7 @@ async fn check_axis(
             let cfg = drv.config().clone();
             let found = if cfg.axis != C863_AXIS {
                 // The port is free again only once this driver is gone.
-                *slot = Err(String::new());
+                *slot = Err(RigError::Taken);
                 axes_as_default(cfg.clone()).await
             } else {
                 None
@@ -505,19 +505,14 @@ async fn check_camera(
     encoders: [Option<f64>; 2],
     report: &mut Report,
 ) {
-    let cam = match std::mem::replace(&mut devices.camera, Err(String::new())) {
+    let cam = match std::mem::replace(&mut devices.camera, Err(RigError::Taken)) {
         Ok(cam) => {
             report.push("camera", Class::Device, Ok(cam.describe()));
             cam
         }
         Err(e) => {
             // A build without the camera's backend is the configuration's problem.
-            let class = if e.contains("built without") {
-                Class::Config
-            } else {
-                Class::Device
-            };
-            report.push("camera", class, Err(e));
+            report.push("camera", camera_class(&e), Err(e.to_string()));
             report.skip("pattern", Class::Device, "no camera");
             return;
         }
@@ -575,6 +570,15 @@ async fn check_camera(
         ),
     };
     report.push("pattern", class, verdict);
+}
+
+/// Who must act on a camera that did not open: the configuration when this build lacks its
+/// backend, else the device.
+fn camera_class(e: &RigError) -> Class {
+    match e {
+        RigError::Camera(CameraError::NotCompiled(_)) => Class::Config,
+        _ => Class::Device,
+    }
 }
 
 /// Whether the store at `db` can take writes, without writing to it: an existing database is
@@ -699,6 +703,20 @@ approach_um = {approach_um}
         std::fs::write(&file, "x").unwrap();
         // A path below a regular file can never hold a store.
         assert!(store_writable(&file.join("s.db")).is_err());
+    }
+
+    #[test]
+    fn a_camera_backend_this_build_lacks_is_the_configuration_s_problem() {
+        let lacking = RigError::Camera(CameraError::NotCompiled("aravis"));
+        assert_eq!(camera_class(&lacking), Class::Config);
+        assert!(
+            lacking
+                .to_string()
+                .contains("built without the `aravis` camera backend"),
+            "{lacking}"
+        );
+        let lost = RigError::Camera(CameraError::Disconnected("built without".into()));
+        assert_eq!(camera_class(&lost), Class::Device);
     }
 
     #[test]
