@@ -13,10 +13,11 @@ use tokio::sync::{broadcast, watch};
 use super::attempt::{Attempt, Finished};
 use super::compensate::stored;
 use super::engine::{Control, EndState, Outcome};
+use super::error::CampaignError;
 use super::events::{emit, lock, store_sample, Event, SharedStore};
 use super::spec::{Campaign, HardwareKind, SpecError};
 use super::verify::{self, prior_from_summary, Prior, Sink, VerifyError, VerifyOptions};
-use crate::store::Store;
+use crate::store::{Store, StoreError};
 use crate::tomlpos::{line_of, span_of};
 use crate::types::{AxisId, CampaignState, Origin, SampleRecord};
 
@@ -157,7 +158,7 @@ struct StoreSink {
 }
 
 impl Sink for StoreSink {
-    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, StoreError> {
         let fresh = store_sample(&self.store, &self.events, self.id, s)?;
         (self.on_sample)(s);
         Ok(fresh)
@@ -176,17 +177,17 @@ pub(super) async fn execute(
     control: watch::Receiver<Control>,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     origin: Origin,
-) -> Result<Finished, String> {
+) -> Result<Finished, CampaignError> {
     let (store, id) = (&run.store, run.id);
     let char_id = c
         .spec()
         .campaign
         .verify
-        .ok_or("not a verification campaign")?;
+        .ok_or(CampaignError::NotVerification)?;
     let t0 = std::time::Instant::now();
-    let fail = |msg: String| {
-        let msg = run.fail("verification", msg);
-        format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
+    let fail = |msg: String| CampaignError::NotStarted {
+        id,
+        msg: run.fail("verification", msg),
     };
     // Resolved again here: the characterisation may have gone since the file was loaded.
     let resolved = {
