@@ -243,6 +243,7 @@ pub async fn execute_with(
             );
         }
         Err(e) => {
+            let e = e.to_string();
             emit(&st2, &ev2, id, "reconstruction_failed", json!({"error": e}));
             rf2.lock().unwrap_or_else(|p| p.into_inner()).push(e);
         }
