@@ -677,7 +677,9 @@ mod tests {
         let mut rows: Vec<&str> = text.lines().collect();
         let nan_row = rows[3].rsplit_once(',').unwrap().0.to_string() + ",NaN";
         rows[3] = &nan_row;
-        let e = parse_csv("d.csv", &rows.join("\n")).unwrap_err().to_string();
+        let e = parse_csv("d.csv", &rows.join("\n"))
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("d.csv:4:") && e.contains("meas_y_um"), "{e}");
         let e = parse_csv("d.csv", "run,axis,direction,target_x_um\n1,x,forward,3\n")
             .unwrap_err()

@@ -476,7 +476,6 @@ pub async fn run(
         let limits = rig.axis(t.run.axis).soft_limits_um();
         comp.command(t.run.axis, t.run.direction, t.target_um(), limits)
             .map(drop)
-            .map_err(|e| e.to_string())
     });
     let compute_us_max = match checked {
         Ok(us) => us,
@@ -699,11 +698,11 @@ pub(super) async fn run_passes(
 
 /// Every compensated command of a verification computed before anything moves: the longest
 /// computation (µs), or the first refusal (the caller closes the rig).
-pub(super) fn precheck<T>(
+pub(super) fn precheck<T, E>(
     rig: &mut Rig,
     items: impl IntoIterator<Item = T>,
-    mut command: impl FnMut(&mut Rig, T) -> Result<(), String>,
-) -> Result<f64, String> {
+    mut command: impl FnMut(&mut Rig, T) -> Result<(), E>,
+) -> Result<f64, E> {
     let mut compute_us_max: f64 = 0.0;
     for item in items {
         let t0 = std::time::Instant::now();
