@@ -65,8 +65,8 @@ pub struct Report {
 }
 
 impl Report {
-    // Stays `Result<String, String>`: pass or fail, the detail is the report's text (shown
-    // and serialized as it is), not an error anyone branches on.
+    // Stays a text result: pass or fail, the detail is the report's text (shown and
+    // serialized as it is), not an error anyone branches on.
     pub fn push(&mut self, name: impl Into<String>, class: Class, r: Result<String, String>) {
         let (status, detail) = match r {
             Ok(d) => (Status::Ok, d),
