@@ -9,10 +9,7 @@ use crate::store::{Store, StoreError};
 /// Compensation of stored campaign `id` of `stage`: its result tables or maps.
 pub fn stored(store: &Store, id: i64, stage: &str) -> Result<Compensation, TableError> {
     Compensation::from_results(id, stage, |name| {
-        store
-            .result(id, name)
-            .map(|r| r.map(|(_, bytes)| bytes))
-            .map_err(|e| e.to_string())
+        store.result(id, name).map(|r| r.map(|(_, bytes)| bytes))
     })
 }
 
@@ -25,10 +22,9 @@ pub enum CompensateError {
     NoCampaign(i64),
     #[error(transparent)]
     Table(#[from] TableError),
-    /// The table does not fit the campaign (stage, range, direction): what
-    /// [`super::spec::fits`] says.
+    /// The table does not fit the campaign (stage, range, direction).
     #[error("compensation: {0}")]
-    Misfit(String),
+    Misfit(#[from] super::spec::Misfit),
 }
 
 /// The compensation campaign `c` runs with, resolved against `store` (`from = ID`) or its file.
@@ -47,6 +43,6 @@ pub fn for_campaign(
         (None, Some(f)) => Compensation::load(&c.resolve(f))?,
         (None, None) => return Ok(None),
     };
-    super::spec::fits(&comp, c).map_err(CompensateError::Misfit)?;
+    super::spec::fits(&comp, c)?;
     Ok(Some(Arc::new(comp)))
 }

@@ -143,7 +143,9 @@ pub(super) fn validate(
                 }
             }
             if let Some(m) = &s.model {
-                model = Some(load_model(m, trust).map_err(|e| fail("hardware.sim.model", e))?);
+                model = Some(
+                    load_model(m, trust).map_err(|e| fail("hardware.sim.model", e.to_string()))?,
+                );
             }
             let [tlo, thi] = s.travel_mm;
             if !(tlo.is_finite() && thi.is_finite() && tlo < thi && thi - tlo <= 15.0) {
@@ -320,7 +322,8 @@ pub(super) fn validate(
         ));
     }
     if let Trust::Submitted(_) = trust {
-        check_submitted_outputs(&spec.outputs.dir).map_err(|e| fail("outputs.dir", e))?;
+        check_submitted_outputs(&spec.outputs.dir)
+            .map_err(|e| fail("outputs.dir", e.to_string()))?;
     }
 
     let mut plans = Vec::new();
