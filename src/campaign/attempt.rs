@@ -160,6 +160,53 @@ impl Attempt {
         written
     }
 
+    /// Writes `summary.json` (store and output directory `dir`) with the campaign's final
+    /// `state` and `errors`, its own write's failure included: a failed write fails the
+    /// campaign and the summary is written again where it could be. `written`: the bytes stored
+    /// with the other result files; when the final summary reads the same, nothing is written.
+    pub fn write_summary(
+        &self,
+        summary: &mut Value,
+        state: &mut CampaignState,
+        errors: &mut Vec<String>,
+        dir: Option<&Path>,
+        written: Option<&[u8]>,
+    ) -> Result<(), serde_json::Error> {
+        let mut failed_before = false;
+        loop {
+            summary["state"] = json!(state.as_str());
+            summary["errors"] = json!(errors);
+            let bytes = serde_json::to_vec_pretty(summary)?;
+            if !failed_before && written == Some(bytes.as_slice()) {
+                return Ok(());
+            }
+            let mut failed = Vec::new();
+            let stored =
+                lock(&self.store).put_result(self.id, "summary.json", "application/json", &bytes);
+            if let Err(e) = stored {
+                failed.push(format!("results not stored (summary.json): {e}"));
+            }
+            if let Some(d) = dir {
+                if let Err(e) = std::fs::write(d.join("summary.json"), &bytes) {
+                    failed.push(format!("results not written (summary.json: {})", e.kind()));
+                }
+            }
+            if failed.is_empty() {
+                return Ok(());
+            }
+            // Said once: a second failure of the same write fails nothing more.
+            if failed_before {
+                for f in failed {
+                    tracing::warn!(campaign = self.id, error = %f, "summary.json not rewritten");
+                }
+                return Ok(());
+            }
+            failed_before = true;
+            errors.extend(failed);
+            *state = CampaignState::Failed;
+        }
+    }
+
     /// The end of a campaign that measured to its end: its state (failed with `errors`) and
     /// `finished` with the summary.
     pub fn finish(

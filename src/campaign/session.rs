@@ -397,12 +397,30 @@ pub async fn execute_with(
             errors.push(format!("NeXus file not written: {e}"));
         }
     }
-    let state = if errors.is_empty() {
+    let mut state = if errors.is_empty() {
         CampaignState::Done
     } else {
         CampaignState::Failed
     };
-    run.finish(state, errors, rep.summary, rep.table, outcome, written.ok())
+    // summary.json as stored says the state before the maps, the files and the NeXus file were
+    // written: their failures (and its own write's) go into it too.
+    let stored_summary = rep
+        .files
+        .iter()
+        .find(|(n, _, _)| n == "summary.json")
+        .map(|(_, _, b)| b.as_slice());
+    let mut summary = rep.summary.clone();
+    if let Err(e) = run.write_summary(
+        &mut summary,
+        &mut state,
+        &mut errors,
+        written.as_deref().ok(),
+        stored_summary,
+    ) {
+        errors.push(format!("summary.json: {e}"));
+        state = CampaignState::Failed;
+    }
+    run.finish(state, errors, summary, rep.table, outcome, written.ok())
 }
 
 /// Formats a Unix time as UTC, `2026-11-27 09:50:00 UTC` (civil date from days since the epoch,

@@ -305,31 +305,15 @@ pub(super) async fn execute(
     } else {
         CampaignState::Failed
     };
-    // summary.json says the campaign's state and errors, its own write's failure included:
-    // a failed write fails the campaign and the summary is written again where it could be.
-    let mut failed_before = false;
-    loop {
-        summary["state"] = json!(state.as_str());
-        summary["errors"] = json!(errors);
-        let json_bytes =
-            serde_json::to_vec_pretty(&summary).map_err(|e| fail(format!("summary.json: {e}")))?;
-        let mut failed = Vec::new();
-        let stored = lock(store).put_result(id, "summary.json", "application/json", &json_bytes);
-        if let Err(e) = stored {
-            failed.push(format!("results not stored (summary.json): {e}"));
-        }
-        if let Ok(d) = &written {
-            if let Err(e) = std::fs::write(d.join("summary.json"), &json_bytes) {
-                failed.push(format!("results not written (summary.json: {})", e.kind()));
-            }
-        }
-        if failed.is_empty() || failed_before {
-            break;
-        }
-        failed_before = true;
-        errors.extend(failed);
-        state = CampaignState::Failed;
-    }
+    // summary.json says the campaign's state and errors, its own write's failure included.
+    run.write_summary(
+        &mut summary,
+        &mut state,
+        &mut errors,
+        written.as_deref().ok(),
+        None,
+    )
+    .map_err(|e| fail(format!("summary.json: {e}")))?;
     run.finish(
         state,
         errors,
