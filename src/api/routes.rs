@@ -699,3 +699,67 @@ async fn verification(
         .map(Json)
         .map_err(|_| ApiError::internal("the stored verification is not JSON"))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_manager_s_errors_map_to_their_status_by_kind_with_their_text() {
+        let cases = [
+            (
+                ManagerError::NoCampaign(7),
+                StatusCode::NOT_FOUND,
+                "no campaign 7",
+            ),
+            (
+                ManagerError::Refused {
+                    id: 3,
+                    state: "done",
+                    what: "pause",
+                },
+                StatusCode::CONFLICT,
+                "campaign 3 is done: cannot pause it",
+            ),
+            (
+                ManagerError::ShuttingDown,
+                StatusCode::CONFLICT,
+                "the service is shutting down",
+            ),
+            (
+                ManagerError::OverQuota {
+                    used_mb: 9,
+                    max_mb: 8,
+                },
+                StatusCode::INSUFFICIENT_STORAGE,
+                "the store holds 9 MB",
+            ),
+            (
+                ManagerError::Preflight {
+                    class: Class::Config,
+                    message: "pre-flight check `camera` failed".into(),
+                },
+                StatusCode::CONFLICT,
+                "; the campaign was not queued",
+            ),
+            (
+                ManagerError::Preflight {
+                    class: Class::Device,
+                    message: "x".into(),
+                },
+                StatusCode::SERVICE_UNAVAILABLE,
+                "x; the campaign was not queued",
+            ),
+            (
+                ManagerError::Store,
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "the service's store failed (its log has the details)",
+            ),
+        ];
+        for (e, status, text) in cases {
+            let a = ApiError::from(e);
+            assert_eq!(a.status, status, "{}", a.message);
+            assert!(a.message.contains(text), "{}", a.message);
+        }
+    }
+}
