@@ -13,6 +13,9 @@ pub enum CampaignError {
     /// The stored file (or the characterisation a verification names) no longer validates.
     #[error(transparent)]
     Spec(#[from] SpecError),
+    /// The compensation tables of the characterisation a verification names.
+    #[error(transparent)]
+    Table(#[from] crate::compensation::TableError),
     #[error("no campaign {0} in the store")]
     NotStored(i64),
     #[error("not a verification campaign")]

@@ -192,19 +192,18 @@ pub(super) async fn execute(
     // Resolved again here: the characterisation may have gone since the file was loaded.
     let resolved = {
         let s = lock(store);
-        resolve(c, &s).map_err(|e| e.to_string()).and_then(|c| {
-            let comp = stored(&s, char_id, &c.spec().campaign.stage).map_err(|e| e.to_string())?;
+        resolve(c, &s).map_err(CampaignError::from).and_then(|c| {
+            let comp = stored(&s, char_id, &c.spec().campaign.stage)?;
             let summary: Value = s
                 .result(char_id, "summary.json")
                 .ok()
                 .flatten()
                 .and_then(|(_, b)| serde_json::from_slice(&b).ok())
                 .unwrap_or_default();
-            let measured = s.samples(char_id).map_err(|e| e.to_string())?;
+            let measured = s.samples(char_id)?;
             let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&measured, ax));
             let done: BTreeMap<u64, SampleRecord> = s
-                .samples(id)
-                .map_err(|e| e.to_string())?
+                .samples(id)?
                 .into_iter()
                 .map(|r| (r.target.seq, r))
                 .collect();
