@@ -15,4 +15,6 @@ pub mod samples;
 pub mod store;
 pub mod synth;
 mod tomlpos;
+/// Why a bounded file read failed (samples, tables, TOML files).
+pub use tomlpos::ReadError;
 pub mod types;

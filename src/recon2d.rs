@@ -8,11 +8,14 @@ pub use csmetro_metrology::recon2d::*;
 pub const MAX_MAP_SAMPLES_BYTES: u64 = 256 << 20;
 
 /// Reads `x_um,y_um,ex_um,ey_um[,theta_urad]`; every error is one line naming file and line.
-pub fn read_map_samples_csv(path: &Path, g: &Grid2) -> Result<MapSamples, String> {
-    let name = path.display();
+pub fn read_map_samples_csv(
+    path: &Path,
+    g: &Grid2,
+) -> Result<MapSamples, crate::samples::SamplesFileError> {
+    use crate::samples::SamplesFileError;
     let text = crate::tomlpos::read_bounded(path, MAX_MAP_SAMPLES_BYTES)
-        .map_err(|e| format!("{name}: cannot read: {e}"))?;
-    parse_map_samples_csv(&text, g).map_err(|(line, msg)| format!("{name}:{line}: {msg}"))
+        .map_err(SamplesFileError::read(path))?;
+    parse_map_samples_csv(&text, g).map_err(SamplesFileError::line(path))
 }
 
 /// Writes the map with the samples' header at every grid point, x fastest.

@@ -11,12 +11,51 @@ pub use csmetro_metrology::samples::{nearest_steps, GridSamples};
 /// bytes fits.
 pub const MAX_SAMPLES_BYTES: u64 = 64 << 20;
 
+/// Why a samples file (a curve's, a map's) was refused: one line naming the file, and the line.
+#[derive(Debug, thiserror::Error)]
+pub enum SamplesFileError {
+    #[error("{path}: cannot read: {source}")]
+    Read {
+        path: String,
+        source: crate::tomlpos::ReadError,
+    },
+    /// A line the parser refused, with its reason (the parsers, the metrology crate's among
+    /// them, say it in text).
+    #[error("{path}:{line}: {message}")]
+    Line {
+        path: String,
+        line: usize,
+        message: String,
+    },
+}
+
+impl SamplesFileError {
+    /// A bounded read of `path` that failed.
+    pub(crate) fn read(path: &Path) -> impl FnOnce(crate::tomlpos::ReadError) -> Self + '_ {
+        move |source| SamplesFileError::Read {
+            path: path.display().to_string(),
+            source,
+        }
+    }
+    /// A parser's `(line, reason)` for `path`.
+    pub(crate) fn line(path: &Path) -> impl FnOnce((usize, String)) -> Self + '_ {
+        move |(line, message)| SamplesFileError::Line {
+            path: path.display().to_string(),
+            line,
+            message,
+        }
+    }
+}
+
 /// Reads the samples of one error curve; every error is one line naming the file and line.
-pub fn read_samples_csv(path: &Path, grid: &Grid, sel: &Select) -> Result<GridSamples, String> {
-    let name = path.display();
+pub fn read_samples_csv(
+    path: &Path,
+    grid: &Grid,
+    sel: &Select,
+) -> Result<GridSamples, SamplesFileError> {
     let text = crate::tomlpos::read_bounded(path, MAX_SAMPLES_BYTES)
-        .map_err(|e| format!("{name}: cannot read: {e}"))?;
-    parse_samples_with(&text, grid, sel).map_err(|(line, msg)| format!("{name}:{line}: {msg}"))
+        .map_err(SamplesFileError::read(path))?;
+    parse_samples_with(&text, grid, sel).map_err(SamplesFileError::line(path))
 }
 
 /// At most 40 characters of a field for an error message (a field may be megabytes long).

@@ -85,14 +85,51 @@ pub enum StoreError {
     OutOfRange {
         path: String,
         op: String,
-        what: String,
+        what: RowError,
     },
     #[error("store {path}: {op}: corrupt row: {what}")]
     Corrupt {
         path: String,
         op: String,
-        what: String,
+        what: RowError,
     },
+}
+
+/// A value that does not fit its column, or a stored row that does not decode.
+#[derive(Debug, thiserror::Error)]
+pub enum RowError {
+    #[error("{what} = {value} is negative")]
+    Negative { what: &'static str, value: i64 },
+    #[error("{what} = {value} does not fit in u32")]
+    NotU32 { what: &'static str, value: i64 },
+    #[error("{what} = {value} exceeds {max}", max = i64::MAX)]
+    NotI64 { what: &'static str, value: u64 },
+    #[error("grid_index = {0}")]
+    GridIndexRange(usize),
+    #[error("raw_bits entry {0:?} is not name:hex")]
+    RawBitsEntry(String),
+    #[error("raw_bits names unknown column {0:?}")]
+    RawBitsColumn(String),
+    #[error("raw_bits entry {part:?}: {source}")]
+    RawBitsHex {
+        part: String,
+        source: std::num::ParseIntError,
+    },
+    /// An enumeration column (`phase`, `axis`, `direction`) with an unknown name.
+    #[error("seq {seq}: unknown {what} {value:?}")]
+    Unknown {
+        seq: u64,
+        what: &'static str,
+        value: String,
+    },
+    #[error("seq {seq}: grid_index = {value} is negative")]
+    NegativeGridIndex { seq: u64, value: i64 },
+    #[error("campaign {id}: unknown state {value:?}")]
+    State { id: i64, value: String },
+    #[error("event {id}: data is not JSON: {source}")]
+    EventJson { id: i64, source: serde_json::Error },
+    #[error("stage event {id}: data is not JSON: {source}")]
+    StageEventJson { id: i64, source: serde_json::Error },
 }
 
 /// One campaign as stored.
@@ -208,25 +245,25 @@ fn raw_bits(vals: &[f64; 10]) -> Option<String> {
     (!parts.is_empty()).then(|| parts.join(","))
 }
 
-fn u64_from(v: i64, what: &str) -> Result<u64, String> {
-    u64::try_from(v).map_err(|_| format!("{what} = {v} is negative"))
+fn u64_from(value: i64, what: &'static str) -> Result<u64, RowError> {
+    u64::try_from(value).map_err(|_| RowError::Negative { what, value })
 }
 
-fn u32_from(v: i64, what: &str) -> Result<u32, String> {
-    u32::try_from(v).map_err(|_| format!("{what} = {v} does not fit in u32"))
+fn u32_from(value: i64, what: &'static str) -> Result<u32, RowError> {
+    u32::try_from(value).map_err(|_| RowError::NotU32 { what, value })
 }
 
-fn i64_from(v: u64, what: &str) -> Result<i64, String> {
-    i64::try_from(v).map_err(|_| format!("{what} = {v} exceeds {}", i64::MAX))
+fn i64_from(value: u64, what: &'static str) -> Result<i64, RowError> {
+    i64::try_from(value).map_err(|_| RowError::NotI64 { what, value })
 }
 
-/// A raw sample row, decoded into a record (or a description of what is wrong with it).
-fn sample_from_row(row: &Row<'_>) -> rusqlite::Result<Result<SampleRecord, String>> {
+/// A raw sample row, decoded into a record (or what is wrong with it).
+fn sample_from_row(row: &Row<'_>) -> rusqlite::Result<Result<SampleRecord, RowError>> {
     sample_from_row_at(row, 0)
 }
 
 /// A sample whose [`SAMPLE_COLS`] start at column `o` of the row.
-fn sample_from_row_at(row: &Row<'_>, o: usize) -> rusqlite::Result<Result<SampleRecord, String>> {
+fn sample_from_row_at(row: &Row<'_>, o: usize) -> rusqlite::Result<Result<SampleRecord, RowError>> {
     let seq: i64 = row.get(o)?;
     let phase: String = row.get(o + 1)?;
     let axis: String = row.get(o + 2)?;
@@ -246,33 +283,42 @@ fn sample_from_row_at(row: &Row<'_>, o: usize) -> rusqlite::Result<Result<Sample
             for part in raw.split(',').filter(|p| !p.is_empty()) {
                 let (name, hex) = part
                     .split_once(':')
-                    .ok_or_else(|| format!("raw_bits entry {part:?} is not name:hex"))?;
+                    .ok_or_else(|| RowError::RawBitsEntry(part.to_string()))?;
                 let i = REAL_NAMES
                     .iter()
                     .position(|n| *n == name)
-                    .ok_or_else(|| format!("raw_bits names unknown column {name:?}"))?;
-                let bits = u64::from_str_radix(hex, 16)
-                    .map_err(|e| format!("raw_bits entry {part:?}: {e}"))?;
+                    .ok_or_else(|| RowError::RawBitsColumn(name.to_string()))?;
+                let bits = u64::from_str_radix(hex, 16).map_err(|source| RowError::RawBitsHex {
+                    part: part.to_string(),
+                    source,
+                })?;
                 vals[i] = f64::from_bits(bits);
             }
         }
         let seq = u64_from(seq, "seq")?;
+        let unknown = |what, value: &str| RowError::Unknown {
+            seq,
+            what,
+            value: value.to_string(),
+        };
         let [target_x_um, target_y_um, meas_x_um, meas_y_um, theta_mrad, encoder_um, time_s, unix_s, quality, point_s] =
             vals;
         Ok(SampleRecord {
             target: Target {
                 seq,
                 run: RunKey {
-                    phase: Phase::parse(&phase)
-                        .ok_or_else(|| format!("seq {seq}: unknown phase {phase:?}"))?,
-                    axis: AxisId::parse(&axis)
-                        .ok_or_else(|| format!("seq {seq}: unknown axis {axis:?}"))?,
+                    phase: Phase::parse(&phase).ok_or_else(|| unknown("phase", &phase))?,
+                    axis: AxisId::parse(&axis).ok_or_else(|| unknown("axis", &axis))?,
                     direction: parse_direction(&direction)
-                        .ok_or_else(|| format!("seq {seq}: unknown direction {direction:?}"))?,
+                        .ok_or_else(|| unknown("direction", &direction))?,
                     cycle: u32_from(cycle, "cycle")?,
                 },
-                grid_index: usize::try_from(grid_index)
-                    .map_err(|_| format!("seq {seq}: grid_index = {grid_index} is negative"))?,
+                grid_index: usize::try_from(grid_index).map_err(|_| {
+                    RowError::NegativeGridIndex {
+                        seq,
+                        value: grid_index,
+                    }
+                })?,
                 target_x_um,
                 target_y_um,
             },
@@ -297,7 +343,7 @@ fn parse_direction(s: &str) -> Option<Direction> {
 }
 
 /// A raw campaign row, decoded (or what is wrong with it).
-fn campaign_from_row(row: &Row<'_>) -> rusqlite::Result<Result<CampaignRow, String>> {
+fn campaign_from_row(row: &Row<'_>) -> rusqlite::Result<Result<CampaignRow, RowError>> {
     let id: i64 = row.get(0)?;
     let state: String = row.get(5)?;
     let planned: i64 = row.get(6)?;
@@ -315,8 +361,10 @@ fn campaign_from_row(row: &Row<'_>) -> rusqlite::Result<Result<CampaignRow, Stri
     };
     Ok((|| {
         Ok(CampaignRow {
-            state: CampaignState::parse(&state)
-                .ok_or_else(|| format!("campaign {id}: unknown state {state:?}"))?,
+            state: CampaignState::parse(&state).ok_or_else(|| RowError::State {
+                id,
+                value: state.clone(),
+            })?,
             planned: u64_from(planned, "planned")?,
             ..partial
         })
@@ -480,7 +528,7 @@ impl Store {
         }
     }
 
-    fn out_of_range(&self, op: &str, what: String) -> StoreError {
+    fn out_of_range(&self, op: &str, what: RowError) -> StoreError {
         StoreError::OutOfRange {
             path: self.shown(),
             op: op.into(),
@@ -488,7 +536,7 @@ impl Store {
         }
     }
 
-    fn corrupt(&self, op: &str, what: String) -> StoreError {
+    fn corrupt(&self, op: &str, what: RowError) -> StoreError {
         StoreError::Corrupt {
             path: self.shown(),
             op: op.into(),
@@ -665,7 +713,7 @@ impl Store {
         let t = &s.target;
         let seq = i64_from(t.seq, "seq").map_err(|w| self.out_of_range(OP, w))?;
         let grid_index = i64::try_from(t.grid_index)
-            .map_err(|_| self.out_of_range(OP, format!("grid_index = {}", t.grid_index)))?;
+            .map_err(|_| self.out_of_range(OP, RowError::GridIndexRange(t.grid_index)))?;
         let v = reals(s);
         let raw = raw_bits(&v);
         // NaN binds as NULL; -0.0 binds as 0.0; raw_bits has their exact bits.
@@ -877,9 +925,8 @@ impl Store {
             .map_err(|e| self.err(OP, e))?;
         rows.into_iter()
             .map(|(id, unix_s, kind, data)| {
-                let data = serde_json::from_str(&data).map_err(|e| {
-                    self.corrupt(OP, format!("stage event {id}: data is not JSON: {e}"))
-                })?;
+                let data = serde_json::from_str(&data)
+                    .map_err(|source| self.corrupt(OP, RowError::StageEventJson { id, source }))?;
                 Ok(StageEventRow {
                     id,
                     stage: stage.to_string(),
@@ -916,7 +963,7 @@ impl Store {
         rows.into_iter()
             .map(|(id, campaign, unix_s, kind, data)| {
                 let data = serde_json::from_str(&data)
-                    .map_err(|e| self.corrupt(OP, format!("event {id}: data is not JSON: {e}")))?;
+                    .map_err(|source| self.corrupt(OP, RowError::EventJson { id, source }))?;
                 Ok(EventRow {
                     id,
                     campaign,

@@ -17,6 +17,16 @@ pub struct SynthProblem {
     pub samples: GridSamples,
 }
 
+/// Why a synthetic problem could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum SynthError {
+    /// The design's own reason (the metrology crate reports it in text).
+    #[error("{0}")]
+    Design(String),
+    #[error(transparent)]
+    Noise(#[from] rand_distr::NormalError),
+}
+
 /// Builds the truth from `curve_seed`, samples it with `design` and adds N(0, noise_um²).
 pub fn problem(
     grid: &Grid,
@@ -24,12 +34,12 @@ pub fn problem(
     params: &ReferenceCurveParams,
     design: &Design,
     noise_um: f64,
-) -> Result<SynthProblem, String> {
+) -> Result<SynthProblem, SynthError> {
     let model = paper_like_model(curve_seed, params);
     let truth = error_curve(&model, AxisId::X, &grid.positions(), 0.0);
-    let idx = design.indices(grid.n)?;
+    let idx = design.indices(grid.n).map_err(SynthError::Design)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(design.seed ^ 0x05ee_d0f0_015e);
-    let noise = Normal::new(0.0, noise_um.max(0.0)).map_err(|e| e.to_string())?;
+    let noise = Normal::new(0.0, noise_um.max(0.0))?;
     let values = idx
         .iter()
         .map(|&i| truth[i] + noise.sample(&mut rng))

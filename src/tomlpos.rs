@@ -73,42 +73,52 @@ pub(crate) const MAX_TOML_BYTES: u64 = 1 << 20;
 /// Reads a regular file of at most `limit` bytes as UTF-8. Devices, fifos, directories and
 /// kernel files (/proc, /sys) are refused before a byte is read (`/dev/zero` would never end),
 /// and the read stops one byte past the limit whatever the file's metadata claims.
-pub(crate) fn read_bounded(path: &Path, limit: u64) -> Result<String, String> {
+pub(crate) fn read_bounded(path: &Path, limit: u64) -> Result<String, ReadError> {
     let bytes = read_bounded_bytes(path, limit)?;
-    String::from_utf8(bytes).map_err(|_| "not UTF-8 text".into())
+    String::from_utf8(bytes).map_err(|_| ReadError::NotUtf8)
+}
+
+/// Why [`read_bounded`] refused a file; the text names no path (callers put it in front).
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    #[error("{}", io_reason(.0))]
+    Io(#[from] std::io::Error),
+    #[error("not a regular file")]
+    NotRegular,
+    #[error("larger than {0} bytes")]
+    TooLarge(u64),
+    #[error("not UTF-8 text")]
+    NotUtf8,
 }
 
 /// [`read_bounded`] without the UTF-8 check: the bytes of a regular file of at most `limit`
 /// bytes (PNG frames).
-pub(crate) fn read_bounded_bytes(path: &Path, limit: u64) -> Result<Vec<u8>, String> {
+pub(crate) fn read_bounded_bytes(path: &Path, limit: u64) -> Result<Vec<u8>, ReadError> {
     // Before opening: opening a fifo blocks until someone writes to it.
-    let meta = std::fs::metadata(path).map_err(|e| io_reason(&e))?;
+    let meta = std::fs::metadata(path)?;
     // Kernel files (/proc, /sys) pass for regular ones of size 0.
     let kernel = path
         .canonicalize()
         .is_ok_and(|p| p.starts_with("/proc") || p.starts_with("/sys"));
     if !meta.is_file() || kernel {
-        return Err("not a regular file".into());
+        return Err(ReadError::NotRegular);
     }
-    let file = std::fs::File::open(path).map_err(|e| io_reason(&e))?;
-    let meta = file.metadata().map_err(|e| io_reason(&e))?;
+    let file = std::fs::File::open(path)?;
+    let meta = file.metadata()?;
     if !meta.is_file() {
-        return Err("not a regular file".into());
+        return Err(ReadError::NotRegular);
     }
     if meta.len() > limit {
-        return Err(format!("larger than {limit} bytes"));
+        return Err(ReadError::TooLarge(limit));
     }
     let mut bytes = Vec::new();
-    file.take(limit + 1)
-        .read_to_end(&mut bytes)
-        .map_err(|e| io_reason(&e))?;
+    file.take(limit + 1).read_to_end(&mut bytes)?;
     if bytes.len() as u64 > limit {
-        return Err(format!("larger than {limit} bytes"));
+        return Err(ReadError::TooLarge(limit));
     }
     Ok(bytes)
 }
 
-/// An I/O error without the path or the OS's wording beyond its kind.
 pub(crate) fn io_reason(e: &std::io::Error) -> String {
     use std::io::ErrorKind as K;
     match e.kind() {

@@ -282,20 +282,27 @@ impl Origin {
     }
 }
 
+/// Why an operator name was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum OperatorError {
+    #[error("operator name longer than {MAX_OPERATOR_BYTES} bytes")]
+    TooLong,
+    #[error("operator name with control characters")]
+    Control,
+}
+
 /// An operator name as given by a user: trimmed, at most [`MAX_OPERATOR_BYTES`], no control
 /// characters. `Ok(None)` when empty.
-pub fn check_operator(name: &str) -> Result<Option<String>, String> {
+pub fn check_operator(name: &str) -> Result<Option<String>, OperatorError> {
     let n = name.trim();
     if n.is_empty() {
         return Ok(None);
     }
     if n.len() > MAX_OPERATOR_BYTES {
-        return Err(format!(
-            "operator name longer than {MAX_OPERATOR_BYTES} bytes"
-        ));
+        return Err(OperatorError::TooLong);
     }
     if n.chars().any(char::is_control) {
-        return Err("operator name with control characters".into());
+        return Err(OperatorError::Control);
     }
     Ok(Some(n.to_string()))
 }

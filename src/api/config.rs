@@ -353,7 +353,7 @@ impl ServiceConfig {
 /// A log filter: comma-separated `level` or `target=level` directives (`info,csmetro=debug`).
 /// Stricter than `Targets`' own parser, which takes any word as a target name: a typo must not
 /// silently log everything of a target nobody has.
-pub fn parse_log_filter(s: &str) -> Result<tracing_subscriber::filter::Targets, String> {
+pub fn parse_log_filter(s: &str) -> Result<tracing_subscriber::filter::Targets, LogFilterError> {
     const LEVELS: [&str; 6] = ["trace", "debug", "info", "warn", "error", "off"];
     let is_level = |l: &str| LEVELS.contains(&l.to_ascii_lowercase().as_str());
     let is_target = |t: &str| {
@@ -367,13 +367,21 @@ pub fn parse_log_filter(s: &str) -> Result<tracing_subscriber::filter::Targets, 
             None => is_level(d),
         };
         if !ok {
-            return Err(format!(
-                "`{d}` is not `level` or `target=level` (levels: {})",
-                LEVELS.join(", ")
-            ));
+            return Err(LogFilterError::Directive(d.to_string()));
         }
     }
-    s.parse().map_err(|e| format!("{e}"))
+    Ok(s.parse()?)
+}
+
+/// A log filter that does not parse.
+#[derive(Debug, thiserror::Error)]
+pub enum LogFilterError {
+    #[error(
+        "`{0}` is not `level` or `target=level` (levels: trace, debug, info, warn, error, off)"
+    )]
+    Directive(String),
+    #[error(transparent)]
+    Parse(#[from] tracing_subscriber::filter::ParseError),
 }
 
 #[cfg(test)]

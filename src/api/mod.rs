@@ -77,12 +77,28 @@ async fn stop_signal() {
     }
 }
 
+/// Why the service could not start or stopped on its own.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
+    #[error("cannot listen on {bind}: {source}")]
+    Listen {
+        bind: String,
+        source: std::io::Error,
+    },
+    #[error("listening socket: {0}")]
+    Socket(std::io::Error),
+    #[error("server: {0}")]
+    Server(std::io::Error),
+}
+
 /// Runs the service until SIGINT/SIGTERM: opens the store, binds, prints the listening URL as
 /// the first stdout line, resumes unfinished campaigns, tells systemd READY=1 and pings its
 /// watchdog; on a signal tells STOPPING=1, stops the campaigns (motion first, resumable) and
 /// waits for them up to [`SHUTDOWN_GRACE`].
-pub async fn run(cfg: ServiceConfig) -> Result<(), String> {
-    let store = crate::store::Store::open(&cfg.db).map_err(|e| e.to_string())?;
+pub async fn run(cfg: ServiceConfig) -> Result<(), ServiceError> {
+    let store = crate::store::Store::open(&cfg.db)?;
     let store = Arc::new(Mutex::new(store));
     let manager = Manager::new(
         store.clone(),
@@ -92,10 +108,11 @@ pub async fn run(cfg: ServiceConfig) -> Result<(), String> {
     );
     let listener = tokio::net::TcpListener::bind(cfg.bind)
         .await
-        .map_err(|e| format!("cannot listen on {}: {e}", cfg.bind))?;
-    let addr = listener
-        .local_addr()
-        .map_err(|e| format!("listening socket: {e}"))?;
+        .map_err(|source| ServiceError::Listen {
+            bind: cfg.bind.to_string(),
+            source,
+        })?;
+    let addr = listener.local_addr().map_err(ServiceError::Socket)?;
     {
         use std::io::Write;
         let mut out = std::io::stdout().lock();
@@ -168,8 +185,8 @@ pub async fn run(cfg: ServiceConfig) -> Result<(), String> {
         );
     }
     match early {
-        Some(r) => r.map_err(|e| format!("server: {e}"))?,
-        None => server.await.map_err(|e| format!("server: {e}"))?,
+        Some(r) => r.map_err(ServiceError::Server)?,
+        None => server.await.map_err(ServiceError::Server)?,
     }
     tracing::info!("stopped");
     Ok(())

@@ -75,7 +75,8 @@ pub fn api_prepare(m: &Manager, stage: &str, body: &[u8]) -> Result<Prepared, Ap
         approach_um: b.approach_um.unwrap_or(50.0),
         measure: b.measure,
     };
-    req.check().map_err(ApiError::bad_request)?;
+    req.check()
+        .map_err(|e| ApiError::bad_request(e.to_string()))?;
     if m.shutting_down() {
         return Err(ApiError::conflict("the service is shutting down"));
     }

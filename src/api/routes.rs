@@ -53,7 +53,9 @@ use serde_json::json;
 use tokio::sync::{broadcast, mpsc};
 
 use super::guard::{token_matches, BodyKind, Guard};
+use super::manager::ManagerError;
 use super::{ApiError, CampaignStatus, Manager};
+use crate::campaign::preflight::Class;
 use crate::campaign::session::Event;
 use crate::campaign::spec::{Campaign, SubmitPolicy};
 use crate::types::{check_operator, CampaignState, Origin};
@@ -104,6 +106,26 @@ impl IntoResponse for ApiError {
 }
 
 type ApiResult<T> = Result<T, ApiError>;
+
+/// The manager's errors at the HTTP edge: the status code by kind, the message as it reads.
+impl From<ManagerError> for ApiError {
+    fn from(e: ManagerError) -> Self {
+        let status = match &e {
+            ManagerError::NoCampaign(_) | ManagerError::NoResult { .. } => StatusCode::NOT_FOUND,
+            ManagerError::Refused { .. }
+            | ManagerError::ShuttingDown
+            | ManagerError::QueueFull { .. } => StatusCode::CONFLICT,
+            ManagerError::OverQuota { .. } => StatusCode::INSUFFICIENT_STORAGE,
+            ManagerError::Invalid(_) => StatusCode::BAD_REQUEST,
+            ManagerError::Preflight { class, .. } => match class {
+                Class::Config => StatusCode::CONFLICT,
+                Class::Device | Class::View => StatusCode::SERVICE_UNAVAILABLE,
+            },
+            ManagerError::NotRecorded | ManagerError::Store => StatusCode::INTERNAL_SERVER_ERROR,
+        };
+        ApiError::new(status, e.to_string())
+    }
+}
 
 /// The service's routes; `token`: the bearer token every request must carry, if any;
 /// `policy`: what a submitted campaign may read and write; `guard`: which hosts, origins and
@@ -240,13 +262,13 @@ async fn list(State(app): State<App>) -> ApiResult<Json<Vec<CampaignStatus>>> {
 
 /// Store calls take the store's mutex and touch the disk: keep them off the async workers. The
 /// call runs inside the runtime: submitting, resuming and aborting schedule tasks on it.
-async fn blocking<T: Send + 'static>(
-    f: impl FnOnce() -> ApiResult<T> + Send + 'static,
+async fn blocking<T: Send + 'static, E: Into<ApiError> + Send + 'static>(
+    f: impl FnOnce() -> Result<T, E> + Send + 'static,
 ) -> ApiResult<T> {
     let rt = tokio::runtime::Handle::current();
     tokio::task::spawn_blocking(move || {
         let _g = rt.enter();
-        f()
+        f().map_err(Into::into)
     })
     .await
     .map_err(|e| ApiError::internal(e.to_string()))?
@@ -295,7 +317,7 @@ async fn submit(
         let origin = submitted_origin(&name);
         Campaign::parse_submitted(&text, &origin, &policy)
             .map_err(|e| ApiError::bad_request(e.to_string()))?;
-        m.submit_by(&text, &name, &who)
+        Ok::<_, ApiError>(m.submit_by(&text, &name, &who)?)
     })
     .await?;
     Ok((StatusCode::CREATED, Json(st)))
@@ -476,7 +498,7 @@ async fn events(
             let last = log.last().map_or(after, |e| e.id);
             log.extend(m2.events_after(id, last)?);
         }
-        Ok((st, log))
+        Ok::<_, ManagerError>((st, log))
     })
     .await?;
     let (tx, rx) = mpsc::channel::<SseEvent>(256);
@@ -663,13 +685,81 @@ async fn verification(
     Path(id): Path<i64>,
 ) -> ApiResult<Json<serde_json::Value>> {
     let m = app.manager.clone();
-    let (_, bytes) = blocking(move || m.result(id, crate::campaign::verify::VERDICT_FILE))
-        .await
-        .map_err(|e| match e.status {
-            StatusCode::NOT_FOUND => ApiError::not_found(format!("no verification: {}", e.message)),
-            _ => e,
-        })?;
+    let (_, bytes) = blocking(move || {
+        m.result(id, crate::campaign::verify::VERDICT_FILE)
+            .map_err(|e| match &e {
+                ManagerError::NoCampaign(_) | ManagerError::NoResult { .. } => {
+                    ApiError::not_found(format!("no verification: {e}"))
+                }
+                _ => ApiError::from(e),
+            })
+    })
+    .await?;
     serde_json::from_slice(&bytes)
         .map(Json)
         .map_err(|_| ApiError::internal("the stored verification is not JSON"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_manager_s_errors_map_to_their_status_by_kind_with_their_text() {
+        let cases = [
+            (
+                ManagerError::NoCampaign(7),
+                StatusCode::NOT_FOUND,
+                "no campaign 7",
+            ),
+            (
+                ManagerError::Refused {
+                    id: 3,
+                    state: "done",
+                    what: "pause",
+                },
+                StatusCode::CONFLICT,
+                "campaign 3 is done: cannot pause it",
+            ),
+            (
+                ManagerError::ShuttingDown,
+                StatusCode::CONFLICT,
+                "the service is shutting down",
+            ),
+            (
+                ManagerError::OverQuota {
+                    used_mb: 9,
+                    max_mb: 8,
+                },
+                StatusCode::INSUFFICIENT_STORAGE,
+                "the store holds 9 MB",
+            ),
+            (
+                ManagerError::Preflight {
+                    class: Class::Config,
+                    message: "pre-flight check `camera` failed".into(),
+                },
+                StatusCode::CONFLICT,
+                "; the campaign was not queued",
+            ),
+            (
+                ManagerError::Preflight {
+                    class: Class::Device,
+                    message: "x".into(),
+                },
+                StatusCode::SERVICE_UNAVAILABLE,
+                "x; the campaign was not queued",
+            ),
+            (
+                ManagerError::Store,
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "the service's store failed (its log has the details)",
+            ),
+        ];
+        for (e, status, text) in cases {
+            let a = ApiError::from(e);
+            assert_eq!(a.status, status, "{}", a.message);
+            assert!(a.message.contains(text), "{}", a.message);
+        }
+    }
 }

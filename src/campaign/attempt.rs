@@ -8,7 +8,9 @@ use serde_json::{json, Value};
 use tokio::sync::broadcast;
 
 use super::engine::Outcome;
+use super::error::CampaignError;
 use super::events::{emit, lock, Event, SharedStore};
+use super::results::ResultsError;
 use super::spec::Campaign;
 use crate::types::{CampaignState, Origin};
 
@@ -45,12 +47,11 @@ impl Attempt {
         name: &str,
         origin: &Origin,
         verify: Option<i64>,
-    ) -> Result<(), String> {
+    ) -> Result<(), CampaignError> {
         {
             let s = lock(&self.store);
-            s.set_planned(self.id, planned).map_err(|e| e.to_string())?;
-            s.set_state(self.id, CampaignState::Running, None)
-                .map_err(|e| e.to_string())?;
+            s.set_planned(self.id, planned)?;
+            s.set_state(self.id, CampaignState::Running, None)?;
         }
         let mut data = json!({"planned": planned, "stored": stored, "name": name,
                               "by": origin.describe(), "origin": origin});
@@ -92,17 +93,16 @@ impl Attempt {
         reason: &str,
         data: Value,
         outcome: Outcome,
-    ) -> Result<Finished, String> {
+    ) -> Result<Finished, CampaignError> {
         let id = self.id;
         // Not stored, an aborted campaign would be left `running` and resumed by the
         // service's next start: an error, not a finished campaign.
         lock(&self.store)
             .set_state(id, state, Some(reason))
-            .map_err(|e| {
-                format!(
-                    "campaign {id}: motion stopped, but its state ({}) was not stored: {e}",
-                    state.as_str()
-                )
+            .map_err(|source| CampaignError::HaltNotStored {
+                id,
+                state: state.as_str(),
+                source: Box::new(source),
             })?;
         self.emit("finished", data);
         Ok(Finished {
@@ -132,7 +132,7 @@ impl Attempt {
         store_id: &str,
         files: &[(String, String, Vec<u8>)],
         errors: &mut Vec<String>,
-    ) -> Result<PathBuf, String> {
+    ) -> Result<PathBuf, ResultsError> {
         let id = self.id;
         let mut store_err = None;
         {
@@ -153,11 +153,58 @@ impl Attempt {
             tracing::warn!(error = %e, dir = %wanted.display(), "result files not written");
             self.emit(
                 "error",
-                json!({"cause": "results", "error": e, "resumable": false}),
+                json!({"cause": "results", "error": e.to_string(), "resumable": false}),
             );
-            errors.push(e.clone());
+            errors.push(e.to_string());
         }
         written
+    }
+
+    /// Writes `summary.json` (store and output directory `dir`) with the campaign's final
+    /// `state` and `errors`, its own write's failure included: a failed write fails the
+    /// campaign and the summary is written again where it could be. `written`: the bytes stored
+    /// with the other result files; when the final summary reads the same, nothing is written.
+    pub fn write_summary(
+        &self,
+        summary: &mut Value,
+        state: &mut CampaignState,
+        errors: &mut Vec<String>,
+        dir: Option<&Path>,
+        written: Option<&[u8]>,
+    ) -> Result<(), serde_json::Error> {
+        let mut failed_before = false;
+        loop {
+            summary["state"] = json!(state.as_str());
+            summary["errors"] = json!(errors);
+            let bytes = serde_json::to_vec_pretty(summary)?;
+            if !failed_before && written == Some(bytes.as_slice()) {
+                return Ok(());
+            }
+            let mut failed = Vec::new();
+            let stored =
+                lock(&self.store).put_result(self.id, "summary.json", "application/json", &bytes);
+            if let Err(e) = stored {
+                failed.push(format!("results not stored (summary.json): {e}"));
+            }
+            if let Some(d) = dir {
+                if let Err(e) = std::fs::write(d.join("summary.json"), &bytes) {
+                    failed.push(format!("results not written (summary.json: {})", e.kind()));
+                }
+            }
+            if failed.is_empty() {
+                return Ok(());
+            }
+            // Said once: a second failure of the same write fails nothing more.
+            if failed_before {
+                for f in failed {
+                    tracing::warn!(campaign = self.id, error = %f, "summary.json not rewritten");
+                }
+                return Ok(());
+            }
+            failed_before = true;
+            errors.extend(failed);
+            *state = CampaignState::Failed;
+        }
     }
 
     /// The end of a campaign that measured to its end: its state (failed with `errors`) and
@@ -170,11 +217,9 @@ impl Attempt {
         table: String,
         outcome: Outcome,
         out_dir: Option<PathBuf>,
-    ) -> Result<Finished, String> {
+    ) -> Result<Finished, CampaignError> {
         let message = (!errors.is_empty()).then(|| errors.join("; "));
-        lock(&self.store)
-            .set_state(self.id, state, message.as_deref())
-            .map_err(|e| e.to_string())?;
+        lock(&self.store).set_state(self.id, state, message.as_deref())?;
         summary["state"] = json!(state.as_str());
         summary["errors"] = json!(errors);
         // `out_dir`: where the results folder went, so a later verification campaign can link
@@ -196,7 +241,7 @@ impl Attempt {
 }
 
 /// Writes the result files under `dir`; the first failure names the file (relative to `dir`).
-pub fn write_files(dir: &Path, files: &[(String, String, Vec<u8>)]) -> Result<(), String> {
+pub fn write_files(dir: &Path, files: &[(String, String, Vec<u8>)]) -> Result<(), ResultsError> {
     let mut first = None;
     for (name, _, bytes) in files {
         let p = dir.join(name);
@@ -205,11 +250,9 @@ pub fn write_files(dir: &Path, files: &[(String, String, Vec<u8>)]) -> Result<()
             None => std::fs::write(&p, bytes),
         };
         if let Err(e) = r {
-            first.get_or_insert_with(|| {
-                format!(
-                    "results not written to the output directory ({name}: {}); they are in the store",
-                    e.kind()
-                )
+            first.get_or_insert_with(|| ResultsError::Write {
+                name: name.clone(),
+                kind: e.kind(),
             });
         }
     }

@@ -21,6 +21,7 @@ use super::plan::{Batch, Plan};
 use super::rig::Rig;
 use super::spec::Campaign;
 use super::worker::StopEstimate;
+use crate::store::StoreError;
 use crate::types::{AxisId, Phase, RunKey, SampleRecord, Target};
 
 mod map;
@@ -46,7 +47,7 @@ impl Control {
 /// Where samples and events go: the store, the worker, the API. Called on the engine's task.
 pub trait Recorder: Send {
     /// Commits one sample; `Ok(false)` when its target was stored already.
-    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String>;
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, StoreError>;
     fn event(&mut self, kind: &str, data: serde_json::Value);
     /// A run (one sweep) has all its samples.
     fn run_done(&mut self, run: RunKey);
@@ -163,7 +164,7 @@ pub enum EngineError {
     #[error("camera: {0}")]
     Camera(#[from] CameraError),
     #[error("storage: {0}")]
-    Store(String),
+    Store(#[from] StoreError),
     #[error("{0}")]
     Other(String),
     /// Abort or stop requested while the engine waited; [`Engine::run`] turns it into its end
@@ -425,8 +426,9 @@ impl<'a> Engine<'a> {
 
     async fn run_inner(&mut self, plan: &Plan) -> Result<EndState, EngineError> {
         // Earlier samples first, so the worker reconstructs from everything.
+        // A store that fails here would fail the next sample too: stop now, nothing lost.
         for s in self.done.values() {
-            let _ = self.recorder.sample(s);
+            self.recorder.sample(s)?;
         }
         let timeout = Duration::from_secs_f64(self.campaign.spec().hardware.reference_timeout_s);
         for a in [AxisId::X, AxisId::Y] {
@@ -797,7 +799,7 @@ impl<'a> Engine<'a> {
                 if let Some((x, y)) = f.truth {
                     self.recorder.truth(rec.target.seq, x, y);
                 }
-                let fresh = self.recorder.sample(&rec).map_err(EngineError::Store)?;
+                let fresh = self.recorder.sample(&rec)?;
                 if fresh {
                     self.stat(run).measurements += 1;
                 }

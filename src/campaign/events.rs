@@ -6,7 +6,7 @@ use serde::Serialize;
 use serde_json::{json, Value};
 use tokio::sync::broadcast;
 
-use crate::store::Store;
+use crate::store::{Store, StoreError};
 use crate::types::SampleRecord;
 
 /// A campaign event as stored and streamed (server-sent events, `csmetro watch`).
@@ -44,8 +44,8 @@ pub(crate) fn store_sample(
     events: &broadcast::Sender<Event>,
     id: i64,
     s: &SampleRecord,
-) -> Result<bool, String> {
-    let fresh = off_runtime(|| lock(store).insert_sample(id, s)).map_err(|e| e.to_string())?;
+) -> Result<bool, StoreError> {
+    let fresh = off_runtime(|| lock(store).insert_sample(id, s))?;
     if fresh {
         let _ = events.send(Event {
             id: 0,

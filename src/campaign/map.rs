@@ -50,7 +50,7 @@ pub fn full_scan_estimate_s(c: &Campaign, mp: &MapPlan, motion_settle_s: f64) ->
 /// Returns the problems (missing or failed maps).
 pub fn add_to_report(
     c: &Campaign,
-    maps: &[Result<MapResult, String>],
+    maps: &[Result<MapResult, super::worker::ReconError>],
     tally: &Tally,
     truth: &TruthSource,
     motion_settle_s: f64,

@@ -3,6 +3,7 @@
 pub mod attempt;
 pub mod compensate;
 pub mod engine;
+pub mod error;
 pub mod events;
 pub mod map;
 pub mod motion;

@@ -3,6 +3,7 @@
 //! Used by `csmetro move` and `POST /stages/{name}/move`.
 use std::time::{Duration, Instant};
 
+use csmetro_hal::{AxisError, CameraError};
 use serde_json::{json, Value};
 
 use super::rig::{self, Rig};
@@ -34,17 +35,46 @@ pub enum MoveError {
     Failed(String),
 }
 
+/// A move request whose numbers cannot be served (named by their JSON field).
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum RequestError {
+    #[error("approach_um must be 0..={MAX_APPROACH_UM}")]
+    Approach,
+    #[error("{0}_um must be a finite number")]
+    NotFinite(AxisId),
+}
+
 impl MoveRequest {
     /// Checks the numbers themselves (before any hardware).
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), RequestError> {
         if !(self.approach_um.is_finite() && (0.0..=MAX_APPROACH_UM).contains(&self.approach_um)) {
-            return Err(format!("approach_um must be 0..={MAX_APPROACH_UM}"));
+            return Err(RequestError::Approach);
         }
         if let Some((axis, _)) = self.wanted.iter().find(|(_, w)| !w.is_finite()) {
-            return Err(format!("{axis}_um must be a finite number"));
+            return Err(RequestError::NotFinite(*axis));
         }
         Ok(())
     }
+}
+
+/// Why motion (or the measurement after it) failed.
+#[derive(Debug, thiserror::Error)]
+enum MotionError {
+    #[error("axis {axis}: reference: {source}")]
+    Reference { axis: AxisId, source: AxisError },
+    #[error("axis {axis}: {source}")]
+    Axis { axis: AxisId, source: AxisError },
+    #[error("interrupted")]
+    Interrupted,
+    #[error("no camera")]
+    NoCamera,
+    #[error(transparent)]
+    Camera(#[from] CameraError),
+    /// The decoder's reason for rejecting the frame.
+    #[error("{0}")]
+    Rejected(String),
+    #[error(transparent)]
+    Task(#[from] tokio::task::JoinError),
 }
 
 /// One axis's move, decided before anything moves.
@@ -135,7 +165,9 @@ fn notes(
     out
 }
 
-async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64, String> {
+async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64, MotionError> {
+    let axis = p.axis;
+    let fail = |source| MotionError::Axis { axis, source };
     let timeout = Duration::from_secs_f64(c.spec().hardware.move_timeout_s);
     let rtimeout = Duration::from_secs_f64(c.spec().hardware.reference_timeout_s);
     let a = rig.axis(p.axis);
@@ -146,42 +178,37 @@ async fn go(rig: &mut Rig, c: &Campaign, p: &Planned, pre_um: f64) -> Result<f64
             Err(csmetro_hal::AxisError::NotReferenced) if k == 0 => {
                 a.reference(rtimeout)
                     .await
-                    .map_err(|e| format!("axis {}: reference: {e}", p.axis))?;
-                a.move_to(target)
-                    .await
-                    .map_err(|e| format!("axis {}: {e}", p.axis))?;
+                    .map_err(|source| MotionError::Reference { axis, source })?;
+                a.move_to(target).await.map_err(fail)?;
             }
-            r => r.map_err(|e| format!("axis {}: {e}", p.axis))?,
+            r => r.map_err(fail)?,
         }
-        a.wait_on_target(timeout)
-            .await
-            .map_err(|e| format!("axis {}: {e}", p.axis))?;
+        a.wait_on_target(timeout).await.map_err(fail)?;
     }
-    a.position_um()
-        .await
-        .map_err(|e| format!("axis {}: {e}", p.axis))
+    a.position_um().await.map_err(fail)
 }
 
-async fn measure(rig: &mut Rig) -> Result<(f64, f64), String> {
-    let mut cam = rig.camera.take().ok_or("no camera")?;
+async fn measure(rig: &mut Rig) -> Result<(f64, f64), MotionError> {
+    let mut cam = rig.camera.take().ok_or(MotionError::NoCamera)?;
     let decoder = rig.decoder.clone();
     let (cam, r) = tokio::task::spawn_blocking(move || {
         let r = cam
             .trigger(Duration::from_secs(5))
-            .map_err(|e| e.to_string())
-            .and_then(|job| job().map_err(|e| e.to_string()))
+            .and_then(|job| job())
+            .map_err(MotionError::Camera)
             .and_then(|frame| {
                 let d = decoder.decode(&frame);
                 if d.ok {
                     Ok((d.x_um, d.y_um))
                 } else {
-                    Err(d.reason.unwrap_or_else(|| "frame rejected".into()))
+                    Err(MotionError::Rejected(
+                        d.reason.unwrap_or_else(|| "frame rejected".into()),
+                    ))
                 }
             });
         (cam, r)
     })
-    .await
-    .map_err(|e| e.to_string())?;
+    .await?;
     rig.camera = Some(cam);
     r
 }
@@ -195,7 +222,7 @@ pub async fn execute(
     req: &MoveRequest,
     cancel: impl std::future::Future<Output = ()>,
 ) -> Result<Value, MoveError> {
-    req.check().map_err(MoveError::Refused)?;
+    req.check().map_err(|e| MoveError::Refused(e.to_string()))?;
     let mut rig = rig::build(c)
         .await
         .map_err(|e| MoveError::Failed(format!("hardware: {e}")))?;
@@ -254,11 +281,11 @@ pub async fn execute(
         for p in &planned {
             enc.push(go(&mut rig, c, p, req.approach_um).await?);
         }
-        Ok::<_, String>(enc)
+        Ok::<_, MotionError>(enc)
     };
     let r = tokio::select! {
         r = moves => r,
-        _ = cancel => Err("interrupted".to_string()),
+        _ = cancel => Err(MotionError::Interrupted),
     };
     let encoders = match r {
         Ok(e) => e,
@@ -297,7 +324,7 @@ pub async fn execute(
             out["measured_x_um"] = json!(x);
             out["measured_y_um"] = json!(y);
         }
-        Some(Err(e)) => out["measure_error"] = json!(e),
+        Some(Err(e)) => out["measure_error"] = json!(e.to_string()),
         None => {}
     }
     Ok(out)

@@ -11,11 +11,11 @@ use std::time::Duration;
 
 use csmetro_gcs::C863;
 use csmetro_gcs::{AxisQuery, Command};
-use csmetro_hal::{AxisError, Frame};
+use csmetro_hal::{AxisError, CameraError};
 use serde::Serialize;
 use serde_json::{json, Value};
 
-use super::rig::{self, Devices};
+use super::rig::{self, Devices, RigError};
 use super::spec::{Campaign, HardwareKind};
 use crate::types::AxisId;
 
@@ -65,6 +65,8 @@ pub struct Report {
 }
 
 impl Report {
+    // Stays a text result: pass or fail, the detail is the report's text (shown and
+    // serialized as it is), not an error anyone branches on.
     pub fn push(&mut self, name: impl Into<String>, class: Class, r: Result<String, String>) {
         let (status, detail) = match r {
             Ok(d) => (Status::Ok, d),
@@ -196,12 +198,16 @@ pub struct Options<'a> {
 /// them to `report`. Nothing moves and nothing is recorded.
 pub async fn check_devices(c: &Campaign, opts: Options<'_>, report: &mut Report) {
     if let Some(db) = opts.store {
-        report.push("store", Class::Device, store_writable(db));
+        report.push(
+            "store",
+            Class::Device,
+            store_writable(db).map_err(|e| e.to_string()),
+        );
     }
     let mut devices = match rig::open_devices(c, RECONNECT_ATTEMPTS).await {
         Ok(d) => d,
         Err(e) => {
-            report.push("rig", Class::Device, Err(e));
+            report.push("rig", Class::Device, Err(e.to_string()));
             return;
         }
     };
@@ -248,14 +254,14 @@ pub fn needed_span_um(c: &Campaign, a: AxisId) -> Option<(f64, f64)> {
 async fn check_axis(
     c: &Campaign,
     a: AxisId,
-    slot: &mut Result<C863, String>,
+    slot: &mut Result<C863, RigError>,
     report: &mut Report,
 ) -> Option<f64> {
     let names = ["controller", "axis", "limits", "referenced"].map(|n| format!("{a}: {n}"));
     let drv = match slot {
         Ok(d) => d,
         Err(e) => {
-            report.push(&names[0], Class::Device, Err(e.clone()));
+            report.push(&names[0], Class::Device, Err(e.to_string()));
             for n in &names[1..] {
                 report.skip(n, Class::Device, format!("controller {a} did not answer"));
             }
@@ -277,7 +283,7 @@ async fn check_axis(
             let cfg = drv.config().clone();
             let found = if cfg.axis != C863_AXIS {
                 // The port is free again only once this driver is gone.
-                *slot = Err(String::new());
+                *slot = Err(RigError::Taken);
                 axes_as_default(cfg.clone()).await
             } else {
                 None
@@ -379,7 +385,7 @@ async fn check_axis(
     let soft = drv.config().soft_limits_um;
     match travel {
         Ok((tlo, thi)) => {
-            let r = limits_verdict(c, a, soft, (tlo, thi));
+            let r = limits_verdict(c, a, soft, (tlo, thi)).map_err(|e| e.to_string());
             report.push(&names[2], Class::Config, r);
         }
         Err(e) => report.push(&names[2], Class::Device, Err(e)),
@@ -420,12 +426,20 @@ fn axis_query(drv: &C863, query: AxisQuery) -> Command {
 }
 
 /// A number the controller reports for its axis (GCS units: mm, mm/s).
-async fn axis_f64(drv: &mut C863, query: AxisQuery) -> Result<f64, String> {
+async fn axis_f64(drv: &mut C863, query: AxisQuery) -> Result<f64, ProbeError> {
     let axis = drv.config().axis.clone();
-    drv.query(&axis_query(drv, query))
-        .await
-        .map_err(axis_err)
-        .and_then(|r| r.axis_f64(&axis))
+    let reply = drv.query(&axis_query(drv, query)).await?;
+    reply.axis_f64(&axis).map_err(ProbeError::Reply)
+}
+
+/// A controller query of the pre-flight that failed.
+#[derive(Debug, thiserror::Error)]
+enum ProbeError {
+    #[error(transparent)]
+    Axis(#[from] AxisError),
+    /// A reply that does not parse (the GCS driver's reply parsers say why in text).
+    #[error("{0}")]
+    Reply(String),
 }
 
 /// Where the controller is, as the campaign file names it (a simulated campaign's pty is the
@@ -470,7 +484,7 @@ fn limits_verdict(
     a: AxisId,
     soft: (f64, f64),
     travel: (f64, f64),
-) -> Result<String, String> {
+) -> Result<String, LimitsError> {
     let shown = |(lo, hi): (f64, f64)| format!("[{lo}, {hi}] µm");
     let limits = format!(
         "soft limits {}, controller travel {}",
@@ -487,16 +501,30 @@ fn limits_verdict(
         c.spec().acquisition.approach_um
     );
     if !inside(soft) {
-        Err(format!("{what}, beyond the {limits}"))
+        Err(LimitsError::Soft { what, limits })
     } else if !inside(travel) {
-        Err(format!(
-            "{what}, beyond the controller travel {} (soft limits {})",
-            shown(travel),
-            shown(soft)
-        ))
+        Err(LimitsError::Travel {
+            what,
+            travel: shown(travel),
+            soft: shown(soft),
+        })
     } else {
         Ok(format!("{what}; {limits}"))
     }
+}
+
+/// Where a campaign's positions fall outside an axis' limits; `what` says what the campaign
+/// needs, the limits are written out (µm).
+#[derive(Debug, thiserror::Error)]
+enum LimitsError {
+    #[error("{what}, beyond the {limits}")]
+    Soft { what: String, limits: String },
+    #[error("{what}, beyond the controller travel {travel} (soft limits {soft})")]
+    Travel {
+        what: String,
+        travel: String,
+        soft: String,
+    },
 }
 
 async fn check_camera(
@@ -505,19 +533,14 @@ async fn check_camera(
     encoders: [Option<f64>; 2],
     report: &mut Report,
 ) {
-    let cam = match std::mem::replace(&mut devices.camera, Err(String::new())) {
+    let cam = match std::mem::replace(&mut devices.camera, Err(RigError::Taken)) {
         Ok(cam) => {
             report.push("camera", Class::Device, Ok(cam.describe()));
             cam
         }
         Err(e) => {
             // A build without the camera's backend is the configuration's problem.
-            let class = if e.contains("built without") {
-                Class::Config
-            } else {
-                Class::Device
-            };
-            report.push("camera", class, Err(e));
+            report.push("camera", camera_class(&e), Err(e.to_string()));
             report.skip("pattern", Class::Device, "no camera");
             return;
         }
@@ -532,16 +555,15 @@ async fn check_camera(
     let decoder = devices.decoder.clone();
     let r = tokio::task::spawn_blocking(move || {
         let mut cam = cam;
-        let frame: Result<Frame, String> = cam.grab(timeout).map_err(|e| e.to_string());
+        let frame = cam.grab(timeout);
         drop(cam);
         frame.map(|f| decoder.decode(&f))
     })
-    .await
-    .map_err(|e| format!("camera task: {e}"))
-    .and_then(|r| r);
+    .await;
     let (class, verdict) = match r {
-        Err(e) => (Class::Device, Err(format!("no frame: {e}"))),
-        Ok(d) if !d.ok => (
+        Err(e) => (Class::Device, Err(format!("no frame: camera task: {e}"))),
+        Ok(Err(e)) => (Class::Device, Err(format!("no frame: {e}"))),
+        Ok(Ok(d)) if !d.ok => (
             Class::View,
             Err(format!(
                 "the frame does not show the campaign's pattern ({}); is the pattern in view and \
@@ -549,7 +571,7 @@ async fn check_camera(
                 d.reason.unwrap_or_else(|| "not decoded".into())
             )),
         ),
-        Ok(d) => (
+        Ok(Ok(d)) => (
             Class::Config,
             match encoders {
                 [Some(ex), Some(ey)] => {
@@ -577,20 +599,33 @@ async fn check_camera(
     report.push("pattern", class, verdict);
 }
 
+/// Who must act on a camera that did not open: the configuration when this build lacks its
+/// backend, else the device.
+fn camera_class(e: &RigError) -> Class {
+    match e {
+        RigError::Camera(CameraError::NotCompiled(_)) => Class::Config,
+        _ => Class::Device,
+    }
+}
+
 /// Whether the store at `db` can take writes, without writing to it: an existing database is
 /// opened read-write and a write transaction begun and rolled back; its directory (journal
 /// files) must take a new file. A store that does not exist yet needs a writable directory.
-pub fn store_writable(db: &Path) -> Result<String, String> {
+pub fn store_writable(db: &Path) -> Result<String, StoreCheckError> {
     use rusqlite::{Connection, OpenFlags};
     let shown = db.display();
+    let sqlite = |source| StoreCheckError::Sqlite {
+        store: shown.to_string(),
+        source,
+    };
     if db.exists() {
-        let conn = Connection::open_with_flags(db, OpenFlags::SQLITE_OPEN_READ_WRITE)
-            .map_err(|e| format!("{shown}: {e}"))?;
+        let conn =
+            Connection::open_with_flags(db, OpenFlags::SQLITE_OPEN_READ_WRITE).map_err(sqlite)?;
         if conn.is_readonly("main").unwrap_or(true) {
-            return Err(format!("{shown}: read-only"));
+            return Err(StoreCheckError::ReadOnly(shown.to_string()));
         }
         conn.execute_batch("BEGIN IMMEDIATE; ROLLBACK;")
-            .map_err(|e| format!("{shown}: {e}"))?;
+            .map_err(sqlite)?;
         let dir = db.parent().filter(|d| !d.as_os_str().is_empty());
         probe_dir(dir.unwrap_or(Path::new(".")))?;
         Ok(format!("{shown}: writable"))
@@ -609,8 +644,22 @@ pub fn store_writable(db: &Path) -> Result<String, String> {
     }
 }
 
+/// Why the store would not take writes.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreCheckError {
+    #[error("{store}: {source}")]
+    Sqlite {
+        store: String,
+        source: rusqlite::Error,
+    },
+    #[error("{0}: read-only")]
+    ReadOnly(String),
+    #[error("{dir}: not writable ({})", crate::tomlpos::io_reason(.source))]
+    NotWritable { dir: String, source: std::io::Error },
+}
+
 /// Creates and removes a probe file in `dir`.
-fn probe_dir(dir: &Path) -> Result<(), String> {
+fn probe_dir(dir: &Path) -> Result<(), StoreCheckError> {
     let probe = dir.join(format!(".csmetro-check-{}", std::process::id()));
     let r = std::fs::OpenOptions::new()
         .write(true)
@@ -618,12 +667,9 @@ fn probe_dir(dir: &Path) -> Result<(), String> {
         .open(&probe)
         .and_then(|mut f| std::io::Write::write_all(&mut f, b"probe"));
     let _ = std::fs::remove_file(&probe);
-    r.map_err(|e| {
-        format!(
-            "{}: not writable ({})",
-            dir.display(),
-            crate::tomlpos::io_reason(&e)
-        )
+    r.map_err(|source| StoreCheckError::NotWritable {
+        dir: dir.display().to_string(),
+        source,
     })
 }
 
@@ -670,7 +716,9 @@ approach_um = {approach_um}
         let c = Campaign::parse(text, "pf.toml", Path::new(".")).unwrap();
         assert_eq!(needed_span_um(&c, AxisId::X), Some((970.0, 2030.0)));
         assert_eq!(needed_span_um(&c, AxisId::Y), Some((470.0, 930.0)));
-        let e = limits_verdict(&c, AxisId::Y, (0.0, 920.0), (-1000.0, 14_000.0)).unwrap_err();
+        let e = limits_verdict(&c, AxisId::Y, (0.0, 920.0), (-1000.0, 14_000.0))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("[470, 930] µm"), "{e}");
     }
 
@@ -679,13 +727,17 @@ approach_um = {approach_um}
         let c = campaign(25.0);
         assert!(limits_verdict(&c, AxisId::X, (0.0, 5000.0), (-1000.0, 14_000.0)).is_ok());
         // Soft limits cut the approach travel by 1 µm.
-        let e = limits_verdict(&c, AxisId::X, (976.0, 5000.0), (-1000.0, 14_000.0)).unwrap_err();
+        let e = limits_verdict(&c, AxisId::X, (976.0, 5000.0), (-1000.0, 14_000.0))
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("[975, 4000] µm") && e.contains("soft limits"),
             "{e}"
         );
         // The controller accepts less than the soft limits allow.
-        let e = limits_verdict(&c, AxisId::X, (0.0, 5000.0), (0.0, 3999.0)).unwrap_err();
+        let e = limits_verdict(&c, AxisId::X, (0.0, 5000.0), (0.0, 3999.0))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("controller travel [0, 3999] µm"), "{e}");
     }
 
@@ -699,6 +751,20 @@ approach_um = {approach_um}
         std::fs::write(&file, "x").unwrap();
         // A path below a regular file can never hold a store.
         assert!(store_writable(&file.join("s.db")).is_err());
+    }
+
+    #[test]
+    fn a_camera_backend_this_build_lacks_is_the_configuration_s_problem() {
+        let lacking = RigError::Camera(CameraError::NotCompiled("aravis"));
+        assert_eq!(camera_class(&lacking), Class::Config);
+        assert!(
+            lacking
+                .to_string()
+                .contains("built without the `aravis` camera backend"),
+            "{lacking}"
+        );
+        let lost = RigError::Camera(CameraError::Disconnected("built without".into()));
+        assert_eq!(camera_class(&lost), Class::Device);
     }
 
     #[test]

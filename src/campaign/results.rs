@@ -168,11 +168,13 @@ pub const MARKER: &str = ".csmetro-results.json";
 /// by this store under a template without `{id}`, or unmarked, from an older csmetro), `dir`
 /// with the store's identity and the campaign id in its name (`it-1.store-<id>-c1`). Refused
 /// (the results stay in the store) when that folder is taken too or cannot be marked.
-pub fn claim_out_dir(dir: &Path, store_id: &str, id: i64, name: &str) -> Result<PathBuf, String> {
+pub fn claim_out_dir(
+    dir: &Path,
+    store_id: &str,
+    id: i64,
+    name: &str,
+) -> Result<PathBuf, ResultsError> {
     let mine = json!({"store_id": store_id, "campaign": id});
-    let refused = |why: &str| {
-        format!("results not written to the output directory ({why}); they are in the store")
-    };
     let fallback = {
         let base = dir.file_name().map_or_else(
             || "results".to_string(),
@@ -183,8 +185,7 @@ pub fn claim_out_dir(dir: &Path, store_id: &str, id: i64, name: &str) -> Result<
     for d in [dir, fallback.as_path()] {
         match owner(d) {
             Owner::Free => {
-                std::fs::create_dir_all(d)
-                    .map_err(|e| refused(&format!("cannot create it: {}", e.kind())))?;
+                std::fs::create_dir_all(d).map_err(|e| ResultsError::Create(e.kind()))?;
                 let marker = json!({"store_id": store_id, "campaign": id, "name": name});
                 // create_new: two processes claiming one folder at once, one wins.
                 let created = std::fs::OpenOptions::new()
@@ -201,14 +202,33 @@ pub fn claim_out_dir(dir: &Path, store_id: &str, id: i64, name: &str) -> Result<
                             return Ok(d.to_path_buf());
                         }
                     }
-                    Err(e) => return Err(refused(&format!("cannot mark it: {}", e.kind()))),
+                    Err(e) => return Err(ResultsError::Mark(e.kind())),
                 }
             }
             Owner::Marked(m) if m == mine => return Ok(d.to_path_buf()),
             Owner::Marked(_) | Owner::Unmarked => {}
         }
     }
-    Err(refused("it and its fallback hold other campaigns' results"))
+    Err(ResultsError::Taken)
+}
+
+/// Why a campaign's result files are not in its output directory (they are in the store).
+#[derive(Debug, thiserror::Error)]
+pub enum ResultsError {
+    #[error("results not written to the output directory (cannot create it: {0}); they are in the store")]
+    Create(std::io::ErrorKind),
+    #[error(
+        "results not written to the output directory (cannot mark it: {0}); they are in the store"
+    )]
+    Mark(std::io::ErrorKind),
+    #[error("results not written to the output directory (it and its fallback hold other campaigns' results); they are in the store")]
+    Taken,
+    /// The first file that could not be written, relative to the directory.
+    #[error("results not written to the output directory ({name}: {kind}); they are in the store")]
+    Write {
+        name: String,
+        kind: std::io::ErrorKind,
+    },
 }
 
 /// The results folder campaign `id` of store `store_id` claimed from the template's `dir`
@@ -797,7 +817,7 @@ mod tests {
         // Both folders taken by others: refused, the results stay in the store.
         std::fs::write(beside.join(MARKER), r#"{"store_id":"cccc","campaign":3}"#).unwrap();
         let e = claim_out_dir(&old, "aaaa", 3, "it").unwrap_err();
-        assert!(e.contains("results not written"), "{e}");
+        assert!(e.to_string().contains("results not written"), "{e}");
         // An empty existing folder is free.
         let empty = tmp.path().join("empty");
         std::fs::create_dir_all(&empty).unwrap();

@@ -6,8 +6,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use csmetro_gcs::{C863Config, C863};
-use csmetro_hal::{Axis, AxisError, Camera};
-use csmetro_ppp::{DecodeConfig, Decoder, Pattern};
+use csmetro_hal::{Axis, AxisError, Camera, CameraError};
+use csmetro_ppp::{DecodeConfig, Decoder, Pattern, PatternError};
 use csmetro_sim::SimCamera;
 use csmetro_sim::SimStage;
 use csmetro_sim::StageModel;
@@ -18,6 +18,41 @@ use rand_distr::{Distribution, Normal};
 
 use super::spec::{Campaign, HardwareKind, SimTransport};
 use crate::types::AxisId;
+
+/// Why a rig (or one of its devices) could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum RigError {
+    #[error(transparent)]
+    Pattern(#[from] PatternError),
+    #[error("the campaign's stage model was not validated")]
+    ModelNotValidated,
+    #[error("cannot start the simulated C-863 of axis {axis}: {source}")]
+    SimStart {
+        axis: AxisId,
+        source: std::io::Error,
+    },
+    #[error("cannot connect to the simulated C-863 of axis {axis}: {source}")]
+    SimConnect { axis: AxisId, source: AxisError },
+    #[error(transparent)]
+    Noise(#[from] rand_distr::NormalError),
+    /// The simulated camera refused its optics.
+    #[error(transparent)]
+    SimCamera(CameraError),
+    #[error("no [hardware.controllers.{0}]")]
+    NoController(AxisId),
+    /// A real controller that did not connect (the pre-flight names the axis itself).
+    #[error("{0}")]
+    Connect(AxisError),
+    #[error("axis {axis}: {source}")]
+    Axis { axis: AxisId, source: AxisError },
+    #[error("a real campaign needs [hardware.camera]")]
+    NoCamera,
+    #[error("camera: {0}")]
+    Camera(CameraError),
+    /// A device the pre-flight took out of [`Devices`] (never reported).
+    #[error("taken by the pre-flight")]
+    Taken,
+}
 
 /// Physical time: the wall clock on hardware, the scaled simulator clock in simulation.
 #[derive(Debug, Clone, Copy)]
@@ -172,9 +207,9 @@ impl Rig {
 }
 
 /// Builds the rig of a campaign.
-pub async fn build(c: &Campaign) -> Result<Rig, String> {
+pub async fn build(c: &Campaign) -> Result<Rig, RigError> {
     let h = &c.spec().hardware;
-    let pattern = Pattern::new(h.pattern.clone()).map_err(|e| e.to_string())?;
+    let pattern = Pattern::new(h.pattern.clone())?;
     let decoder = Arc::new(Decoder::new(
         pattern.clone(),
         DecodeConfig::for_optics(&pattern, &h.optics),
@@ -198,12 +233,12 @@ struct SimParts {
 
 /// `faults`: whether the controllers strike `[hardware.sim.faults]` (a soak's random faults are
 /// the campaign's to meet, not the pre-flight's).
-async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimParts, String> {
+async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimParts, RigError> {
     let s = &c.spec().hardware.sim;
     // The model validation loaded (and, for a submitted file, confined): never read again.
     let model = match (&s.model, c.model()) {
         (Some(_), Some(m)) => m.model.clone(),
-        (Some(_), None) => return Err("the campaign's stage model was not validated".into()),
+        (Some(_), None) => return Err(RigError::ModelNotValidated),
         (None, _) => StageModel::default(),
     };
     let start_mm = [
@@ -242,7 +277,7 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
                     .await
             }
         }
-        .map_err(|e| format!("cannot start the simulated C-863 of axis {a}: {e}"))?;
+        .map_err(|source| RigError::SimStart { axis: a, source })?;
         let mut dc = match sim.endpoint() {
             Endpoint::Tcp(addr) => C863Config::tcp(addr.to_string()),
             Endpoint::Pty(path) => C863Config::serial(path.display().to_string()),
@@ -252,7 +287,7 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
         dc.poll_interval_ms = 1;
         let drv = C863::connect(dc)
             .await
-            .map_err(|e| format!("cannot connect to the simulated C-863 of axis {a}: {e}"))?;
+            .map_err(|source| RigError::SimConnect { axis: a, source })?;
         axes.push(drv);
         sims.push(sim);
     }
@@ -263,7 +298,7 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
     let source_log = triggers.clone();
     let noise = model.noise_sigma_um();
     let rng = Mutex::new(ChaCha8Rng::seed_from_u64(s.seed));
-    let normal = Normal::new(0.0, noise.max(0.0)).map_err(|e| e.to_string())?;
+    let normal = Normal::new(0.0, noise.max(0.0))?;
     let source = move || {
         let (x, y) = source_stage.true_position_at_um(Some(source_clock.get()));
         source_log.push((x, y));
@@ -280,7 +315,7 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
         .unwrap_or_else(|| c.spec().hardware.optics.clone());
     let rot_stage = stage.clone();
     let camera = SimCamera::new(pattern, optics, Box::new(source))
-        .map_err(|e| e.to_string())?
+        .map_err(RigError::SimCamera)?
         .with_seed(s.seed)
         .with_rotation(Box::new(move || rot_stage.rotation_urad() * 1e-3));
     let y = axes.pop().expect("two axes");
@@ -296,7 +331,7 @@ async fn sim_parts(c: &Campaign, pattern: Pattern, faults: bool) -> Result<SimPa
     })
 }
 
-async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Result<Rig, String> {
+async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Result<Rig, RigError> {
     let s = &c.spec().hardware.sim;
     let SimParts {
         x,
@@ -342,9 +377,9 @@ async fn build_sim(c: &Campaign, pattern: Pattern, decoder: Arc<Decoder>) -> Res
 /// Opening sends nothing to a controller; the simulators of a `kind = "sim"` campaign serve
 /// until [`Devices::close`].
 pub struct Devices {
-    pub x: Result<C863, String>,
-    pub y: Result<C863, String>,
-    pub camera: Result<Box<dyn Camera>, String>,
+    pub x: Result<C863, RigError>,
+    pub y: Result<C863, RigError>,
+    pub camera: Result<Box<dyn Camera>, RigError>,
     pub decoder: Arc<Decoder>,
     sims: Vec<SimController>,
 }
@@ -363,9 +398,9 @@ impl Devices {
 /// Opens the devices of a campaign without commanding anything. A real controller's port is
 /// opened, and each of its exchanges tried, at most `reconnect_attempts` + 1 times (a
 /// pre-flight reports a missing or silent controller quickly).
-pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devices, String> {
+pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devices, RigError> {
     let h = &c.spec().hardware;
-    let pattern = Pattern::new(h.pattern.clone()).map_err(|e| e.to_string())?;
+    let pattern = Pattern::new(h.pattern.clone())?;
     let decoder = Arc::new(Decoder::new(
         pattern.clone(),
         DecodeConfig::for_optics(&pattern, &h.optics),
@@ -387,10 +422,10 @@ pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devic
                     .controllers
                     .get(a.as_str())
                     .cloned()
-                    .ok_or_else(|| format!("no [hardware.controllers.{a}]"))?;
+                    .ok_or(RigError::NoController(a))?;
                 cfg.reconnect_attempts = cfg.reconnect_attempts.min(reconnect_attempts);
                 cfg.retries = cfg.retries.min(reconnect_attempts);
-                C863::connect(cfg).await.map_err(|e| e.to_string())
+                C863::connect(cfg).await.map_err(RigError::Connect)
             };
             Ok(Devices {
                 x: connect(AxisId::X).await,
@@ -403,17 +438,17 @@ pub async fn open_devices(c: &Campaign, reconnect_attempts: u32) -> Result<Devic
     }
 }
 
-async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> {
+async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, RigError> {
     let h = &c.spec().hardware;
     let connect = |a: AxisId| async move {
         let cfg = h
             .controllers
             .get(a.as_str())
             .cloned()
-            .ok_or_else(|| format!("no [hardware.controllers.{a}]"))?;
+            .ok_or(RigError::NoController(a))?;
         C863::connect(cfg)
             .await
-            .map_err(|e: AxisError| format!("axis {a}: {e}"))
+            .map_err(|source| RigError::Axis { axis: a, source })
     };
     let x = connect(AxisId::X).await?;
     let y = connect(AxisId::Y).await?;
@@ -434,12 +469,7 @@ async fn build_real(c: &Campaign, decoder: Arc<Decoder>) -> Result<Rig, String> 
     })
 }
 
-fn real_camera(c: &Campaign) -> Result<Box<dyn Camera>, String> {
-    let cfg = c
-        .spec()
-        .hardware
-        .camera
-        .clone()
-        .ok_or("a real campaign needs [hardware.camera]")?;
-    csmetro_camera::open_camera(cfg).map_err(|e| format!("camera: {e}"))
+fn real_camera(c: &Campaign) -> Result<Box<dyn Camera>, RigError> {
+    let cfg = c.spec().hardware.camera.clone().ok_or(RigError::NoCamera)?;
+    csmetro_camera::open_camera(cfg).map_err(RigError::Camera)
 }

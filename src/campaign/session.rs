@@ -10,6 +10,7 @@ use tokio::sync::{broadcast, watch};
 use super::attempt::Attempt;
 pub use super::attempt::Finished;
 use super::engine::{Control, EndState, Engine, EngineError, Recorder};
+pub use super::error::CampaignError;
 use super::events::{emit, lock, store_sample};
 /// Where they lived before: the log and stream have their own module.
 pub use super::events::{Event, SharedStore};
@@ -20,44 +21,40 @@ use super::results::{problems, tally};
 use super::rig::{self, Rig};
 use super::spec::Campaign;
 use super::worker::{reconstruct_run, settings, Worker};
+use crate::store::StoreError;
 use crate::types::{CampaignState, Origin, RunKey, SampleRecord};
 
 /// Stores a new campaign (state queued) and returns its id.
-pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, String> {
+pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, CampaignError> {
     let planned = super::verification::planned(c).unwrap_or(plan(c).total() as u64);
     let s = lock(store);
-    let id = s
-        .create_campaign(
-            &c.spec().campaign.name,
-            c.text(),
-            c.origin(),
-            &c.spec().campaign.stage,
-            planned,
-        )
-        .map_err(|e| e.to_string())?;
+    let id = s.create_campaign(
+        &c.spec().campaign.name,
+        c.text(),
+        c.origin(),
+        &c.spec().campaign.stage,
+        planned,
+    )?;
     // The model it was validated with runs it, at every resume too.
     if let Some(m) = c.model() {
-        s.set_model_snapshot(id, &m.text)
-            .map_err(|e| e.to_string())?;
+        s.set_model_snapshot(id, &m.text)?;
     }
     Ok(id)
 }
 
 /// Reloads a stored campaign's file (its text was stored with it).
-pub fn load_stored(store: &SharedStore, id: i64) -> Result<Campaign, String> {
+pub fn load_stored(store: &SharedStore, id: i64) -> Result<Campaign, CampaignError> {
     let row = lock(store)
-        .campaign(id)
-        .map_err(|e| e.to_string())?
-        .ok_or_else(|| format!("no campaign {id} in the store"))?;
+        .campaign(id)?
+        .ok_or(CampaignError::NotStored(id))?;
     let base = PathBuf::from(&row.spec_path)
         .parent()
         .map(|p| p.to_path_buf())
         .unwrap_or_default();
-    let snapshot = lock(store).model_snapshot(id).map_err(|e| e.to_string())?;
-    let c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)
-        .map_err(|e| e.to_string())?;
+    let snapshot = lock(store).model_snapshot(id)?;
+    let c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)?;
     // `verify = ID`: the characterisation's axes.
-    super::verification::resolve(c, &lock(store)).map_err(|e| e.to_string())
+    Ok(super::verification::resolve(c, &lock(store))?)
 }
 
 struct StoreRecorder {
@@ -85,7 +82,7 @@ impl Recorder for StoreRecorder {
             }
         }
     }
-    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, StoreError> {
         let fresh = store_sample(&self.store, &self.events, self.id, s)?;
         self.samples.push(*s);
         self.worker.sample(s);
@@ -161,7 +158,7 @@ pub async fn execute(
     control: watch::Receiver<Control>,
     events: broadcast::Sender<Event>,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
-) -> Result<Finished, String> {
+) -> Result<Finished, CampaignError> {
     execute_with(store, id, c, control, events, on_sample, Options::default()).await
 }
 
@@ -174,7 +171,7 @@ pub async fn execute_with(
     events: broadcast::Sender<Event>,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     opts: Options,
-) -> Result<Finished, String> {
+) -> Result<Finished, CampaignError> {
     let run = Attempt {
         store: store.clone(),
         events: events.clone(),
@@ -190,14 +187,16 @@ pub async fn execute_with(
                 .create(true)
                 .append(true)
                 .open(p)
-                .map_err(|e| format!("truth log {}: {e}", p.display()))?,
+                .map_err(|source| CampaignError::TruthLog {
+                    path: p.display().to_string(),
+                    source,
+                })?,
         ),
         None => None,
     };
     let p: Plan = plan(&c);
     let done: BTreeMap<u64, SampleRecord> = lock(&store)
-        .samples(id)
-        .map_err(|e| e.to_string())?
+        .samples(id)?
         .into_iter()
         .map(|s| (s.target.seq, s))
         .collect();
@@ -214,11 +213,14 @@ pub async fn execute_with(
         let s = lock(&store);
         super::compensate::for_campaign(&c, &s)
     };
-    let compensation = compensation.map_err(|e| fail("compensation", format!("stopped: {e}")))?;
-    let mut rig: Rig = rig::build(&c).await.map_err(|e| {
-        let msg = fail("hardware", format!("hardware: {e}"));
-        format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
-    })?;
+    let compensation = compensation
+        .map_err(|e| CampaignError::Recorded(fail("compensation", format!("stopped: {e}"))))?;
+    let mut rig: Rig = rig::build(&c)
+        .await
+        .map_err(|e| CampaignError::NotStarted {
+            id,
+            msg: fail("hardware", format!("hardware: {e}")),
+        })?;
     emit(
         &store,
         &events,
@@ -264,6 +266,7 @@ pub async fn execute_with(
             );
         }
         Err(e) => {
+            let e = e.to_string();
             emit(&st2, &ev2, id, "reconstruction_failed", json!({"error": e}));
             rf2.lock().unwrap_or_else(|p| p.into_inner()).push(e);
         }
@@ -316,7 +319,7 @@ pub async fn execute_with(
                 EngineError::Halted(_) => "halted",
             };
             let msg = fail(cause, format!("stopped: {e}"));
-            return Err(format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` continues from the last stored sample"));
+            return Err(CampaignError::Stopped { id, msg });
         }
     };
     let curves = tokio::task::spawn_blocking(move || worker.finish())
@@ -356,10 +359,7 @@ pub async fn execute_with(
     // Every figure from the store: the same whatever attempts it took.
     let (samples, log) = {
         let s = lock(&store);
-        (
-            s.samples(id).map_err(|e| e.to_string())?,
-            s.events_after(id, 0).map_err(|e| e.to_string())?,
-        )
+        (s.samples(id)?, s.events_after(id, 0)?)
     };
     let t = tally(&p, &samples, &log);
     let failures = recon_failures
@@ -421,12 +421,30 @@ pub async fn execute_with(
             errors.push(format!("NeXus file not written: {e}"));
         }
     }
-    let state = if errors.is_empty() {
+    let mut state = if errors.is_empty() {
         CampaignState::Done
     } else {
         CampaignState::Failed
     };
-    run.finish(state, errors, rep.summary, rep.table, outcome, written.ok())
+    // summary.json as stored says the state before the maps, the files and the NeXus file were
+    // written: their failures (and its own write's) go into it too.
+    let stored_summary = rep
+        .files
+        .iter()
+        .find(|(n, _, _)| n == "summary.json")
+        .map(|(_, _, b)| b.as_slice());
+    let mut summary = rep.summary.clone();
+    if let Err(e) = run.write_summary(
+        &mut summary,
+        &mut state,
+        &mut errors,
+        written.as_deref().ok(),
+        stored_summary,
+    ) {
+        errors.push(format!("summary.json: {e}"));
+        state = CampaignState::Failed;
+    }
+    run.finish(state, errors, summary, rep.table, outcome, written.ok())
 }
 
 /// Formats a Unix time as UTC, `2026-11-27 09:50:00 UTC` (civil date from days since the epoch,
@@ -445,11 +463,10 @@ fn write_nexus(
     dir: &std::path::Path,
     name: &str,
     ok: bool,
-) -> Result<(), String> {
-    let mut e = crate::export::Export::gather(&lock(store), id).map_err(|e| e.to_string())?;
+) -> Result<(), crate::export::ExportError> {
+    let mut e = crate::export::Export::gather(&lock(store), id)?;
     e.state = if ok { "done" } else { "failed" }.into();
     crate::export::nexus::write(&e, &dir.join(format!("{name}-{id}.nxs")))
-        .map_err(|e| e.to_string())
 }
 
 /// `report.html` of a campaign that measured to its end, from its results and its log.

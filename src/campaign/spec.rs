@@ -646,7 +646,7 @@ impl Campaign {
 
 mod compensation;
 mod validate;
-pub use compensation::{check_spec as check_compensation, fits, CompensationSpec};
+pub use compensation::{check_spec as check_compensation, fits, CompensationSpec, Misfit};
 use validate::validate;
 pub mod map;
 pub use map::{MapPlan, MapSpec};

@@ -13,10 +13,11 @@ use tokio::sync::{broadcast, watch};
 use super::attempt::{Attempt, Finished};
 use super::compensate::stored;
 use super::engine::{Control, EndState, Outcome};
+use super::error::CampaignError;
 use super::events::{emit, lock, store_sample, Event, SharedStore};
 use super::spec::{Campaign, HardwareKind, SpecError};
 use super::verify::{self, prior_from_summary, Prior, Sink, VerifyError, VerifyOptions};
-use crate::store::Store;
+use crate::store::{Store, StoreError};
 use crate::tomlpos::{line_of, span_of};
 use crate::types::{AxisId, CampaignState, Origin, SampleRecord};
 
@@ -157,7 +158,7 @@ struct StoreSink {
 }
 
 impl Sink for StoreSink {
-    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, StoreError> {
         let fresh = store_sample(&self.store, &self.events, self.id, s)?;
         (self.on_sample)(s);
         Ok(fresh)
@@ -176,34 +177,33 @@ pub(super) async fn execute(
     control: watch::Receiver<Control>,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     origin: Origin,
-) -> Result<Finished, String> {
+) -> Result<Finished, CampaignError> {
     let (store, id) = (&run.store, run.id);
     let char_id = c
         .spec()
         .campaign
         .verify
-        .ok_or("not a verification campaign")?;
+        .ok_or(CampaignError::NotVerification)?;
     let t0 = std::time::Instant::now();
-    let fail = |msg: String| {
-        let msg = run.fail("verification", msg);
-        format!("campaign {id} interrupted ({msg}); `csmetro resume {id}` tries again")
+    let fail = |msg: String| CampaignError::NotStarted {
+        id,
+        msg: run.fail("verification", msg),
     };
     // Resolved again here: the characterisation may have gone since the file was loaded.
     let resolved = {
         let s = lock(store);
-        resolve(c, &s).map_err(|e| e.to_string()).and_then(|c| {
-            let comp = stored(&s, char_id, &c.spec().campaign.stage).map_err(|e| e.to_string())?;
+        resolve(c, &s).map_err(CampaignError::from).and_then(|c| {
+            let comp = stored(&s, char_id, &c.spec().campaign.stage)?;
             let summary: Value = s
                 .result(char_id, "summary.json")
                 .ok()
                 .flatten()
                 .and_then(|(_, b)| serde_json::from_slice(&b).ok())
                 .unwrap_or_default();
-            let measured = s.samples(char_id).map_err(|e| e.to_string())?;
+            let measured = s.samples(char_id)?;
             let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&measured, ax));
             let done: BTreeMap<u64, SampleRecord> = s
-                .samples(id)
-                .map_err(|e| e.to_string())?
+                .samples(id)?
                 .into_iter()
                 .map(|r| (r.target.seq, r))
                 .collect();
@@ -329,31 +329,15 @@ pub(super) async fn execute(
     } else {
         CampaignState::Failed
     };
-    // summary.json says the campaign's state and errors, its own write's failure included:
-    // a failed write fails the campaign and the summary is written again where it could be.
-    let mut failed_before = false;
-    loop {
-        summary["state"] = json!(state.as_str());
-        summary["errors"] = json!(errors);
-        let json_bytes =
-            serde_json::to_vec_pretty(&summary).map_err(|e| fail(format!("summary.json: {e}")))?;
-        let mut failed = Vec::new();
-        let stored = lock(store).put_result(id, "summary.json", "application/json", &json_bytes);
-        if let Err(e) = stored {
-            failed.push(format!("results not stored (summary.json): {e}"));
-        }
-        if let Ok(d) = &written {
-            if let Err(e) = std::fs::write(d.join("summary.json"), &json_bytes) {
-                failed.push(format!("results not written (summary.json: {})", e.kind()));
-            }
-        }
-        if failed.is_empty() || failed_before {
-            break;
-        }
-        failed_before = true;
-        errors.extend(failed);
-        state = CampaignState::Failed;
-    }
+    // summary.json says the campaign's state and errors, its own write's failure included.
+    run.write_summary(
+        &mut summary,
+        &mut state,
+        &mut errors,
+        written.as_deref().ok(),
+        None,
+    )
+    .map_err(|e| fail(format!("summary.json: {e}")))?;
     run.finish(
         state,
         errors,

@@ -81,13 +81,42 @@ fn run_samples(samples: &[SampleRecord], run: RunKey, component: Component) -> G
     }
 }
 
+/// A reconstruction of the worker that failed: which curve or map, and the reconstruction's
+/// reason (the recon crates report it in text).
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum ReconError {
+    #[error("{component} of {run}: {reason}")]
+    Curve {
+        component: String,
+        run: String,
+        reason: String,
+    },
+    #[error("map {direction}: {reason}")]
+    Map {
+        direction: &'static str,
+        reason: String,
+    },
+}
+
+/// Why the adaptive stop has no estimate (yet).
+#[derive(Debug, thiserror::Error)]
+pub enum StopError {
+    #[error("no component along the moving axis")]
+    NoComponent,
+    #[error("{0} samples: too few to estimate the error")]
+    TooFew(usize),
+    /// The reconstruction's reason, in its own text.
+    #[error("{0}")]
+    Recon(String),
+}
+
 /// Reconstructs the components of `run` from its samples.
 pub fn reconstruct_run(
     grid: &Grid,
     settings: &ReconSettings,
     run: RunKey,
     samples: &[SampleRecord],
-) -> Vec<Result<Curve, String>> {
+) -> Vec<Result<Curve, ReconError>> {
     run.components()
         .into_iter()
         .map(|component| {
@@ -105,7 +134,11 @@ pub fn reconstruct_run(
             } else {
                 reconstruct(grid, &gs, &st)
             }
-            .map_err(|e| format!("{} of {}: {e}", component.name(), run.label()))?;
+            .map_err(|reason| ReconError::Curve {
+                component: component.name(),
+                run: run.label(),
+                reason,
+            })?;
             Ok(Curve {
                 run,
                 component,
@@ -188,18 +221,18 @@ pub fn stop_estimate(
     settings: &ReconSettings,
     run: RunKey,
     samples: &[SampleRecord],
-) -> Result<StopEstimate, String> {
+) -> Result<StopEstimate, StopError> {
     let component = run
         .components()
         .into_iter()
         .find(|c| c.measured == run.axis)
-        .ok_or("no component along the moving axis")?;
+        .ok_or(StopError::NoComponent)?;
     let gs = run_samples(samples, run, component);
     let m = gs.len();
     // The opposite direction's samples, when the curve pools them: the folds pool them too
     // (held out are only this run's), and they count as samples in every distance.
     let other = run_samples(samples, opposite(run), component);
-    let whole = reconstruct_joint(grid, &gs, &other, settings)?;
+    let whole = reconstruct_joint(grid, &gs, &other, settings).map_err(StopError::Recon)?;
     let pooled = whole.pooled_with.is_some();
     let with_other = |idx: &[usize]| -> Vec<usize> {
         let mut all = idx.to_vec();
@@ -217,7 +250,7 @@ pub fn stop_estimate(
     // down towards the grid's and the fit extrapolates less than with the usual five.
     let k = STOP_FOLDS;
     if m < 4 * k {
-        return Err(format!("{m} samples: too few to estimate the error"));
+        return Err(StopError::TooFew(m));
     }
     // Seeded fold assignment: every sample held out once.
     let mut perm: Vec<usize> = (0..m).collect();
@@ -243,9 +276,9 @@ pub fn stop_estimate(
         let r = if pooled {
             // The folds refit the difference's degree the whole set chose, as its method.
             let deg: Vec<usize> = whole.difference_degree.into_iter().collect();
-            reconstruct_joint_among(grid, &train, &other, &st, &deg)?
+            reconstruct_joint_among(grid, &train, &other, &st, &deg).map_err(StopError::Recon)?
         } else {
-            reconstruct(grid, &train, &st)?
+            reconstruct(grid, &train, &st).map_err(StopError::Recon)?
         };
         let near = if r.pooled_with.is_some() {
             with_other(&train.idx)
@@ -352,7 +385,7 @@ pub fn settings(c: &Campaign) -> ReconSettings {
 }
 
 /// The maps the worker reconstructed (`[map]` runs), filled as each map run completes.
-pub type Maps = std::sync::Arc<std::sync::Mutex<Vec<Result<map::MapResult, String>>>>;
+pub type Maps = std::sync::Arc<std::sync::Mutex<Vec<Result<map::MapResult, ReconError>>>>;
 
 /// Handle of the worker thread.
 pub struct Worker {
@@ -366,7 +399,7 @@ impl Worker {
     /// or failed reconstruction.
     pub fn start(
         c: &Campaign,
-        mut on_curve: impl FnMut(Result<&Curve, String>) + Send + 'static,
+        mut on_curve: impl FnMut(Result<&Curve, ReconError>) + Send + 'static,
     ) -> Worker {
         let grids: BTreeMap<_, Grid> = c.axes().iter().map(|a| (a.axis, a.grid)).collect();
         let settings = settings(c);

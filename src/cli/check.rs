@@ -54,7 +54,7 @@ pub fn run(a: Args) -> CliResult {
                 drop(lock);
             }
             Err(e) => {
-                report.push("stage", Class::Device, Err(e));
+                report.push("stage", Class::Device, Err(e.to_string()));
                 report.skip("devices", Class::Device, "the stage is busy");
             }
         }
@@ -128,7 +128,7 @@ fn stage_lock(
     db: &Path,
     stage: &str,
     scope: stagelock::Scope,
-) -> Result<stagelock::StageLock, String> {
+) -> Result<stagelock::StageLock, stagelock::StageLockError> {
     let dir_exists = db
         .parent()
         .is_none_or(|d| d.as_os_str().is_empty() || d.is_dir());
@@ -137,5 +137,5 @@ fn stage_lock(
     } else {
         std::env::temp_dir().join("csmetro-check.db")
     };
-    stagelock::try_lock_scoped(&store, stage, scope).map_err(|e| e.to_string())
+    stagelock::try_lock_scoped(&store, stage, scope)
 }

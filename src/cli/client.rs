@@ -72,6 +72,7 @@ pub struct WatchArgs {
     conn: Conn,
 }
 
+// Stays a String error: clap's value parser prints it as the flag's error.
 fn progress_interval(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && (0.1..=86_400.0).contains(&v) => Ok(v),
@@ -346,13 +347,13 @@ struct Sse {
 fn read_sse(
     r: impl std::io::Read,
     mut each: impl FnMut(&Sse),
-) -> (Option<i64>, Result<(), String>) {
+) -> (Option<i64>, std::io::Result<()>) {
     let mut last = None;
     let mut cur = Sse::default();
     for l in BufReader::new(r).lines() {
         let l = match l {
             Ok(l) => l,
-            Err(e) => return (last, Err(e.to_string())),
+            Err(e) => return (last, Err(e)),
         };
         if l.is_empty() {
             if !cur.data.is_empty() || !cur.kind.is_empty() {

@@ -65,17 +65,17 @@ pub struct CliError {
 
 impl CliError {
     /// Bad input from the user (file, flag, data): exit code 2.
-    pub fn input(message: impl Into<String>) -> Self {
+    pub fn input(message: impl std::fmt::Display) -> Self {
         Self {
             code: 2,
-            message: message.into(),
+            message: message.to_string(),
         }
     }
     /// Anything else that failed: exit code 1.
-    pub fn failure(message: impl Into<String>) -> Self {
+    pub fn failure(message: impl std::fmt::Display) -> Self {
         Self {
             code: 1,
-            message: message.into(),
+            message: message.to_string(),
         }
     }
 }

@@ -136,7 +136,7 @@ pub fn run(a: Args) -> CliResult {
         measure: a.measure,
     };
     req.check()
-        .map_err(|e| CliError::input(format!("--{}", e.replace('_', "-"))))?;
+        .map_err(|e| CliError::input(format!("--{}", e.to_string().replace('_', "-"))))?;
     // A bad table is refused here: nothing is built, nothing moves.
     let comp = match &a.compensation {
         Some(p) => {

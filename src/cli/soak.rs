@@ -265,22 +265,22 @@ fn compare(got: &Value, want: &Value, faults: bool) -> (Vec<String>, f64) {
 }
 
 /// One uninterrupted, fault-free run of `plan`: its summary.
-fn reference(dir: &Path, plan: usize, timeout: Duration) -> Result<Value, String> {
+fn reference(dir: &Path, plan: usize, timeout: Duration) -> anyhow::Result<Value> {
     let d = dir.join(format!("ref-{plan}"));
-    std::fs::create_dir_all(&d).map_err(|e| e.to_string())?;
+    std::fs::create_dir_all(&d)?;
     let c = d.join("campaign.toml");
-    std::fs::write(&c, campaign_text(dir, plan, None)).map_err(|e| e.to_string())?;
+    std::fs::write(&c, campaign_text(dir, plan, None))?;
     let mut ch = spawn(
         &["run", "--json", "--quiet"],
         &d.join("c.db"),
         &d.join("truth.csv"),
         Some(&c),
     )
-    .map_err(|e| e.message)?;
+    .map_err(|e| anyhow::anyhow!(e.message))?;
     let j = wait_until(&mut ch, Instant::now() + timeout)
-        .ok_or_else(|| format!("reference run of plan {plan} timed out"))?;
+        .ok_or_else(|| anyhow::anyhow!("reference run of plan {plan} timed out"))?;
     if j["state"] != "done" {
-        return Err(format!("reference run of plan {plan} ended {}", j["state"]));
+        anyhow::bail!("reference run of plan {plan} ended {}", j["state"]);
     }
     Ok(j)
 }

@@ -291,10 +291,10 @@ impl Compensation {
     /// (`compensation_x|y.csv`, else `compensation_map_<direction>.csv`, and `summary.json`):
     /// `read(name)` gives a result's bytes, `None` when the campaign has no such file. The store
     /// stays above: the caller reads it.
-    pub fn from_results(
+    pub fn from_results<E: std::fmt::Display>(
         id: i64,
         stage: &str,
-        read: impl Fn(&str) -> Result<Option<Vec<u8>>, String>,
+        read: impl Fn(&str) -> Result<Option<Vec<u8>>, E>,
     ) -> Result<Compensation, TableError> {
         let origin = format!("campaign {id}");
         // A summary that cannot be read leaves the lines' positions unknown, as before.
@@ -561,16 +561,16 @@ fn read_table_file(path: &Path) -> Result<(String, String), TableError> {
 
 /// Result file `name` as text (`read` gives its bytes), with its origin for messages
 /// (`campaign N/name`); `None` when there is no such file.
-fn stored_text(
-    read: &impl Fn(&str) -> Result<Option<Vec<u8>>, String>,
+fn stored_text<E: std::fmt::Display>(
+    read: &impl Fn(&str) -> Result<Option<Vec<u8>>, E>,
     origin: &str,
     name: &str,
 ) -> Result<Option<(String, String)>, TableError> {
     let at = format!("{origin}/{name}");
-    let Some(bytes) = read(name).map_err(|message| TableError {
+    let Some(bytes) = read(name).map_err(|e| TableError {
         origin: origin.to_string(),
         line: 0,
-        message,
+        message: e.to_string(),
     })?
     else {
         return Ok(None);

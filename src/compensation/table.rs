@@ -347,15 +347,24 @@ fn line_of_row(text: &str, i: usize) -> usize {
         .map_or(0, |(k, _)| k + 1)
 }
 
-pub(super) fn parse_num(s: &str) -> Result<f64, String> {
+pub(super) fn parse_num(s: &str) -> Result<f64, NumError> {
     let v: f64 = s
         .trim()
         .parse()
-        .map_err(|_| format!("{:?} is not a number", truncate(s)))?;
+        .map_err(|_| NumError::NotANumber(truncate(s)))?;
     if !v.is_finite() {
-        return Err(format!("{:?} is not a finite number", truncate(s)));
+        return Err(NumError::NotFinite(truncate(s)));
     }
     Ok(v)
+}
+
+/// A table cell that is not a finite number (its text shortened).
+#[derive(Debug, thiserror::Error)]
+pub(super) enum NumError {
+    #[error("{0:?} is not a number")]
+    NotANumber(String),
+    #[error("{0:?} is not a finite number")]
+    NotFinite(String),
 }
 
 /// Cell text in messages: short, so an error line never carries a whole file.

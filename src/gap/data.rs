@@ -114,8 +114,75 @@ fn header_names(header: &str) -> Vec<String> {
         .collect()
 }
 
+/// Why a data file was refused; every message names the file (and the line, when one is to
+/// blame).
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("{origin}:{line}: {problem}")]
+    Line {
+        origin: String,
+        line: usize,
+        problem: LineError,
+    },
+    #[error("{0}: empty file")]
+    Empty(String),
+    #[error("{0}: empty file (expected header {header})", header = HEADER.join(","))]
+    EmptyCampaign(String),
+    #[error("{0}: no data rows")]
+    NoRows(String),
+    /// `place`: `file:line`, or `file: sample N` without lines.
+    #[error("{place}: `{key}` = {value} lies outside the model's travel [{lo}, {hi}] µm")]
+    OutsideTravel {
+        place: String,
+        key: &'static str,
+        value: f64,
+        lo: f64,
+        hi: f64,
+    },
+    #[error("{0}: not a file (only DATA.csv files are accepted for now: campaign storage does not exist yet, so campaign ids cannot be resolved)")]
+    NotAFile(String),
+    #[error("{path}: cannot read: {source}")]
+    Read {
+        path: String,
+        source: crate::tomlpos::ReadError,
+    },
+}
+
+/// What is wrong with one line of a data file.
+#[derive(Debug, thiserror::Error)]
+pub enum LineError {
+    #[error("missing column(s) {0} (an ISO 230-2 export needs {iso}; optional {opt})", iso = ISO_HEADER.join(","), opt = ISO_OPTIONAL.join(","))]
+    MissingIsoColumns(String),
+    #[error("missing column(s) {0} (header must have {header})", header = HEADER.join(","))]
+    MissingColumns(String),
+    #[error("{got} fields, header has {want}")]
+    FieldCount { got: usize, want: usize },
+    #[error("`{name}` = {value:?} is not a number")]
+    NotANumber { name: &'static str, value: String },
+    #[error("`{name}` is {value} (must be finite)")]
+    NotFinite { name: &'static str, value: String },
+    #[error("`{name}` = {value:?} is not an integer")]
+    NotAnInteger { name: &'static str, value: String },
+    #[error("`cycle` = {0} is negative")]
+    NegativeCycle(i64),
+    #[error("`run` = {0} is negative (runs are cycle numbers, >= 0)")]
+    NegativeRun(i64),
+    #[error("`axis` = {0:?} must be x or y")]
+    Axis(String),
+    #[error("`direction` = {0:?} must be forward or backward")]
+    Direction(String),
+    #[error(
+        "`meas_x_um` and `meas_y_um` are both empty (a row needs at least one measured component)"
+    )]
+    NoMeasurement,
+    #[error("duplicate row: same cycle, axis, direction and target as line {0}")]
+    DuplicateIsoRow(usize),
+    #[error("duplicate row: same run, axis, direction, targets and time as line {0}")]
+    DuplicateRow(usize),
+}
+
 /// Parses either format, told apart by the header (`deviation_um` makes it an ISO 230-2 export).
-pub fn parse_any(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>, Format), String> {
+pub fn parse_any(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>, Format), DataError> {
     let first = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("");
     if header_names(first).iter().any(|n| n == "deviation_um") {
         let timed = header_names(first).iter().any(|n| n == "time_s");
@@ -125,26 +192,47 @@ pub fn parse_any(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>, F
     }
 }
 
-fn parse_direction(origin: &str, ln: usize, v: &str) -> Result<f64, String> {
+fn parse_direction(v: &str) -> Result<f64, LineError> {
     match v.to_ascii_lowercase().as_str() {
         "forward" | "+1" | "1" | "up" => Ok(1.0),
         "backward" | "-1" | "down" => Ok(-1.0),
-        s => Err(format!(
-            "{origin}:{ln}: `direction` = {s:?} must be forward or backward"
-        )),
+        s => Err(LineError::Direction(s.to_string())),
+    }
+}
+
+/// A finite number in field `s` of column `name`.
+fn number(name: &'static str, s: &str) -> Result<f64, LineError> {
+    let v: f64 = s.parse().map_err(|_| LineError::NotANumber {
+        name,
+        value: s.to_string(),
+    })?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(LineError::NotFinite {
+            name,
+            value: s.to_string(),
+        })
     }
 }
 
 /// Parses an ISO 230-2 export ([`ISO_HEADER`]): the moving axis' measured position is target +
 /// deviation, the other component is unmeasured.
-pub fn parse_iso_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>), String> {
+pub fn parse_iso_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>), DataError> {
+    let at_line = |line: usize| {
+        move |problem: LineError| DataError::Line {
+            origin: origin.to_string(),
+            line,
+            problem,
+        }
+    };
     let mut lines = text
         .lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty());
     let (_, header) = lines
         .next()
-        .ok_or_else(|| format!("{origin}: empty file"))?;
+        .ok_or_else(|| DataError::Empty(origin.to_string()))?;
     let names = header_names(header);
     let col = |h: &str| names.iter().position(|n| n == h);
     let missing: Vec<&str> = ISO_HEADER
@@ -153,12 +241,7 @@ pub fn parse_iso_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
         .copied()
         .collect();
     if !missing.is_empty() {
-        return Err(format!(
-            "{origin}:1: missing column(s) {} (an ISO 230-2 export needs {}; optional {})",
-            missing.join(", "),
-            ISO_HEADER.join(","),
-            ISO_OPTIONAL.join(",")
-        ));
+        return Err(at_line(1)(LineError::MissingIsoColumns(missing.join(", "))));
     }
     let [c_cycle, c_dir, c_target, c_dev] = ISO_HEADER.map(|h| col(h).unwrap_or(0));
     let (c_axis, c_static, c_time) = (col("axis"), col("static_um"), col("time_s"));
@@ -167,40 +250,29 @@ pub fn parse_iso_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
     let mut seen: HashMap<(i64, AxisId, bool, [u64; 3]), usize> = HashMap::new();
     for (k, (i, line)) in lines.enumerate() {
         let ln = i + 1;
+        let err = at_line(ln);
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         if f.len() != names.len() {
-            return Err(format!(
-                "{origin}:{ln}: {} fields, header has {}",
-                f.len(),
-                names.len()
-            ));
+            return Err(err(LineError::FieldCount {
+                got: f.len(),
+                want: names.len(),
+            }));
         }
-        let num = |c: usize, name: &str| -> Result<f64, String> {
-            let s = f[c];
-            let v: f64 = s
-                .parse()
-                .map_err(|_| format!("{origin}:{ln}: `{name}` = {s:?} is not a number"))?;
-            if v.is_finite() {
-                Ok(v)
-            } else {
-                Err(format!("{origin}:{ln}: `{name}` is {s} (must be finite)"))
-            }
-        };
+        let num = |c: usize, name: &'static str| number(name, f[c]).map_err(err);
         let cycle: i64 = f[c_cycle].parse().map_err(|_| {
-            format!(
-                "{origin}:{ln}: `cycle` = {:?} is not an integer",
-                f[c_cycle]
-            )
+            err(LineError::NotAnInteger {
+                name: "cycle",
+                value: f[c_cycle].to_string(),
+            })
         })?;
         if cycle < 0 {
-            return Err(format!("{origin}:{ln}: `cycle` = {cycle} is negative"));
+            return Err(err(LineError::NegativeCycle(cycle)));
         }
         let moving = match c_axis {
-            Some(c) => AxisId::parse(f[c])
-                .ok_or_else(|| format!("{origin}:{ln}: `axis` = {:?} must be x or y", f[c]))?,
+            Some(c) => AxisId::parse(f[c]).ok_or_else(|| err(LineError::Axis(f[c].to_string())))?,
             None => AxisId::X,
         };
-        let direction = parse_direction(origin, ln, f[c_dir])?;
+        let direction = parse_direction(f[c_dir]).map_err(err)?;
         let target = num(c_target, "target_um")?;
         let dev = num(c_dev, "deviation_um")?;
         let stat = match c_static {
@@ -231,36 +303,38 @@ pub fn parse_iso_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
         let t_key = if c_time.is_some() { bits(time_s) } else { 0 };
         let key = (cycle, moving, direction > 0.0, [bits(tx), bits(ty), t_key]);
         if let Some(first) = seen.insert(key, ln) {
-            return Err(format!(
-                "{origin}:{ln}: duplicate row: same cycle, axis, direction and target as line {first}"
-            ));
+            return Err(err(LineError::DuplicateIsoRow(first)));
         }
         out.push(sample);
         at.push(ln);
     }
     if out.is_empty() {
-        return Err(format!("{origin}: no data rows"));
+        return Err(DataError::NoRows(origin.to_string()));
     }
     Ok((out, at))
 }
 
 /// Parses campaign CSV text; errors are one line and name `origin` and the line number.
-pub fn parse_csv(origin: &str, text: &str) -> Result<Vec<Sample>, String> {
+pub fn parse_csv(origin: &str, text: &str) -> Result<Vec<Sample>, DataError> {
     parse_csv_lines(origin, text).map(|(samples, _)| samples)
 }
 
 /// Same as [`parse_csv`], with the 1-based file line of every sample (for later checks).
-pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>), String> {
+pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usize>), DataError> {
+    let at_line = |line: usize| {
+        move |problem: LineError| DataError::Line {
+            origin: origin.to_string(),
+            line,
+            problem,
+        }
+    };
     let mut lines = text
         .lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty());
-    let (_, header) = lines.next().ok_or_else(|| {
-        format!(
-            "{origin}: empty file (expected header {})",
-            HEADER.join(",")
-        )
-    })?;
+    let (_, header) = lines
+        .next()
+        .ok_or_else(|| DataError::EmptyCampaign(origin.to_string()))?;
     let names: Vec<String> = header
         .split(',')
         .map(|s| s.trim().trim_start_matches('\u{feff}').to_ascii_lowercase())
@@ -278,11 +352,7 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
         })
         .collect();
     if !missing.is_empty() {
-        return Err(format!(
-            "{origin}:1: missing column(s) {} (header must have {})",
-            missing.join(", "),
-            HEADER.join(",")
-        ));
+        return Err(at_line(1)(LineError::MissingColumns(missing.join(", "))));
     }
     let mut out = Vec::new();
     let mut at = Vec::new();
@@ -294,33 +364,20 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
     let pass = names.iter().position(|n| n == "pass");
     for (i, line) in lines {
         let ln = i + 1;
+        let err = at_line(ln);
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         if f.len() != names.len() {
-            return Err(format!(
-                "{origin}:{ln}: {} fields, header has {}",
-                f.len(),
-                names.len()
-            ));
+            return Err(err(LineError::FieldCount {
+                got: f.len(),
+                want: names.len(),
+            }));
         }
         if pass.is_some_and(|c| f[c].eq_ignore_ascii_case("after")) {
             continue;
         }
-        let num = |k: usize| -> Result<f64, String> {
-            let s = f[idx[k]];
-            let v: f64 = s
-                .parse()
-                .map_err(|_| format!("{origin}:{ln}: `{}` = {s:?} is not a number", HEADER[k]))?;
-            if v.is_finite() {
-                Ok(v)
-            } else {
-                Err(format!(
-                    "{origin}:{ln}: `{}` is {s} (must be finite)",
-                    HEADER[k]
-                ))
-            }
-        };
+        let num = |k: usize| number(HEADER[k], f[idx[k]]).map_err(err);
         // A component the sensor does not measure is left empty.
-        let meas = |k: usize| -> Result<f64, String> {
+        let meas = |k: usize| -> Result<f64, DataError> {
             if f[idx[k]].is_empty() {
                 Ok(f64::NAN)
             } else {
@@ -328,24 +385,21 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
             }
         };
         let run_s = f[idx[0]];
-        let run: i64 = run_s
-            .parse()
-            .map_err(|_| format!("{origin}:{ln}: `run` = {run_s:?} is not an integer"))?;
+        let run: i64 = run_s.parse().map_err(|_| {
+            err(LineError::NotAnInteger {
+                name: "run",
+                value: run_s.to_string(),
+            })
+        })?;
         if run < 0 {
-            return Err(format!(
-                "{origin}:{ln}: `run` = {run} is negative (runs are cycle numbers, >= 0)"
-            ));
+            return Err(err(LineError::NegativeRun(run)));
         }
-        let moving = AxisId::parse(f[idx[1]])
-            .ok_or_else(|| format!("{origin}:{ln}: `axis` = {:?} must be x or y", f[idx[1]]))?;
+        let moving =
+            AxisId::parse(f[idx[1]]).ok_or_else(|| err(LineError::Axis(f[idx[1]].to_string())))?;
         let direction = match f[idx[2]].to_ascii_lowercase().as_str() {
             "forward" | "+1" | "1" => 1.0,
             "backward" | "-1" => -1.0,
-            s => {
-                return Err(format!(
-                    "{origin}:{ln}: `direction` = {s:?} must be forward or backward"
-                ))
-            }
+            s => return Err(err(LineError::Direction(s.to_string()))),
         };
         let sample = Sample {
             run,
@@ -358,9 +412,7 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
             meas_y_um: meas(7)?,
         };
         if sample.meas_x_um.is_nan() && sample.meas_y_um.is_nan() {
-            return Err(format!(
-                "{origin}:{ln}: `meas_x_um` and `meas_y_um` are both empty (a row needs at least one measured component)"
-            ));
+            return Err(err(LineError::NoMeasurement));
         }
         // `+ 0.0` makes -0 and 0 one key.
         let bits = |v: f64| (v + 0.0).to_bits();
@@ -375,15 +427,13 @@ pub fn parse_csv_lines(origin: &str, text: &str) -> Result<(Vec<Sample>, Vec<usi
             ],
         );
         if let Some(first) = seen.insert(key, ln) {
-            return Err(format!(
-                "{origin}:{ln}: duplicate row: same run, axis, direction, targets and time as line {first}"
-            ));
+            return Err(err(LineError::DuplicateRow(first)));
         }
         out.push(sample);
         at.push(ln);
     }
     if out.is_empty() {
-        return Err(format!("{origin}: no data rows"));
+        return Err(DataError::NoRows(origin.to_string()));
     }
     Ok((out, at))
 }
@@ -396,7 +446,7 @@ pub fn check_travel(
     samples: &[Sample],
     lines: Option<&[usize]>,
     model: &StageModel,
-) -> Result<(), String> {
+) -> Result<(), DataError> {
     const TOL_UM: f64 = 1e-3;
     for (i, s) in samples.iter().enumerate() {
         for (axis, key) in [(AxisId::X, "target_x_um"), (AxisId::Y, "target_y_um")] {
@@ -407,9 +457,13 @@ pub fn check_travel(
                     Some(ln) => format!("{origin}:{ln}"),
                     None => format!("{origin}: sample {}", i + 1),
                 };
-                return Err(format!(
-                    "{place}: `{key}` = {v} lies outside the model's travel [{lo}, {hi}] µm"
-                ));
+                return Err(DataError::OutsideTravel {
+                    place,
+                    key,
+                    value: v,
+                    lo,
+                    hi,
+                });
             }
         }
     }
@@ -417,26 +471,27 @@ pub fn check_travel(
 }
 
 /// Reads a campaign CSV file (campaign ids are not supported yet: there is no campaign storage).
-pub fn read_csv(path: &Path) -> Result<Vec<Sample>, String> {
+pub fn read_csv(path: &Path) -> Result<Vec<Sample>, DataError> {
     read_csv_lines(path).map(|(samples, _)| samples)
 }
 
 /// Same as [`read_csv`], with the file line of every sample.
-pub fn read_csv_lines(path: &Path) -> Result<(Vec<Sample>, Vec<usize>), String> {
+pub fn read_csv_lines(path: &Path) -> Result<(Vec<Sample>, Vec<usize>), DataError> {
     read_any(path).map(|(s, l, _)| (s, l))
 }
 
 /// Reads a data file in either format (auto-detected from the header).
-pub fn read_any(path: &Path) -> Result<(Vec<Sample>, Vec<usize>, Format), String> {
+pub fn read_any(path: &Path) -> Result<(Vec<Sample>, Vec<usize>, Format), DataError> {
     if !path.is_file() {
-        return Err(format!(
-            "{}: not a file (only DATA.csv files are accepted for now: campaign storage does not exist yet, so campaign ids cannot be resolved)",
-            path.display()
-        ));
+        return Err(DataError::NotAFile(path.display().to_string()));
     }
     // Bounded like every samples file: a huge file is refused, not read into memory.
-    let text = crate::tomlpos::read_bounded(path, crate::samples::MAX_SAMPLES_BYTES)
-        .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    let text = crate::tomlpos::read_bounded(path, crate::samples::MAX_SAMPLES_BYTES).map_err(
+        |source| DataError::Read {
+            path: path.display().to_string(),
+            source,
+        },
+    )?;
     parse_any(&path.display().to_string(), &text)
 }
 
@@ -606,13 +661,29 @@ mod tests {
         assert!((back[7].meas_x_um - s[7].meas_x_um).abs() < 1e-5);
         let bad = text.replacen("forward", "sideways", 1);
         let e = parse_csv("d.csv", &bad).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                DataError::Line {
+                    line: 2,
+                    problem: LineError::Direction(_),
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let e = e.to_string();
         assert!(e.starts_with("d.csv:2:") && e.contains("direction"), "{e}");
         let mut rows: Vec<&str> = text.lines().collect();
         let nan_row = rows[3].rsplit_once(',').unwrap().0.to_string() + ",NaN";
         rows[3] = &nan_row;
-        let e = parse_csv("d.csv", &rows.join("\n")).unwrap_err();
+        let e = parse_csv("d.csv", &rows.join("\n"))
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("d.csv:4:") && e.contains("meas_y_um"), "{e}");
-        let e = parse_csv("d.csv", "run,axis,direction,target_x_um\n1,x,forward,3\n").unwrap_err();
+        let e = parse_csv("d.csv", "run,axis,direction,target_x_um\n1,x,forward,3\n")
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("missing column") && e.contains("meas_x_um"),
             "{e}"

@@ -73,6 +73,21 @@ fn power(p: &[f64], y: &[f64], g: &[usize], n_groups: usize, f: f64) -> f64 {
     (gss * bc * bc - 2.0 * gcs * bc * bs + gcc * bs * bs) / det
 }
 
+/// Why the data cannot tell the motor period from its aliases.
+#[derive(Debug, thiserror::Error)]
+enum Unresolved {
+    #[error("{have} distinct targets on {axis} lines, {need} needed")]
+    TooFewTargets {
+        have: usize,
+        axis: AxisId,
+        need: f64,
+    },
+    #[error("no two targets on a line")]
+    NoGaps,
+    #[error("the targets are evenly spaced (every period of the band has a long-period alias on them; spread the targets irregularly)")]
+    Even,
+}
+
 /// Whether the targets of `axis` can tell the periods of the band apart from anything smooth.
 /// Two ways they cannot: too few distinct targets (among M independent trial periods one
 /// sinusoid then fits a good part of any smooth error at T targets by chance, about
@@ -85,7 +100,7 @@ fn resolves(
     f_lo: f64,
     f_hi: f64,
     span: f64,
-) -> Result<(), String> {
+) -> Result<(), Unresolved> {
     let mut lines: std::collections::BTreeMap<(i64, i64), Vec<i64>> = Default::default();
     for s in samples.iter().filter(|s| s.moving == axis) {
         lines
@@ -99,10 +114,11 @@ fn resolves(
     let m = ((f_hi - f_lo) * span).max(1.0);
     let need = (9.0 * m.ln() + 2.0).ceil();
     if (all.len() as f64) < need {
-        return Err(format!(
-            "{} distinct targets on {axis} lines, {need} needed",
-            all.len()
-        ));
+        return Err(Unresolved::TooFewTargets {
+            have: all.len(),
+            axis,
+            need,
+        });
     }
     // Gaps between neighbouring targets of a line, µm.
     let mut gaps = Vec::new();
@@ -112,7 +128,7 @@ fn resolves(
         gaps.extend(v.windows(2).map(|w| (w[1] - w[0]) as f64 / 100.0));
     }
     if gaps.is_empty() {
-        return Err("no two targets on a line".into());
+        return Err(Unresolved::NoGaps);
     }
     // Mean resultant length of the gaps' phases over the band: 1 for even spacing, near 0 when
     // the gaps vary by more than a period.
@@ -133,7 +149,7 @@ fn resolves(
     if r < 0.5 {
         Ok(())
     } else {
-        Err("the targets are evenly spaced (every period of the band has a long-period alias on them; spread the targets irregularly)".into())
+        Err(Unresolved::Even)
     }
 }
 

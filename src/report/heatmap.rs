@@ -8,7 +8,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::plot::{frame, render_png, render_svg, tick, Fonts, PlotOptions};
+use super::plot::{frame, render_png, render_svg, tick, DrawError, Fonts, PlotOptions};
 use super::ReportError;
 use crate::recon2d::Grid2;
 
@@ -28,7 +28,7 @@ pub struct HeatMap<'a> {
     pub samples: &'a [(f64, f64)],
 }
 
-fn heat_error(h: &HeatMap<'_>, reason: String) -> ReportError {
+fn heat_error(h: &HeatMap<'_>, reason: DrawError) -> ReportError {
     ReportError::Plot {
         component: h.title.clone(),
         reason,
@@ -96,19 +96,21 @@ fn check(h: &HeatMap<'_>) -> Result<(), ReportError> {
     if h.values.len() != h.grid.len() || h.grid.is_empty() {
         return Err(heat_error(
             h,
-            format!(
-                "{} values for a {} x {} grid",
-                h.values.len(),
-                h.grid.x.n,
-                h.grid.y.n
-            ),
+            DrawError::GridSize {
+                values: h.values.len(),
+                nx: h.grid.x.n,
+                ny: h.grid.y.n,
+            },
         ));
     }
     Ok(())
 }
 
-fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, h: &HeatMap<'_>) -> Result<(), String> {
-    let err = |e: &dyn std::fmt::Display| e.to_string();
+fn draw<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    h: &HeatMap<'_>,
+) -> Result<(), DrawError> {
+    let err = |e: &dyn std::fmt::Display| DrawError::of(e);
     let (w, _) = root.dim_in_pixel();
     let (
         Fonts {

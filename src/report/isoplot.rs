@@ -9,13 +9,13 @@ use plotters::prelude::*;
 use super::plot::{
     finite_points, frame, padded_range, render_png, render_svg, value_range, xy_chart, Mesh,
 };
-use super::{AxisIso230, PlotOptions, ReportError, FONT_FAMILY};
+use super::{AxisIso230, DrawError, PlotOptions, ReportError, FONT_FAMILY};
 
 const UP: RGBColor = RGBColor(31, 119, 180);
 const DOWN: RGBColor = RGBColor(214, 39, 40);
 const BIDIR: RGBColor = RGBColor(90, 90, 90);
 
-fn chart_error(f: &AxisIso230, reason: String) -> ReportError {
+fn chart_error(f: &AxisIso230, reason: DrawError) -> ReportError {
     ReportError::Plot {
         component: format!("iso230_{}", f.axis),
         reason,
@@ -58,8 +58,11 @@ pub fn iso_chart_png(f: &AxisIso230, opts: &PlotOptions) -> Result<Vec<u8>, Repo
     render_png(opts, |root| draw(root, f)).map_err(|e| chart_error(f, e))
 }
 
-fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, f: &AxisIso230) -> Result<(), String> {
-    let err = |e: &dyn std::fmt::Display| e.to_string();
+fn draw<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    f: &AxisIso230,
+) -> Result<(), DrawError> {
+    let err = |e: &dyn std::fmt::Display| DrawError::of(e);
     let (fonts, body) = frame(root, &chart_title(f))?;
     let small = fonts.small;
     // The figures, in bold, on a strip of their own above the plot: never hidden by a curve.

@@ -25,6 +25,7 @@ mod iso;
 pub mod iso230_1;
 mod isoplot;
 mod plot;
+pub use plot::DrawError;
 mod table;
 pub mod verification;
 
@@ -140,7 +141,10 @@ pub enum ReportError {
     #[error("component {component}: {reason}")]
     InvalidCurve { component: String, reason: String },
     #[error("plot of {component}: {reason}")]
-    Plot { component: String, reason: String },
+    Plot {
+        component: String,
+        reason: DrawError,
+    },
     #[error("report i/o: {0}")]
     Io(#[from] std::io::Error),
     #[error("report json: {0}")]

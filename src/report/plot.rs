@@ -59,17 +59,42 @@ pub fn plot_png(curve: &ComponentCurve, opts: &PlotOptions) -> Result<Vec<u8>, R
     render_png(opts, |root| draw(root, curve)).map_err(|reason| plot_error(curve, reason))
 }
 
+/// Why a chart could not be drawn. plotters' errors are generic over the backend (SVG,
+/// bitmap): their text is what both backends share.
+#[derive(Debug, thiserror::Error)]
+pub enum DrawError {
+    #[error("{0}")]
+    Backend(String),
+    #[error("zero-sized plot")]
+    ZeroSized,
+    /// A heat map whose values do not fill its grid.
+    #[error("{values} values for a {nx} x {ny} grid")]
+    GridSize { values: usize, nx: usize, ny: usize },
+    /// A verification chart without targets.
+    #[error("no targets of axis {0}")]
+    NoTargets(String),
+    #[error(transparent)]
+    Png(#[from] png::EncodingError),
+}
+
+impl DrawError {
+    /// A plotters error of any backend.
+    pub(super) fn of(e: impl std::fmt::Display) -> Self {
+        DrawError::Backend(e.to_string())
+    }
+}
+
 /// Runs a chart's drawing on an SVG document of `opts`' size (fonts registered first).
 pub(super) fn render_svg(
     opts: &PlotOptions,
-    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Result<(), String>,
-) -> Result<String, String> {
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Result<(), DrawError>,
+) -> Result<String, DrawError> {
     register_fonts();
     let mut out = String::new();
     {
         let root = SVGBackend::with_string(&mut out, (opts.width, opts.height)).into_drawing_area();
         draw(&root)?;
-        root.present().map_err(|e| e.to_string())?;
+        root.present().map_err(DrawError::of)?;
     }
     Ok(out)
 }
@@ -77,10 +102,10 @@ pub(super) fn render_svg(
 /// Runs the same drawing on an RGB bitmap and encodes it as PNG.
 pub(super) fn render_png(
     opts: &PlotOptions,
-    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), String>,
-) -> Result<Vec<u8>, String> {
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), DrawError>,
+) -> Result<Vec<u8>, DrawError> {
     if opts.width == 0 || opts.height == 0 {
-        return Err("zero-sized plot".into());
+        return Err(DrawError::ZeroSized);
     }
     register_fonts();
     let mut rgb = vec![0u8; opts.width as usize * opts.height as usize * 3];
@@ -88,7 +113,7 @@ pub(super) fn render_png(
         let root =
             BitMapBackend::with_buffer(&mut rgb, (opts.width, opts.height)).into_drawing_area();
         draw(&root)?;
-        root.present().map_err(|e| e.to_string())?;
+        root.present().map_err(DrawError::of)?;
     }
     encode_png(&rgb, opts.width, opts.height)
 }
@@ -105,13 +130,13 @@ pub(super) struct Fonts {
 pub(super) fn frame<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     title: &str,
-) -> Result<(Fonts, DrawingArea<DB, Shift>), String> {
+) -> Result<(Fonts, DrawingArea<DB, Shift>), DrawError> {
     let (_, h) = root.dim_in_pixel();
     let small = (h / 50).clamp(11, 18);
-    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    root.fill(&WHITE).map_err(DrawError::of)?;
     let body = root
         .titled(title, (FONT_FAMILY, small + 6).into_font())
-        .map_err(|e| e.to_string())?;
+        .map_err(DrawError::of)?;
     let fonts = Fonts {
         small,
         label: (FONT_FAMILY, small).into_font(),
@@ -121,7 +146,7 @@ pub(super) fn frame<DB: DrawingBackend>(
 }
 
 /// An 8-bit RGB buffer as a PNG file.
-pub(super) fn encode_png(rgb: &[u8], width: u32, height: u32) -> Result<Vec<u8>, String> {
+pub(super) fn encode_png(rgb: &[u8], width: u32, height: u32) -> Result<Vec<u8>, DrawError> {
     let mut png_bytes = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut png_bytes, width, height);
@@ -130,13 +155,13 @@ pub(super) fn encode_png(rgb: &[u8], width: u32, height: u32) -> Result<Vec<u8>,
         // Plots are mostly flat white: per-row adaptive filtering shrinks them about 4-fold.
         enc.set_compression(png::Compression::Default);
         enc.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
-        let mut w = enc.write_header().map_err(|e| e.to_string())?;
-        w.write_image_data(rgb).map_err(|e| e.to_string())?;
+        let mut w = enc.write_header()?;
+        w.write_image_data(rgb)?;
     }
     Ok(png_bytes)
 }
 
-fn plot_error(curve: &ComponentCurve, reason: String) -> ReportError {
+fn plot_error(curve: &ComponentCurve, reason: DrawError) -> ReportError {
     ReportError::Plot {
         component: curve.component.clone(),
         reason,
@@ -227,8 +252,8 @@ pub(super) fn xy_chart<'a, DB: DrawingBackend>(
     x: std::ops::Range<f64>,
     y: std::ops::Range<f64>,
     mesh: Mesh<'_>,
-) -> Result<ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>, String> {
-    let err = |e: &dyn std::fmt::Display| e.to_string();
+) -> Result<ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>, DrawError> {
+    let err = |e: &dyn std::fmt::Display| DrawError::of(e);
     let small = fonts.small;
     let mut builder = ChartBuilder::on(area);
     builder
@@ -263,8 +288,8 @@ pub(super) fn xy_chart<'a, DB: DrawingBackend>(
 fn draw<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     c: &ComponentCurve,
-) -> Result<(), String> {
-    let err = |e: &dyn std::fmt::Display| e.to_string();
+) -> Result<(), DrawError> {
+    let err = |e: &dyn std::fmt::Display| DrawError::of(e);
     let (fonts, body) = frame(root, &title(c))?;
     let residual = c.residual_um();
     let (upper, lower) = match residual {

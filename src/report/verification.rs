@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use serde::Serialize;
 
 use super::html::esc;
-use super::plot::{frame, padded_range, render_png, render_svg, xy_chart, Mesh};
+use super::plot::{frame, padded_range, render_png, render_svg, xy_chart, DrawError, Mesh};
 use super::PlotOptions;
 use crate::types::{AxisId, Direction, SampleRecord};
 
@@ -107,12 +107,12 @@ const PASS: RGBColor = RGBColor(44, 140, 44);
 const SAMPLE: RGBColor = RGBColor(150, 150, 150);
 
 /// The chart as an SVG document.
-pub fn verify_chart_svg(c: &VerifyChart<'_>, opts: &PlotOptions) -> Result<String, String> {
+pub fn verify_chart_svg(c: &VerifyChart<'_>, opts: &PlotOptions) -> Result<String, DrawError> {
     render_svg(opts, |root| draw(root, c))
 }
 
 /// The chart as a PNG file, drawn by the same code as [`verify_chart_svg`].
-pub fn verify_chart_png(c: &VerifyChart<'_>, opts: &PlotOptions) -> Result<Vec<u8>, String> {
+pub fn verify_chart_png(c: &VerifyChart<'_>, opts: &PlotOptions) -> Result<Vec<u8>, DrawError> {
     render_png(opts, |root| draw(root, c))
 }
 
@@ -131,8 +131,8 @@ fn pass_line(checks: &[TargetCheck]) -> Vec<(f64, f64)> {
 fn draw<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     c: &VerifyChart<'_>,
-) -> Result<(), String> {
-    let err = |e: &dyn std::fmt::Display| e.to_string();
+) -> Result<(), DrawError> {
+    let err = |e: &dyn std::fmt::Display| DrawError::of(e);
     let title = format!(
         "axis {}: deviation before / after compensation — {}",
         c.axis,
@@ -140,7 +140,7 @@ fn draw<DB: DrawingBackend>(
     );
     let (fonts, body) = frame(root, &title)?;
     if c.checks.is_empty() {
-        return Err(format!("no targets of axis {}", c.axis));
+        return Err(DrawError::NoTargets(c.axis.to_string()));
     }
     let line = pass_line(c.checks);
     let xs = c.checks.iter().map(|t| t.target_um);

@@ -71,7 +71,7 @@ struct Halting {
 }
 
 impl Recorder for Halting {
-    fn sample(&mut self, _: &SampleRecord) -> Result<bool, String> {
+    fn sample(&mut self, _: &SampleRecord) -> Result<bool, csmetro::store::StoreError> {
         self.n += 1;
         if self.n == self.after {
             self.log

@@ -101,6 +101,7 @@ fn check_csv(text: &str) -> Result<(), TestCaseError> {
             }
         }
         Err(e) => {
+            let e = e.to_string();
             prop_assert!(e.starts_with("d.csv:"), "{}", e);
             prop_assert_eq!(e.lines().count(), 1, "one line: {}", e);
         }

@@ -71,8 +71,5 @@ pub fn open_camera(config: CameraConfig) -> Result<Box<dyn Camera>, CameraError>
 
 /// The error of a backend this build does not contain.
 pub fn not_compiled(backend: CameraBackend) -> CameraError {
-    CameraError::Other(format!(
-        "this csmetro was built without the `{b}` camera backend: rebuild with `--features {b}`",
-        b = backend.name()
-    ))
+    CameraError::NotCompiled(backend.name())
 }

@@ -198,6 +198,10 @@ pub enum CameraError {
     /// Any other camera failure.
     #[error("camera error: {0}")]
     Other(String),
+    /// This build lacks the camera's backend (a cargo feature): the configuration's problem,
+    /// not the camera's.
+    #[error("camera error: this csmetro was built without the `{0}` camera backend: rebuild with `--features {0}`")]
+    NotCompiled(&'static str),
 }
 
 /// The rest of a triggered exposure: run it (on any thread) to get the frame.

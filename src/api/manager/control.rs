@@ -3,23 +3,24 @@
 use super::*;
 
 impl Manager {
-    pub(super) fn refuse(&self, id: i64, what: &str) -> ApiError {
+    pub(super) fn refuse(&self, id: i64, what: &'static str) -> ManagerError {
         match self.row(id) {
-            Ok(row) => ApiError::conflict(format!(
-                "campaign {id} is {}: cannot {what} it",
-                row.state.as_str()
-            )),
+            Ok(row) => ManagerError::Refused {
+                id,
+                state: row.state.as_str(),
+                what,
+            },
             Err(e) => e,
         }
     }
 
     /// Holds a running campaign between two points (motion ends on target, nothing is lost).
-    pub fn pause(&self, id: i64) -> Result<CampaignStatus, ApiError> {
+    pub fn pause(&self, id: i64) -> Result<CampaignStatus, ManagerError> {
         self.pause_by(id, &Origin::api(None, None))
     }
 
     /// [`Manager::pause`]; the `paused` event and the status message say who paused it.
-    pub fn pause_by(&self, id: i64, origin: &Origin) -> Result<CampaignStatus, ApiError> {
+    pub fn pause_by(&self, id: i64, origin: &Origin) -> Result<CampaignStatus, ManagerError> {
         let msg = format!("paused by {}", origin.describe());
         {
             let mut inner = self.inner();
@@ -37,9 +38,7 @@ impl Manager {
                 if in_queue.is_none() && row.state != CampaignState::Queued {
                     return Err(self.refuse(id, "pause"));
                 }
-                self.db()
-                    .set_state(id, CampaignState::Paused, Some(&msg))
-                    .map_err(store_err)?;
+                self.db().set_state(id, CampaignState::Paused, Some(&msg))?;
                 self.emit_by_operator(id, "paused", origin);
                 return self.status(id);
             };
@@ -49,9 +48,7 @@ impl Manager {
             }
             a.control.send_replace(Control::Pause);
             a.progress.pause(crate::store::now_unix_s());
-            self.db()
-                .set_state(id, CampaignState::Paused, Some(&msg))
-                .map_err(store_err)?;
+            self.db().set_state(id, CampaignState::Paused, Some(&msg))?;
         }
         self.emit_by_operator(id, "paused", origin);
         self.status(id)
@@ -67,7 +64,7 @@ impl Manager {
 
     /// Continues a paused campaign, or queues an interrupted one again (it resumes from its
     /// last stored sample).
-    pub fn resume(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+    pub fn resume(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ManagerError> {
         self.resume_by(id, &Origin::api(None, None))
     }
 
@@ -76,9 +73,9 @@ impl Manager {
         self: &Arc<Self>,
         id: i64,
         origin: &Origin,
-    ) -> Result<CampaignStatus, ApiError> {
+    ) -> Result<CampaignStatus, ManagerError> {
         if self.shutting_down() {
-            return Err(ApiError::conflict("the service is shutting down"));
+            return Err(ManagerError::ShuttingDown);
         }
         let requeue_stage = {
             let mut inner = self.inner();
@@ -89,9 +86,7 @@ impl Manager {
                 }
                 a.control.send_replace(Control::Run);
                 a.progress.resume(crate::store::now_unix_s());
-                self.db()
-                    .set_state(id, CampaignState::Running, None)
-                    .map_err(store_err)?;
+                self.db().set_state(id, CampaignState::Running, None)?;
                 drop(inner);
                 self.emit_by_operator(id, "resumed", origin);
                 return self.status(id);
@@ -108,13 +103,11 @@ impl Manager {
                     drop(inner);
                     return Err(self.refuse(id, "resume"));
                 }
-                self.db()
-                    .set_state(
-                        id,
-                        CampaignState::Queued,
-                        Some(&format!("resumed by {}", origin.describe())),
-                    )
-                    .map_err(store_err)?;
+                self.db().set_state(
+                    id,
+                    CampaignState::Queued,
+                    Some(&format!("resumed by {}", origin.describe())),
+                )?;
                 inner
                     .queues
                     .entry(row.stage.clone())
@@ -135,7 +128,7 @@ impl Manager {
 
     /// Aborts a campaign: a running one stops motion and ends `aborted`; a queued or
     /// interrupted one is marked aborted at once.
-    pub fn abort(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ApiError> {
+    pub fn abort(self: &Arc<Self>, id: i64) -> Result<CampaignStatus, ManagerError> {
         self.abort_by(id, &Origin::api(None, None))
     }
 
@@ -144,7 +137,7 @@ impl Manager {
         self: &Arc<Self>,
         id: i64,
         origin: &Origin,
-    ) -> Result<CampaignStatus, ApiError> {
+    ) -> Result<CampaignStatus, ManagerError> {
         let mut inner = self.inner();
         if let Some(a) = inner.active(id) {
             a.operator_abort = true;
@@ -169,16 +162,14 @@ impl Manager {
         if queued.is_none() && !resting {
             return Err(self.refuse(id, "abort"));
         }
-        self.db()
-            .set_state(
-                id,
-                CampaignState::Aborted,
-                Some(&format!(
-                    "aborted by {} before it ran again",
-                    origin.describe()
-                )),
-            )
-            .map_err(store_err)?;
+        self.db().set_state(
+            id,
+            CampaignState::Aborted,
+            Some(&format!(
+                "aborted by {} before it ran again",
+                origin.describe()
+            )),
+        )?;
         let mut data = origin.fields();
         data["state"] = json!("aborted");
         self.emit(id, "finished", data);

@@ -16,6 +16,7 @@
 //! ends the campaign `interrupted`, which the next start resumes. Only an operator's abort
 //! leaves a campaign `aborted`.
 mod control;
+mod error;
 mod follow;
 mod schedule;
 mod submit;
@@ -30,7 +31,6 @@ use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use tokio::sync::{broadcast, watch};
 
-use super::ApiError;
 use crate::campaign::engine::Control;
 use crate::campaign::preflight;
 use crate::campaign::session::{self, Event, SharedStore};
@@ -38,6 +38,7 @@ use crate::campaign::spec::Campaign;
 use crate::campaign::stagelock::{self, StageLock, StageLockError};
 use crate::store::{CampaignRow, EventRow, StoreError};
 use crate::types::{CampaignState, Origin};
+pub use error::ManagerError;
 
 /// How often a campaign waiting for a stage held by another process tries again.
 const STAGE_RETRY: Duration = Duration::from_secs(2);
@@ -139,13 +140,6 @@ async fn preflight_report(c: &Campaign) -> preflight::Report {
     report
 }
 
-/// A store failure as the client sees it: the details (with the store's server path) go to the
-/// log only.
-fn store_err(e: StoreError) -> ApiError {
-    tracing::error!(error = %e, "store");
-    ApiError::internal("the service's store failed (its log has the details)")
-}
-
 /// What one service lets clients fill.
 #[derive(Debug, Clone, Copy)]
 pub struct Limits {
@@ -236,8 +230,8 @@ impl Manager {
 
     /// Queues every campaign a previous service left unfinished (oldest first) and starts what
     /// can start. Returns their ids.
-    pub fn start(self: &Arc<Self>) -> Result<Vec<i64>, String> {
-        let rows = self.db().unfinished().map_err(|e| e.to_string())?;
+    pub fn start(self: &Arc<Self>) -> Result<Vec<i64>, StoreError> {
+        let rows = self.db().unfinished()?;
         let mut ids = Vec::new();
         let db_path = self.db().path().map(Path::to_path_buf);
         for row in rows {
@@ -260,8 +254,7 @@ impl Manager {
             if row.state != CampaignState::Queued {
                 let msg = format!("resumed at service start (was {})", row.state.as_str());
                 self.db()
-                    .set_state(row.id, CampaignState::Queued, Some(&msg))
-                    .map_err(|e| e.to_string())?;
+                    .set_state(row.id, CampaignState::Queued, Some(&msg))?;
                 self.emit(
                     row.id,
                     "requeued",
@@ -288,19 +281,16 @@ impl Manager {
         Ok(ids)
     }
 
-    fn row(&self, id: i64) -> Result<CampaignRow, ApiError> {
-        self.db()
-            .campaign(id)
-            .map_err(store_err)?
-            .ok_or_else(|| ApiError::not_found(format!("no campaign {id}")))
+    fn row(&self, id: i64) -> Result<CampaignRow, ManagerError> {
+        self.db().campaign(id)?.ok_or(ManagerError::NoCampaign(id))
     }
 
     fn status_of(
         &self,
         row: CampaignRow,
         queue: Option<usize>,
-    ) -> Result<CampaignStatus, ApiError> {
-        let stored = self.db().sample_count(row.id).map_err(store_err)?;
+    ) -> Result<CampaignStatus, ManagerError> {
+        let stored = self.db().sample_count(row.id)?;
         let percent = if row.planned == 0 {
             0.0
         } else {
@@ -333,15 +323,15 @@ impl Manager {
     }
 
     /// State and progress of one campaign.
-    pub fn status(&self, id: i64) -> Result<CampaignStatus, ApiError> {
+    pub fn status(&self, id: i64) -> Result<CampaignStatus, ManagerError> {
         let pos = self.inner().queue_position(id).map(|(_, p)| p);
         let row = self.row(id)?;
         self.status_of(row, pos)
     }
 
     /// Every campaign, newest first.
-    pub fn list(&self) -> Result<Vec<CampaignStatus>, ApiError> {
-        let rows = self.db().campaigns().map_err(store_err)?;
+    pub fn list(&self) -> Result<Vec<CampaignStatus>, ManagerError> {
+        let rows = self.db().campaigns()?;
         rows.into_iter()
             .map(|r| {
                 let pos = self.inner().queue_position(r.id).map(|(_, p)| p);
@@ -360,9 +350,11 @@ impl Manager {
     }
 
     /// A campaign's log after event `after` (0: all).
-    pub fn events_after(&self, id: i64, after: i64) -> Result<Vec<EventRow>, ApiError> {
+    pub fn events_after(&self, id: i64, after: i64) -> Result<Vec<EventRow>, ManagerError> {
         self.row(id)?;
-        self.db().events_after(id, after).map_err(store_err)
+        self.db()
+            .events_after(id, after)
+            .map_err(ManagerError::from)
     }
 
     /// Committed samples in commit order after cursor `after` (0: from the first), at most
@@ -372,23 +364,27 @@ impl Manager {
         id: i64,
         after: i64,
         limit: usize,
-    ) -> Result<Vec<(i64, crate::types::SampleRecord)>, ApiError> {
+    ) -> Result<Vec<(i64, crate::types::SampleRecord)>, ManagerError> {
         self.row(id)?;
-        self.db().samples_after(id, after, limit).map_err(store_err)
+        self.db()
+            .samples_after(id, after, limit)
+            .map_err(ManagerError::from)
     }
 
-    pub fn result_names(&self, id: i64) -> Result<Vec<String>, ApiError> {
+    pub fn result_names(&self, id: i64) -> Result<Vec<String>, ManagerError> {
         self.row(id)?;
-        self.db().result_names(id).map_err(store_err)
+        self.db().result_names(id).map_err(ManagerError::from)
     }
 
     /// (content type, bytes) of a stored result.
-    pub fn result(&self, id: i64, name: &str) -> Result<(String, Vec<u8>), ApiError> {
+    pub fn result(&self, id: i64, name: &str) -> Result<(String, Vec<u8>), ManagerError> {
         self.row(id)?;
         self.db()
-            .result(id, name)
-            .map_err(store_err)?
-            .ok_or_else(|| ApiError::not_found(format!("campaign {id} has no result {name:?}")))
+            .result(id, name)?
+            .ok_or_else(|| ManagerError::NoResult {
+                id,
+                name: name.to_string(),
+            })
     }
 
     /// Stops every running campaign (motion first) and leaves them, and the queued ones,

@@ -2,6 +2,7 @@
 //! and what its end leaves (a retry, the next campaign).
 #[allow(clippy::wildcard_imports)]
 use super::*;
+use crate::campaign::error::CampaignError;
 
 impl Manager {
     /// Starts the next queued campaign of `stage` unless one drives it already.
@@ -195,7 +196,7 @@ impl Manager {
                 tracing::warn!(campaign = id, "{}; not started", report.error_message());
                 let msg = format!("{}; not started", report.client_message());
                 me.interrupt(id, msg.clone());
-                me.finished(id, &stage, Ok(Err(msg)));
+                me.finished(id, &stage, Ok(Err(CampaignError::Recorded(msg))));
                 return;
             }
             let run = session::execute(store, id, c, control, events, Box::new(|_| {}));
@@ -209,7 +210,7 @@ impl Manager {
         self: &Arc<Self>,
         id: i64,
         stage: &str,
-        r: Result<Result<session::Finished, String>, tokio::task::JoinError>,
+        r: Result<Result<session::Finished, CampaignError>, tokio::task::JoinError>,
     ) {
         let operator_abort = {
             let mut inner = self.inner();
@@ -236,7 +237,7 @@ impl Manager {
             }
             Ok(Err(e)) => {
                 tracing::warn!(campaign = id, error = %e, "campaign stopped");
-                if self.retry_start(id, stage, &e) {
+                if self.retry_start(id, stage, &e.to_string()) {
                     self.active.send_modify(|n| *n = n.saturating_sub(1));
                     return;
                 }

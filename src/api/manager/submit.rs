@@ -6,7 +6,11 @@ use super::*;
 impl Manager {
     /// Validates and stores a campaign file sent by a client, and queues it. `name` is the
     /// file name the client gave (errors name it; relative paths resolve in `campaigns_dir`).
-    pub fn submit(self: &Arc<Self>, text: &str, name: &str) -> Result<CampaignStatus, ApiError> {
+    pub fn submit(
+        self: &Arc<Self>,
+        text: &str,
+        name: &str,
+    ) -> Result<CampaignStatus, ManagerError> {
         self.submit_by(text, name, &Origin::api(None, None))
     }
 
@@ -16,9 +20,9 @@ impl Manager {
         text: &str,
         name: &str,
         origin: &Origin,
-    ) -> Result<CampaignStatus, ApiError> {
+    ) -> Result<CampaignStatus, ManagerError> {
         if self.shutting_down() {
-            return Err(ApiError::conflict("the service is shutting down"));
+            return Err(ManagerError::ShuttingDown);
         }
         let file = Path::new(name)
             .file_name()
@@ -26,27 +30,20 @@ impl Manager {
             .filter(|f| !f.is_empty())
             .unwrap_or_else(|| "submitted.toml".into());
         self.check_quota()?;
-        let c = Campaign::parse(text, &file, &self.campaigns_dir)
-            .map_err(|e| ApiError::bad_request(e.to_string()))?;
+        let c = Campaign::parse(text, &file, &self.campaigns_dir)?;
         // `verify = ID`: a characterisation in this service's store only.
-        let c = crate::campaign::verification::resolve(c, &self.db())
-            .map_err(|e| ApiError::bad_request(e.to_string()))?;
+        let c = crate::campaign::verification::resolve(c, &self.db())?;
         // load_stored resolves relative paths from the stored path's directory.
         let c = c.stored_as(self.campaigns_dir.join(&file).display().to_string());
         self.preflight_at_submit(&c)?;
         let stage = c.spec().campaign.stage.clone();
         let waiting = self.inner().queues.get(&stage).map_or(0, VecDeque::len);
         if waiting >= self.limits.max_queued_per_stage {
-            return Err(ApiError::conflict(format!(
-                "{waiting} campaigns already wait for stage {stage} (the service's \
-                 [campaigns] max_queued): submit again when some have run"
-            )));
+            return Err(ManagerError::QueueFull { waiting, stage });
         }
         let id = session::create(&self.store, &c).map_err(|e| {
             tracing::error!(error = %e, "campaign not recorded");
-            ApiError::internal(
-                "the campaign could not be recorded (the service's log has the details)",
-            )
+            ManagerError::NotRecorded
         })?;
         let position = {
             let mut inner = self.inner();
@@ -67,7 +64,7 @@ impl Manager {
 
     /// 507 while the store file (and its write-ahead log) is over [`Limits::max_store_bytes`]:
     /// clients cannot fill the disk one campaign at a time.
-    pub(super) fn check_quota(&self) -> Result<(), ApiError> {
+    pub(super) fn check_quota(&self) -> Result<(), ManagerError> {
         let Some(db) = self.db().path().map(Path::to_path_buf) else {
             return Ok(());
         };
@@ -81,15 +78,10 @@ impl Manager {
                 max = self.limits.max_store_bytes,
                 "store over its quota"
             );
-            return Err(ApiError::new(
-                axum::http::StatusCode::INSUFFICIENT_STORAGE,
-                format!(
-                    "the store holds {} MB, over the service's quota ([storage] max_store_mb = \
-                     {}): nothing new is recorded until an operator frees space",
-                    used >> 20,
-                    self.limits.max_store_bytes >> 20
-                ),
-            ));
+            return Err(ManagerError::OverQuota {
+                used_mb: used >> 20,
+                max_mb: self.limits.max_store_bytes >> 20,
+            });
         }
         Ok(())
     }
@@ -98,7 +90,7 @@ impl Manager {
     /// free now (held for the check). A campaign queued behind another, or whose stage another
     /// process drives, is checked when it starts. 409 when the file must change, 503 when the
     /// rig must; the message names the failed check.
-    pub(super) fn preflight_at_submit(&self, c: &Campaign) -> Result<(), ApiError> {
+    pub(super) fn preflight_at_submit(&self, c: &Campaign) -> Result<(), ManagerError> {
         let stage = &c.spec().campaign.stage;
         {
             let inner = self.inner();
@@ -126,16 +118,10 @@ impl Manager {
             }
             return Ok(());
         }
-        let status = match report.failure_class() {
-            preflight::Class::Config => axum::http::StatusCode::CONFLICT,
-            preflight::Class::Device | preflight::Class::View => {
-                axum::http::StatusCode::SERVICE_UNAVAILABLE
-            }
-        };
         tracing::warn!(campaign = %c.spec().campaign.name, "{}; not queued", report.error_message());
-        Err(ApiError::new(
-            status,
-            format!("{}; the campaign was not queued", report.client_message()),
-        ))
+        Err(ManagerError::Preflight {
+            class: report.failure_class(),
+            message: report.client_message(),
+        })
     }
 }

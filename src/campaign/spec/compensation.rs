@@ -1,7 +1,7 @@
 //! `[compensation]` of a campaign file: which compensation a campaign runs with, and whether it
 //! fits the campaign (stage, axes, directions).
 use super::Campaign;
-use crate::compensation::Compensation;
+use crate::compensation::{Compensation, TableError};
 
 /// `[compensation]` of a campaign file: `from = ID` (a characterisation in the same store) or
 /// `file = "..."` (a results directory or a table, relative to the campaign file).
@@ -34,7 +34,7 @@ pub fn check_spec(c: &Campaign, submitted: bool) -> Result<(), (&'static str, St
                 return Err(("compensation.file", "must be a path of 1..=1024 bytes".into()));
             }
             let comp = Compensation::load(&c.resolve(f)).map_err(|e| ("compensation.file", e.to_string()))?;
-            fits(&comp, c).map_err(|e| ("compensation.file", e))
+            fits(&comp, c).map_err(|e| ("compensation.file", e.to_string()))
         }
         _ => Err((
             "compensation",
@@ -45,23 +45,32 @@ pub fn check_spec(c: &Campaign, submitted: bool) -> Result<(), (&'static str, St
 
 /// Refuses a compensation that does not fit campaign `c`: another stage, an axis without a
 /// table or a grid short of the axis's range, a direction the table cannot serve.
-pub fn fits(comp: &Compensation, c: &Campaign) -> Result<(), String> {
-    comp.check_stage(&c.spec.campaign.stage)
-        .map_err(|e| e.to_string())?;
+pub fn fits(comp: &Compensation, c: &Campaign) -> Result<(), Misfit> {
+    comp.check_stage(&c.spec.campaign.stage)?;
     for ax in &c.axes {
-        comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())
-            .map_err(|e| e.to_string())?;
+        comp.check_covers(ax.axis, ax.grid.start_um, ax.grid.end_um())?;
         let t = comp.table(ax.axis).expect("checked by check_covers");
         for &d in &c.spec.acquisition.directions {
             if t.served_direction(d) != d {
-                return Err(format!(
-                    "{}: no {} correction, and the campaign measures {} (approached from the other side, backlash would stay)",
-                    t.origin,
-                    d.as_str(),
-                    d.as_str()
-                ));
+                return Err(Misfit::Direction {
+                    origin: t.origin.clone(),
+                    direction: d.as_str(),
+                });
             }
         }
     }
     Ok(())
+}
+
+/// Why a compensation does not fit a campaign.
+#[derive(Debug, thiserror::Error)]
+pub enum Misfit {
+    /// Another stage, or an axis without a table or with a grid short of the range.
+    #[error(transparent)]
+    Table(#[from] TableError),
+    #[error("{origin}: no {direction} correction, and the campaign measures {direction} (approached from the other side, backlash would stay)")]
+    Direction {
+        origin: String,
+        direction: &'static str,
+    },
 }

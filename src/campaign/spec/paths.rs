@@ -7,17 +7,17 @@ use super::*;
 /// Resolves the stage model a campaign names and reads it (at most 1 MiB, a regular file).
 /// Submitted campaigns: the path resolves from the policy's base directory and must stay inside
 /// one of its read roots, symlinks followed; errors never show a server path or the file.
-pub(super) fn load_model(m: &str, trust: &Trust) -> Result<LoadedModel, String> {
+pub(super) fn load_model(m: &str, trust: &Trust) -> Result<LoadedModel, ModelLoadError> {
     if m.is_empty() || m.len() > MAX_PATH_LEN || m.contains('\0') {
-        return Err(format!("must be a file name of 1..={MAX_PATH_LEN} bytes"));
+        return Err(ModelLoadError::Name);
     }
     let policy = match trust {
         Trust::Stored {
             model_toml: Some(text),
             ..
         } => {
-            let model = csmetro_sim::StageModel::from_toml_str(text)
-                .map_err(|e| format!("the stored stage model: {e}"))?;
+            let model =
+                csmetro_sim::StageModel::from_toml_str(text).map_err(ModelLoadError::Stored)?;
             return Ok(LoadedModel {
                 model,
                 text: text.clone(),
@@ -33,25 +33,26 @@ pub(super) fn load_model(m: &str, trust: &Trust) -> Result<LoadedModel, String> 
             } else {
                 base_dir.join(m)
             };
-            let text =
-                read_bounded(&p, MAX_TOML_BYTES).map_err(|e| format!("{}: {e}", p.display()))?;
-            let model = csmetro_sim::StageModel::from_toml_str(&text)
-                .map_err(|e| format!("{}: {e}", p.display()))?;
+            let text = read_bounded(&p, MAX_TOML_BYTES).map_err(|source| ModelLoadError::Read {
+                path: p.display().to_string(),
+                source,
+            })?;
+            let model = csmetro_sim::StageModel::from_toml_str(&text).map_err(|source| {
+                ModelLoadError::Parse {
+                    path: p.display().to_string(),
+                    source,
+                }
+            })?;
             return Ok(LoadedModel { model, text });
         }
         Trust::Submitted(p) => p,
     };
-    // The value is not repeated: it may be a server path the client is probing for.
-    let shown = "the stage model";
-    let outside = || {
-        format!(
-            "{shown} must be a relative path inside the service's campaign or model directories \
-             (e.g. \"demo_xy.toml\")"
-        )
-    };
+    // The value is not repeated (no variant below holds it): it may be a server path the
+    // client is probing for.
+    let outside = || ModelLoadError::Outside;
     let rel = Path::new(m);
     if rel.extension().is_none_or(|e| e != "toml") {
-        return Err(format!("{shown} must be a .toml file"));
+        return Err(ModelLoadError::NotToml);
     }
     use std::path::Component;
     if rel
@@ -68,29 +69,60 @@ pub(super) fn load_model(m: &str, trust: &Trust) -> Result<LoadedModel, String> 
         .find(|r| joined.starts_with(r))
         .ok_or_else(outside)?;
     // Symlinks: what the OS opens must still be inside the root.
-    let real = joined
-        .canonicalize()
-        .map_err(|e| format!("{shown}: {}", io_reason(&e)))?;
+    let real = joined.canonicalize().map_err(ModelLoadError::Resolve)?;
     let real_root = root.canonicalize().map_err(|_| outside())?;
     if !real.starts_with(&real_root) {
         return Err(outside());
     }
-    let text = read_bounded(&real, MAX_TOML_BYTES).map_err(|e| format!("{shown}: {e}"))?;
+    let text = read_bounded(&real, MAX_TOML_BYTES).map_err(ModelLoadError::ReadSubmitted)?;
     // The TOML syntax error would quote the file's line: give only where it is.
     if let Err(e) = toml::from_str::<toml::Table>(&text) {
         let line = e.span().map(|s| line_of(&text, s.start)).unwrap_or(0);
-        return Err(format!(
-            "{shown}: not a stage model (TOML error at line {line})"
-        ));
+        return Err(ModelLoadError::Syntax(line));
     }
     // Only where, never what: the message would quote the file's own keys and values.
     let model = csmetro_sim::StageModel::from_toml_str(&text).map_err(|e| match e {
-        csmetro_sim::ModelError::Line { line, .. } => {
-            format!("{shown}: not a valid stage model (see its line {line})")
-        }
-        _ => format!("{shown}: not a valid stage model"),
+        csmetro_sim::ModelError::Line { line, .. } => ModelLoadError::InvalidAt(line),
+        _ => ModelLoadError::Invalid,
     })?;
     Ok(LoadedModel { model, text })
+}
+
+/// Why a campaign's stage model was not loaded. A submitted file's errors (from `NotToml` on)
+/// never show its path or its content: only "the stage model" and a line number.
+#[derive(Debug, thiserror::Error)]
+pub(super) enum ModelLoadError {
+    #[error("must be a file name of 1..={MAX_PATH_LEN} bytes")]
+    Name,
+    #[error("the stored stage model: {0}")]
+    Stored(csmetro_sim::ModelError),
+    #[error("{path}: {source}")]
+    Read {
+        path: String,
+        source: crate::tomlpos::ReadError,
+    },
+    #[error("{path}: {source}")]
+    Parse {
+        path: String,
+        source: csmetro_sim::ModelError,
+    },
+    #[error("the stage model must be a .toml file")]
+    NotToml,
+    #[error(
+        "the stage model must be a relative path inside the service's campaign or model \
+         directories (e.g. \"demo_xy.toml\")"
+    )]
+    Outside,
+    #[error("the stage model: {}", io_reason(.0))]
+    Resolve(std::io::Error),
+    #[error("the stage model: {0}")]
+    ReadSubmitted(crate::tomlpos::ReadError),
+    #[error("the stage model: not a stage model (TOML error at line {0})")]
+    Syntax(usize),
+    #[error("the stage model: not a valid stage model (see its line {0})")]
+    InvalidAt(usize),
+    #[error("the stage model: not a valid stage model")]
+    Invalid,
 }
 
 /// `a/./b/../c` → `a/c`, without touching the file system.
@@ -110,21 +142,25 @@ fn normalize(p: &Path) -> PathBuf {
 }
 
 /// An output directory template a submitted campaign may use: relative, plain components.
-pub(super) fn check_submitted_outputs(dir: &str) -> Result<(), String> {
+pub(super) fn check_submitted_outputs(dir: &str) -> Result<(), OutsideResults> {
     use std::path::Component;
     let p = Path::new(dir);
     if dir.contains('\0')
         || p.components()
             .any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
     {
-        return Err(
-            "a submitted campaign writes below the service's results directory: give \
-             a relative directory without `..`"
-                .into(),
-        );
+        return Err(OutsideResults);
     }
     Ok(())
 }
+
+/// A submitted campaign's output directory that would leave the service's results directory.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "a submitted campaign writes below the service's results directory: give a relative \
+     directory without `..`"
+)]
+pub(super) struct OutsideResults;
 
 /// The output directory must be writable before anything moves: the fixed part of the template
 /// (before the first `{id}`/`{name}`) is created and a probe file written; for the local operator

@@ -12,21 +12,29 @@ pub(super) type Validated = (
 );
 
 /// A campaign or stage name: it becomes part of file names, so a short plain word.
-fn check_name(v: &str) -> Result<(), String> {
+fn check_name(v: &str) -> Result<(), NameError> {
     if v.trim().is_empty() {
-        return Err("must not be empty".into());
+        return Err(NameError::Empty);
     }
     if v.len() > MAX_NAME_LEN {
-        return Err(format!("must be at most {MAX_NAME_LEN} characters"));
+        return Err(NameError::TooLong);
     }
     let plain = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.');
     if !v.starts_with(|c: char| c.is_ascii_alphanumeric()) || !v.chars().all(plain) {
-        return Err(
-            "may hold only letters, digits, `-`, `_` and `.`, and starts with a letter or digit"
-                .into(),
-        );
+        return Err(NameError::NotPlain);
     }
     Ok(())
+}
+
+/// Why a campaign or stage name was refused (the key is named by the caller).
+#[derive(Debug, thiserror::Error)]
+enum NameError {
+    #[error("must not be empty")]
+    Empty,
+    #[error("must be at most {MAX_NAME_LEN} characters")]
+    TooLong,
+    #[error("may hold only letters, digits, `-`, `_` and `.`, and starts with a letter or digit")]
+    NotPlain,
 }
 
 pub(super) fn validate(
@@ -36,8 +44,8 @@ pub(super) fn validate(
 ) -> Result<Validated, SpecError> {
     let pos = |v: f64| v.is_finite() && v > 0.0;
     let nonneg = |v: f64| v.is_finite() && v >= 0.0;
-    check_name(&spec.campaign.name).map_err(|e| fail("campaign.name", e))?;
-    check_name(&spec.campaign.stage).map_err(|e| fail("campaign.stage", e))?;
+    check_name(&spec.campaign.name).map_err(|e| fail("campaign.name", e.to_string()))?;
+    check_name(&spec.campaign.stage).map_err(|e| fail("campaign.stage", e.to_string()))?;
     if spec.campaign.description.len() > MAX_DESCRIPTION_LEN {
         return Err(fail(
             "campaign.description",
@@ -135,7 +143,9 @@ pub(super) fn validate(
                 }
             }
             if let Some(m) = &s.model {
-                model = Some(load_model(m, trust).map_err(|e| fail("hardware.sim.model", e))?);
+                model = Some(
+                    load_model(m, trust).map_err(|e| fail("hardware.sim.model", e.to_string()))?,
+                );
             }
             let [tlo, thi] = s.travel_mm;
             if !(tlo.is_finite() && thi.is_finite() && tlo < thi && thi - tlo <= 15.0) {
@@ -312,7 +322,8 @@ pub(super) fn validate(
         ));
     }
     if let Trust::Submitted(_) = trust {
-        check_submitted_outputs(&spec.outputs.dir).map_err(|e| fail("outputs.dir", e))?;
+        check_submitted_outputs(&spec.outputs.dir)
+            .map_err(|e| fail("outputs.dir", e.to_string()))?;
     }
 
     let mut plans = Vec::new();

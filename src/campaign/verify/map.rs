@@ -106,15 +106,33 @@ fn positions(rng: &mut ChaCha8Rng, g: &Grid, (lo, hi): (f64, f64), n: usize) -> 
     )
 }
 
+/// Why a map verification has no points to measure.
+#[derive(Debug, thiserror::Error)]
+pub enum PointsError {
+    #[error("not a map campaign")]
+    NotMap,
+    #[error("not a map compensation")]
+    NotMapCompensation,
+    #[error(
+        "the map measured {axis} over [{lo}, {hi}] µm: fewer than {n} grid cells to put points in"
+    )]
+    TooFewCells {
+        axis: &'static str,
+        lo: f64,
+        hi: f64,
+        n: usize,
+    },
+}
+
 /// The verification's points: (x, y) of the lattice, rows ascending in y, x ascending in a
 /// row; and the lattice's (columns, rows).
 pub fn points(
     c: &Campaign,
     comp: &Compensation,
     opts: &MapVerifyOptions,
-) -> Result<(Vec<[f64; 2]>, usize, usize), String> {
-    let mp = c.map().ok_or("not a map campaign")?;
-    let m = comp.map().ok_or("not a map compensation")?;
+) -> Result<(Vec<[f64; 2]>, usize, usize), PointsError> {
+    let mp = c.map().ok_or(PointsError::NotMap)?;
+    let m = comp.map().ok_or(PointsError::NotMapCompensation)?;
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0x4d41_5056);
     let (cols, rows) = lattice(opts.points);
     let mut axes = Vec::new();
@@ -129,13 +147,11 @@ pub fn points(
             span = (span.0.max(lo), span.1.min(hi));
         }
         let n = [cols, rows][k];
-        let p = positions(&mut rng, g, span, n).ok_or_else(|| {
-            format!(
-                "the map measured {} over [{}, {}] µm: fewer than {n} grid cells to put points in",
-                ["x", "y"][k],
-                span.0,
-                span.1
-            )
+        let p = positions(&mut rng, g, span, n).ok_or(PointsError::TooFewCells {
+            axis: ["x", "y"][k],
+            lo: span.0,
+            hi: span.1,
+            n,
         })?;
         axes.push(p);
     }
@@ -375,7 +391,7 @@ pub async fn run(
             )));
         }
     }
-    let (pts, cols, rows) = points(c, &comp, opts).map_err(Refused)?;
+    let (pts, cols, rows) = points(c, &comp, opts).map_err(|e| Refused(e.to_string()))?;
     let before_plan = plan_of(c, &pts, opts.cycles, 0);
     let after_plan = plan_of(c, &pts, opts.cycles, before_plan.total() as u64);
     let mut rig = rig::build(c)
@@ -387,9 +403,7 @@ pub async fn run(
         .iter()
         .flat_map(|&d| pts.iter().map(move |p| (d, *p)));
     let checked = precheck(&mut rig, points, |_, (d, p)| {
-        comp.command_point(d, p, limits)
-            .map(drop)
-            .map_err(|e| e.to_string())
+        comp.command_point(d, p, limits).map(drop)
     });
     let compute_us_max = match checked {
         Ok(us) => us,

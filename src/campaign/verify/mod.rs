@@ -17,6 +17,7 @@ use super::rig::{self, Rig};
 use super::spec::{AxisPlan, Campaign};
 use crate::compensation::Compensation;
 use crate::iso230::{evaluate, Approach, Iso230Summary};
+use crate::store::StoreError;
 use crate::types::{AxisId, Direction, Phase, RunKey, SampleRecord, Target};
 
 /// What a verification measures and what it expects.
@@ -195,7 +196,7 @@ fn plan_of(c: &Campaign, opts: &VerifyOptions, seq0: u64) -> (Plan, Vec<TargetSe
 /// a verification campaign commits them to its store.
 pub trait Sink: Send {
     /// Commits one sample; `Ok(false)` when its target was stored already.
-    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String>;
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, StoreError>;
     fn event(&mut self, kind: &str, data: &Value);
 }
 
@@ -203,7 +204,7 @@ pub trait Sink: Send {
 pub struct Progress<F: FnMut(&str, &Value) + Send>(pub F);
 
 impl<F: FnMut(&str, &Value) + Send> Sink for Progress<F> {
-    fn sample(&mut self, _: &SampleRecord) -> Result<bool, String> {
+    fn sample(&mut self, _: &SampleRecord) -> Result<bool, StoreError> {
         Ok(true)
     }
     fn event(&mut self, kind: &str, data: &Value) {
@@ -218,7 +219,7 @@ struct Collect<'a> {
 }
 
 impl Recorder for Collect<'_> {
-    fn sample(&mut self, s: &SampleRecord) -> Result<bool, String> {
+    fn sample(&mut self, s: &SampleRecord) -> Result<bool, StoreError> {
         let fresh = self.sink.sample(s)?;
         self.samples.push(*s);
         Ok(fresh)
@@ -475,7 +476,6 @@ pub async fn run(
         let limits = rig.axis(t.run.axis).soft_limits_um();
         comp.command(t.run.axis, t.run.direction, t.target_um(), limits)
             .map(drop)
-            .map_err(|e| e.to_string())
     });
     let compute_us_max = match checked {
         Ok(us) => us,
@@ -698,11 +698,11 @@ pub(super) async fn run_passes(
 
 /// Every compensated command of a verification computed before anything moves: the longest
 /// computation (µs), or the first refusal (the caller closes the rig).
-pub(super) fn precheck<T>(
+pub(super) fn precheck<T, E>(
     rig: &mut Rig,
     items: impl IntoIterator<Item = T>,
-    mut command: impl FnMut(&mut Rig, T) -> Result<(), String>,
-) -> Result<f64, String> {
+    mut command: impl FnMut(&mut Rig, T) -> Result<(), E>,
+) -> Result<f64, E> {
     let mut compute_us_max: f64 = 0.0;
     for item in items {
         let t0 = std::time::Instant::now();

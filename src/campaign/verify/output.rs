@@ -2,6 +2,7 @@
 //! PNG with the pass line), verify/report.html and the files list.
 #[allow(clippy::wildcard_imports)]
 use super::*;
+use crate::report::DrawError;
 
 fn opt(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.3}"))
@@ -149,35 +150,44 @@ pub(super) const CHART: crate::report::PlotOptions = crate::report::PlotOptions 
     height: 700,
 };
 
+/// Why a verification chart is missing.
+#[derive(Debug, thiserror::Error)]
+pub enum ChartError {
+    #[error("no axis {0}")]
+    NoAxis(String),
+    #[error(transparent)]
+    Draw(#[from] DrawError),
+}
+
 fn chart<T>(
     v: &Verdict,
     axis: &str,
-    draw: impl FnOnce(&crate::report::verification::VerifyChart<'_>) -> Result<T, String>,
-) -> Result<T, String> {
+    draw: impl FnOnce(&crate::report::verification::VerifyChart<'_>) -> Result<T, DrawError>,
+) -> Result<T, ChartError> {
     let a = v
         .axes
         .iter()
         .find(|a| a.axis == axis)
-        .ok_or_else(|| format!("no axis {axis}"))?;
+        .ok_or_else(|| ChartError::NoAxis(axis.to_string()))?;
     let samples = after_samples(v, a);
-    draw(&crate::report::verification::VerifyChart {
+    Ok(draw(&crate::report::verification::VerifyChart {
         axis,
         checks: &a.per_target,
         after_samples: &samples,
         passed: a.passed,
-    })
+    })?)
 }
 
 /// One axis before / after (mean deviation per target and direction, every compensated
 /// approach, the pass line ±expected) as SVG.
-pub fn plot_svg(v: &Verdict, axis: &str) -> Result<String, String> {
+pub fn plot_svg(v: &Verdict, axis: &str) -> Result<String, ChartError> {
     chart(v, axis, |c| {
         crate::report::verification::verify_chart_svg(c, &CHART)
     })
 }
 
 /// [`plot_svg`] as PNG.
-pub fn plot_png(v: &Verdict, axis: &str) -> Result<Vec<u8>, String> {
+pub fn plot_png(v: &Verdict, axis: &str) -> Result<Vec<u8>, ChartError> {
     chart(v, axis, |c| {
         crate::report::verification::verify_chart_png(c, &CHART)
     })

@@ -41,10 +41,13 @@ pub fn reconstruct_run(
     mp: &MapPlan,
     run: RunKey,
     samples: &[SampleRecord],
-) -> Result<MapResult, String> {
+) -> Result<MapResult, super::ReconError> {
     let s = map_samples(&mp.grid, run, samples);
-    let (map, report) = reconstruct(&mp.grid, &s, mp.method)
-        .map_err(|e| format!("map {}: {e}", run.direction.as_str()))?;
+    let (map, report) =
+        reconstruct(&mp.grid, &s, mp.method).map_err(|reason| super::ReconError::Map {
+            direction: run.direction.as_str(),
+            reason,
+        })?;
     Ok(MapResult {
         run,
         map,

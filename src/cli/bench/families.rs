@@ -55,11 +55,11 @@ fn mean_abs(g: &[f64], f: &[f64]) -> f64 {
     g.iter().zip(f).map(|(a, b)| (a - b).abs()).sum::<f64>() / f.len() as f64
 }
 
-pub(super) fn run(seeds: u64, ms: &[usize], families: &[String]) -> Result<Vec<FamilyRow>, String> {
+pub(super) fn run(seeds: u64, ms: &[usize], families: &[String]) -> anyhow::Result<Vec<FamilyRow>> {
     let mut rows = Vec::new();
     for fam in families {
         if !FAMILIES.contains(&fam.as_str()) {
-            return Err(format!("unknown family {fam:?} (one of {FAMILIES:?})"));
+            anyhow::bail!("unknown family {fam:?} (one of {FAMILIES:?})");
         }
         for &m_ref in ms {
             let mut acc = [0.0f64; 5];
@@ -69,8 +69,10 @@ pub(super) fn run(seeds: u64, ms: &[usize], families: &[String]) -> Result<Vec<F
             let mut picks = std::collections::BTreeMap::new();
             let mut n_fam = 0;
             for seed in 0..seeds {
-                let c = curves::family(fam, seed).ok_or("unknown family")?;
-                let grid = Grid::new(0.0, c.step_um, c.step_um * (c.n - 1) as f64)?;
+                let c =
+                    curves::family(fam, seed).ok_or_else(|| anyhow::anyhow!("unknown family"))?;
+                let grid = Grid::new(0.0, c.step_um, c.step_um * (c.n - 1) as f64)
+                    .map_err(anyhow::Error::msg)?;
                 let m = curves::scaled_m(m_ref, c.n);
                 n_fam = c.n;
                 let idx = curves::pick(grid.n, m, 7919 * seed + m as u64);
@@ -88,7 +90,7 @@ pub(super) fn run(seeds: u64, ms: &[usize], families: &[String]) -> Result<Vec<F
                     };
                     recon::reconstruct(&grid, &samples, &s)
                 };
-                let auto = run(Method::Auto, None)?;
+                let auto = run(Method::Auto, None).map_err(anyhow::Error::msg)?;
                 let e_auto = mean_abs(&auto.values, truth);
                 if auto.u_um.len() == truth.len() {
                     let inside = auto
@@ -103,9 +105,10 @@ pub(super) fn run(seeds: u64, ms: &[usize], families: &[String]) -> Result<Vec<F
                     sharp.push(2.0 * mean_u / e_auto);
                 }
                 // With no period to tell, physics is told nothing (its own search).
-                let told = run(Method::Physics, periods.first().copied())?;
-                let bp = run(Method::Bp, None)?;
-                let pchip = run(Method::Pchip, None)?;
+                let told =
+                    run(Method::Physics, periods.first().copied()).map_err(anyhow::Error::msg)?;
+                let bp = run(Method::Bp, None).map_err(anyhow::Error::msg)?;
+                let pchip = run(Method::Pchip, None).map_err(anyhow::Error::msg)?;
                 acc[0] += e_auto;
                 acc[1] += mean_abs(&told.values, truth);
                 acc[2] += mean_abs(&bp.values, truth);

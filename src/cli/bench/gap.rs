@@ -19,7 +19,7 @@ mod othergen;
 
 const MUTS_X: &str = include_str!("../../../tests/data/iso230/muts_b02_x.csv");
 
-fn muts_x() -> Result<Value, String> {
+fn muts_x() -> anyhow::Result<Value> {
     let (samples, _, format) = data::parse_any("muts_b02_x.csv", MUTS_X)?;
     let opts = Options {
         iso230: true,
@@ -28,9 +28,12 @@ fn muts_x() -> Result<Value, String> {
     };
     let model = StageModel::new([-21000.0, 21000.0], [0.0, 1000.0]);
     let t0 = Instant::now();
-    let d = diagnose(&model, &samples, &opts).map_err(|e| e.0)?;
+    let d = diagnose(&model, &samples, &opts).map_err(|e| anyhow::anyhow!(e.0))?;
     let ms = t0.elapsed().as_secs_f64() * 1e3;
-    let iso = d.iso.as_ref().ok_or("not read as an ISO 230-2 table")?;
+    let iso = d
+        .iso
+        .as_ref()
+        .ok_or_else(|| anyhow::anyhow!("not read as an ISO 230-2 table"))?;
     let find = |k: &str| iso.findings().find(|f| f.kind == k && f.named);
     let b = find("backlash");
     let drift = find("thermal_drift");
@@ -48,7 +51,7 @@ fn muts_x() -> Result<Value, String> {
 }
 
 /// The figures as one JSON object: `seeds` seeds of each of the generator's four designs.
-pub(super) fn run(seeds: u64) -> Result<Value, String> {
+pub(super) fn run(seeds: u64) -> anyhow::Result<Value> {
     let t0 = Instant::now();
     let muts = muts_x()?;
     let t1 = Instant::now();

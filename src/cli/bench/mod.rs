@@ -153,8 +153,8 @@ fn parse_list<T: std::str::FromStr>(s: &str, what: &str) -> Result<Vec<T>, CliEr
 }
 
 /// Runs every method on the paper-like curve for seeds 0..seeds and each m (random design).
-pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> Result<Vec<AccuracyRow>, String> {
-    let grid: Grid = "0:5:9500".parse()?;
+pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> anyhow::Result<Vec<AccuracyRow>> {
+    let grid: Grid = "0:5:9500".parse().map_err(anyhow::Error::msg)?;
     let params = ReferenceCurveParams::default();
     let mut rows = Vec::new();
     for &m in ms {
@@ -168,7 +168,8 @@ pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> Result<Vec<Accu
                     0.01,
                 )
             })
-            .collect::<Result<_, _>>()?;
+            .collect::<Result<_, _>>()
+            .map_err(anyhow::Error::msg)?;
         for &method in methods {
             let mut acc = (0.0, 0.0, 0.0, 0.0f64, 0.0);
             let mut times = Vec::new();
@@ -177,7 +178,7 @@ pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> Result<Vec<Accu
                     method,
                     ..Default::default()
                 };
-                let r = recon::reconstruct(&grid, &p.samples, &s)?;
+                let r = recon::reconstruct(&grid, &p.samples, &s).map_err(anyhow::Error::msg)?;
                 let (mean, max, std) = synth::error_stats(&r.values, &p.truth);
                 acc.0 += mean;
                 acc.1 += max;

@@ -10,7 +10,7 @@ use crate::synth;
 
 /// Curve `r` of the speed rows: the paper-like curve of seed r over the grid, m random samples
 /// (design seed 2000 + r), 0.01 µm noise. The sustained row solves the same curves as the others.
-fn speed_problem(grid: &Grid, m: usize, r: u64) -> Result<synth::SynthProblem, String> {
+fn speed_problem(grid: &Grid, m: usize, r: u64) -> anyhow::Result<synth::SynthProblem> {
     let params = ReferenceCurveParams {
         travel_um: [grid.start_um, grid.end_um()],
         ..Default::default()
@@ -22,6 +22,7 @@ fn speed_problem(grid: &Grid, m: usize, r: u64) -> Result<synth::SynthProblem, S
         &Design::new(DesignKind::Random, m, 2000 + r),
         0.01,
     )
+    .map_err(anyhow::Error::msg)
 }
 
 fn time_method(
@@ -30,7 +31,7 @@ fn time_method(
     method: Method,
     solver: Solver,
     repeat: usize,
-) -> Result<serde_json::Value, String> {
+) -> anyhow::Result<serde_json::Value> {
     let mut times = Vec::new();
     let mut iters = Vec::new();
     let mut status = Vec::new();
@@ -44,7 +45,7 @@ fn time_method(
             solver,
             ..Default::default()
         };
-        let out = recon::reconstruct(grid, &p.samples, &s)?;
+        let out = recon::reconstruct(grid, &p.samples, &s).map_err(anyhow::Error::msg)?;
         times.push(out.solve_ms);
         solver_used = out.solver.clone();
         iters.push(out.iterations as f64);
@@ -89,7 +90,7 @@ fn time_method(
 /// all inside whatever spell the shared host's other tenants are in (a busy SMT sibling slowed
 /// every kernel 1.35-1.69x in session 25); this median is over thousands of solves spread over
 /// minutes, and the window medians show the spells.
-fn sustained(grid: &Grid, m: usize, repeat: usize, secs: f64) -> Result<serde_json::Value, String> {
+fn sustained(grid: &Grid, m: usize, repeat: usize, secs: f64) -> anyhow::Result<serde_json::Value> {
     const WINDOWS: usize = 10;
     let problems = (0..repeat.max(1) as u64)
         .map(|r| speed_problem(grid, m, r))
@@ -100,7 +101,7 @@ fn sustained(grid: &Grid, m: usize, repeat: usize, secs: f64) -> Result<serde_js
         ..Default::default()
     };
     // The first solve plans the transforms (`first_ms` of the other rows): not timed here.
-    recon::reconstruct(grid, &problems[0].samples, &s)?;
+    recon::reconstruct(grid, &problems[0].samples, &s).map_err(anyhow::Error::msg)?;
     let mut times = Vec::new();
     let mut windows = vec![Vec::new(); WINDOWS];
     let mut status = Vec::new();
@@ -110,7 +111,7 @@ fn sustained(grid: &Grid, m: usize, repeat: usize, secs: f64) -> Result<serde_js
         if at >= secs {
             break;
         }
-        let out = recon::reconstruct(grid, &p.samples, &s)?;
+        let out = recon::reconstruct(grid, &p.samples, &s).map_err(anyhow::Error::msg)?;
         times.push(out.solve_ms);
         windows[((at / secs * WINDOWS as f64) as usize).min(WINDOWS - 1)].push(out.solve_ms);
         status.push(out.status.map(|s| format!("{s:?}")).unwrap_or_default());
@@ -133,8 +134,8 @@ pub(super) fn speed(
     repeat: usize,
     clarabel_m: Option<usize>,
     sustain_s: Option<f64>,
-) -> Result<serde_json::Value, String> {
-    let grid: Grid = "0:5:9500".parse()?;
+) -> anyhow::Result<serde_json::Value> {
+    let grid: Grid = "0:5:9500".parse().map_err(anyhow::Error::msg)?;
     let mut rows = vec![
         time_method(&grid, 600, Method::Bp, Solver::Fast, repeat)?,
         time_method(&grid, 100, Method::Bp, Solver::Fast, repeat)?,
@@ -151,7 +152,7 @@ pub(super) fn speed(
     }
     // Scale: n = 65 536 at 10 % sampling: BP to its certified gap (the default 1e-3), and
     // the physics model `auto` picks at this size.
-    let big = Grid::new(0.0, 0.25, 0.25 * 65535.0)?;
+    let big = Grid::new(0.0, 0.25, 0.25 * 65535.0).map_err(anyhow::Error::msg)?;
     rows.push(time_method(
         &big,
         6554,

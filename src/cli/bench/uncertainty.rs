@@ -90,7 +90,7 @@ pub(super) fn run(
     noise_um: f64,
     cs: bool,
     cycles: bool,
-) -> Result<Report, String> {
+) -> anyhow::Result<Report> {
     let t0 = Instant::now();
     let inputs = BudgetInputs {
         sensor_u_um: noise_um,
@@ -98,7 +98,7 @@ pub(super) fn run(
         misalignment_mrad: 0.0,
         ..BudgetInputs::default()
     };
-    let noise = Normal::new(0.0, noise_um).map_err(|e| e.to_string())?;
+    let noise = Normal::new(0.0, noise_um).map_err(anyhow::Error::msg)?;
     let mut c = [(); 4].map(|_| Acc::default());
     let mut y = [(); 4].map(|_| Acc::default());
     for seed in 0..seeds {
@@ -153,8 +153,8 @@ struct Sim<'a> {
 
 impl Sim<'_> {
     /// The CS path: one random design per direction, `auto` with its band; E, A, B, M.
-    fn cs_path(&mut self, seed: u64, m: usize, acc: &mut [Acc; 4]) -> Result<(), String> {
-        let grid: Grid = "0:5:9500".parse()?;
+    fn cs_path(&mut self, seed: u64, m: usize, acc: &mut [Acc; 4]) -> anyhow::Result<()> {
+        let grid: Grid = "0:5:9500".parse().map_err(anyhow::Error::msg)?;
         let positions = grid.positions();
         let mut curves = Vec::new();
         let mut truth_ap = Vec::new();
@@ -164,7 +164,7 @@ impl Sim<'_> {
                 .map(|&p| truth_at(self.model, p, forward))
                 .collect();
             let design = Design::new(DesignKind::Random, m, 7000 + 2 * seed + k as u64);
-            let idx = design.indices(grid.n)?;
+            let idx = design.indices(grid.n).map_err(anyhow::Error::msg)?;
             let values = idx
                 .iter()
                 .map(|&i| truth[i] + self.noise.sample(self.rng))
@@ -180,7 +180,7 @@ impl Sim<'_> {
                 noise_um: self.noise_um,
                 ..Default::default()
             };
-            let r = recon::reconstruct(&grid, &samples, &s)?;
+            let r = recon::reconstruct(&grid, &samples, &s).map_err(anyhow::Error::msg)?;
             let direction = if forward {
                 Direction::Forward
             } else {
@@ -210,9 +210,9 @@ impl Sim<'_> {
             }));
         }
         let fig = iso230_axis_with(AxisId::X, &curves, 1e-3, self.inputs)
-            .map_err(|e| e.to_string())?
-            .ok_or("no ISO 230-2 figures")?;
-        let truth = evaluate(&truth_ap, 1e-3).ok_or("no truth figures")?;
+            .map_err(anyhow::Error::msg)?
+            .ok_or_else(|| anyhow::anyhow!("no ISO 230-2 figures"))?;
+        let truth = evaluate(&truth_ap, 1e-3).ok_or_else(|| anyhow::anyhow!("no truth figures"))?;
         if let Some(u) = &fig.uncertainty {
             let r = fig.reported();
             acc[0].push(r.e_um, truth.e_um, u.e.expanded_um);
@@ -228,7 +228,7 @@ impl Sim<'_> {
     }
 
     /// ISO 230-2 cycles: 11 targets with random offsets, 5 approaches per direction.
-    fn cycles_path(&mut self, acc: &mut [Acc; 4]) -> Result<(), String> {
+    fn cycles_path(&mut self, acc: &mut [Acc; 4]) -> anyhow::Result<()> {
         let step = 9500.0 / 11.0;
         let targets: Vec<f64> = (0..11)
             .map(|i| (i as f64 * step + self.rng.random_range(0.0..0.3 * step)).round())
@@ -252,8 +252,8 @@ impl Sim<'_> {
                 }
             }
         }
-        let est = evaluate(&meas, 1e-3).ok_or("no figures")?;
-        let t = evaluate(&exact, 1e-3).ok_or("no truth figures")?;
+        let est = evaluate(&meas, 1e-3).ok_or_else(|| anyhow::anyhow!("no figures"))?;
+        let t = evaluate(&exact, 1e-3).ok_or_else(|| anyhow::anyhow!("no truth figures"))?;
         let u = iso_uncertainty(
             &est,
             &est.rows,
