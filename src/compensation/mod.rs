@@ -601,14 +601,17 @@ fn line_positions(v: &serde_json::Value) -> [Option<f64>; 2] {
 /// `iso230.<axis>.measured` (the bidirectional R holds the reversal, which the compensation
 /// corrects per direction), µm; `None` where the characterisation did not measure it.
 fn repeatabilities(v: &serde_json::Value) -> [Option<f64>; 2] {
-    [AxisId::X, AxisId::Y].map(|a| {
-        let m = &v["iso230"][a.as_str()]["measured"];
-        [m["r_up_um"].as_f64(), m["r_down_um"].as_f64()]
-            .into_iter()
-            .flatten()
-            .filter(|r| r.is_finite() && *r >= 0.0)
-            .reduce(f64::max)
-    })
+    [AxisId::X, AxisId::Y].map(|a| unidirectional_repeatability_um(v, a))
+}
+
+/// One axis's unidirectional repeatability from a results summary (see [`repeatabilities`]).
+pub fn unidirectional_repeatability_um(summary: &serde_json::Value, a: AxisId) -> Option<f64> {
+    let m = &summary["iso230"][a.as_str()]["measured"];
+    [m["r_up_um"].as_f64(), m["r_down_um"].as_f64()]
+        .into_iter()
+        .flatten()
+        .filter(|r| r.is_finite() && *r >= 0.0)
+        .reduce(f64::max)
 }
 
 /// A results directory's summary.json as JSON.

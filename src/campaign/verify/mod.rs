@@ -349,11 +349,7 @@ pub fn prior_from_summary(summary: &Value, axis: AxisId) -> Prior {
         .filter(|v| v.is_finite());
     // Unidirectional repeatability (max of R↑, R↓): the bidirectional R contains the reversal,
     // which the compensation corrects per direction.
-    let m = &summary["iso230"][a]["measured"];
-    let r = [m["r_up_um"].as_f64(), m["r_down_um"].as_f64()]
-        .into_iter()
-        .flatten()
-        .reduce(f64::max);
+    let r = crate::compensation::unidirectional_repeatability_um(summary, axis);
     let m = ax.and_then(|x| x["components"].as_array()).and_then(|cs| {
         cs.iter()
             .filter(|c| c["component"].as_str().is_some_and(|n| n.ends_with(&own)))
