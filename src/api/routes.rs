@@ -609,6 +609,7 @@ async fn move_stage(
     }
     let kind = if out.is_ok() { "moved" } else { "move_failed" };
     if let Err(e) = stage_event(&app, &stage, kind, done).await {
+        // The move is done (its `move` entry is logged) and its result goes to the client.
         tracing::error!(stage = %stage, error = %e, "the end of a move was not logged");
     }
     out.map(Json)

@@ -74,6 +74,7 @@ impl Manager {
         );
         tracing::warn!(campaign = id, stage = %now.stage, "{msg}");
         if let Err(e) = self.db(|s| s.set_state(id, CampaignState::Interrupted, Some(&msg))) {
+            // Still `running` in the store: the next sweep finds it again.
             tracing::warn!(campaign = id, error = %e, "orphan check: state not stored");
             return;
         }

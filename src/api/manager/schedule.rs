@@ -121,6 +121,7 @@ impl Manager {
         if first {
             tracing::warn!(campaign = id, error = %msg, "waiting for the stage");
             if let Err(e) = self.db(|s| s.set_state(id, CampaignState::Queued, Some(&msg))) {
+                // It is `queued` already and waits all the same; only the reason is not stored.
                 tracing::error!(campaign = id, error = %e, "waiting state not stored");
             }
             self.emit(
