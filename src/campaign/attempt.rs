@@ -344,3 +344,32 @@ pub fn write_files(dir: &Path, files: &[(String, String, Vec<u8>)]) -> Result<()
     }
     first.map_or(Ok(()), Err)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refused_events_are_noted_once_each_with_their_count_and_taken_once() {
+        let store = SharedStore::new(crate::store::Store::open_in_memory().unwrap());
+        // No campaign 9: the store refuses its events (foreign key).
+        let run = Attempt::new(store, broadcast::channel(4).0, 9);
+        let worker = run.clone();
+        for _ in 0..3 {
+            worker.emit("reconstructed", json!({}));
+        }
+        run.emit("rig", json!({}));
+        let failed = run.take_failed_writes();
+        assert_eq!(failed.len(), 2, "{failed:?}");
+        assert!(
+            failed[0].starts_with("event `reconstructed` not stored: ")
+                && failed[0].ends_with(" (3 times)"),
+            "{failed:?}"
+        );
+        assert!(
+            failed[1].starts_with("event `rig` not stored: "),
+            "{failed:?}"
+        );
+        assert!(run.take_failed_writes().is_empty());
+    }
+}
