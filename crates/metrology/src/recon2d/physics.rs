@@ -303,11 +303,14 @@ fn nearest_neighbours(pts: &[(f64, f64)], k: usize) -> Vec<Vec<usize>> {
     for &(x, y) in pts {
         (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
     }
+    // At most 4096 cells a side (samples on a line would otherwise ask for millions); the cells
+    // stay square, which the search's distance bound needs.
     let cell = ((x1 - x0).max(1e-9) * (y1 - y0).max(1e-9) * 2.0 / m as f64)
         .sqrt()
+        .max((x1 - x0).max(y1 - y0) / 4096.0)
         .max(1e-9);
-    let nx = (((x1 - x0) / cell) as usize + 1).min(1 << 12);
-    let ny = (((y1 - y0) / cell) as usize + 1).min(1 << 12);
+    let nx = ((x1 - x0) / cell) as usize + 1;
+    let ny = ((y1 - y0) / cell) as usize + 1;
     let cx = |x: f64| (((x - x0) / cell) as usize).min(nx - 1);
     let cy = |y: f64| (((y - y0) / cell) as usize).min(ny - 1);
     let mut bucket = vec![Vec::new(); nx * ny];
@@ -921,6 +924,32 @@ mod tests {
         let got = axis_roughness(n, &idx, &white);
         let most = got.iter().map(|v| v.abs()).fold(0.0, f64::max);
         assert!(most < 0.004, "white noise gave offsets up to {most} µm");
+    }
+
+    #[test]
+    fn nearest_neighbours_match_brute_force() {
+        // A clustered, anisotropic scatter (most points in one corner) and a few far ones.
+        let mut pts: Vec<(f64, f64)> = (0..400)
+            .map(|i| {
+                let t = i as f64;
+                ((t * 7.31).sin().abs() * 50.0, (t * 3.17).cos().abs() * 20.0)
+            })
+            .collect();
+        pts.extend([(4000.0, 3000.0), (3990.0, 2990.0), (0.0, 3000.0)]);
+        // Points on one line: the cells are bounded, the neighbours still exact.
+        let line: Vec<(f64, f64)> = (0..300).map(|i| ((i * i % 997) as f64, 5.0)).collect();
+        for pts in [pts, line] {
+            let nb = nearest_neighbours(&pts, 4);
+            for (i, &(x, y)) in pts.iter().enumerate() {
+                let d2 = |j: usize| (pts[j].0 - x).powi(2) + (pts[j].1 - y).powi(2);
+                let mut all: Vec<usize> = (0..pts.len()).filter(|&j| j != i).collect();
+                all.sort_by(|&a, &b| d2(a).total_cmp(&d2(b)));
+                let want: Vec<f64> = all[..4].iter().map(|&j| d2(j)).collect();
+                let got: Vec<f64> = nb[i].iter().map(|&j| d2(j)).collect();
+                assert_eq!(got, want, "point {i}");
+            }
+        }
+        assert!(nearest_neighbours(&[(1.0, 1.0)], 4)[0].is_empty());
     }
 
     #[test]
