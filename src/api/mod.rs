@@ -2,7 +2,6 @@
 //! campaigns, fetch their results. See [`routes`] for the endpoints, [`manager`] for queueing
 //! and crash recovery, [`config`] for the configuration file.
 use std::future::IntoFuture;
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use axum::http::StatusCode;
@@ -99,7 +98,7 @@ pub enum ServiceError {
 /// waits for them up to [`SHUTDOWN_GRACE`].
 pub async fn run(cfg: ServiceConfig) -> Result<(), ServiceError> {
     let store = crate::store::Store::open(&cfg.db)?;
-    let store = Arc::new(Mutex::new(store));
+    let store = crate::campaign::events::SharedStore::new(store);
     let manager = Manager::new(
         store.clone(),
         &cfg.results_dir,
@@ -139,14 +138,10 @@ pub async fn run(cfg: ServiceConfig) -> Result<(), ServiceError> {
                 tick.tick().await;
                 // Ping only while the store answers: a wedged store gets the service restarted.
                 let st = store.clone();
-                let alive = tokio::task::spawn_blocking(move || {
-                    st.lock()
-                        .unwrap_or_else(|e| e.into_inner())
-                        .sample_count(0)
-                        .is_ok()
-                })
-                .await
-                .unwrap_or(false);
+                let alive =
+                    tokio::task::spawn_blocking(move || st.with(|s| s.sample_count(0).is_ok()))
+                        .await
+                        .unwrap_or(false);
                 if alive {
                     notify(&[sd_notify::NotifyState::Watchdog]);
                 } else {

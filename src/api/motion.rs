@@ -86,46 +86,47 @@ pub fn api_prepare(m: &Manager, stage: &str, body: &[u8]) -> Result<Prepared, Ap
         )));
     }
     let store = m.store().clone();
-    let s = store.lock().unwrap_or_else(|e| e.into_inner());
-    let of_stage = |id: i64| -> Result<crate::store::CampaignRow, ApiError> {
-        let row = s
-            .campaign(id)
-            .map_err(|e| hidden("store", &e))?
-            .ok_or_else(|| ApiError::not_found(format!("no campaign {id}")))?;
-        if row.stage != stage {
-            return Err(ApiError::bad_request(format!(
-                "campaign {id} ran on stage {}, not {stage}",
-                row.stage
-            )));
-        }
-        Ok(row)
-    };
-    let comp = match b.compensation_from {
-        Some(id) => {
-            let row = of_stage(id)?;
-            Some(
-                crate::campaign::compensate::stored(&s, id, &row.stage)
-                    .map_err(|e| ApiError::bad_request(e.to_string()))?,
-            )
-        }
-        None => None,
-    };
-    let hw = match b.hardware_from.or(b.compensation_from) {
-        Some(id) => of_stage(id)?.id,
-        None => s
-            .campaigns()
-            .map_err(|e| hidden("store", &e))?
-            .into_iter()
-            .find(|r| r.stage == stage)
-            .map(|r| r.id)
-            .ok_or_else(|| {
-                ApiError::not_found(format!(
-                    "no campaign of stage {stage} in the store to take the hardware from"
-                ))
-            })?,
-    };
-    let db_path = s.path().map(std::path::Path::to_path_buf);
-    drop(s);
+    let (comp, hw) = store.with(|s| {
+        let of_stage = |id: i64| -> Result<crate::store::CampaignRow, ApiError> {
+            let row = s
+                .campaign(id)
+                .map_err(|e| hidden("store", &e))?
+                .ok_or_else(|| ApiError::not_found(format!("no campaign {id}")))?;
+            if row.stage != stage {
+                return Err(ApiError::bad_request(format!(
+                    "campaign {id} ran on stage {}, not {stage}",
+                    row.stage
+                )));
+            }
+            Ok(row)
+        };
+        let comp = match b.compensation_from {
+            Some(id) => {
+                let row = of_stage(id)?;
+                Some(
+                    crate::campaign::compensate::stored(s, id, &row.stage)
+                        .map_err(|e| ApiError::bad_request(e.to_string()))?,
+                )
+            }
+            None => None,
+        };
+        let hw = match b.hardware_from.or(b.compensation_from) {
+            Some(id) => of_stage(id)?.id,
+            None => s
+                .campaigns()
+                .map_err(|e| hidden("store", &e))?
+                .into_iter()
+                .find(|r| r.stage == stage)
+                .map(|r| r.id)
+                .ok_or_else(|| {
+                    ApiError::not_found(format!(
+                        "no campaign of stage {stage} in the store to take the hardware from"
+                    ))
+                })?,
+        };
+        Ok::<_, ApiError>((comp, hw))
+    })?;
+    let db_path = store.path().map(std::path::Path::to_path_buf);
     let c = crate::campaign::session::load_stored(&store, hw)
         .map_err(|e| hidden(&format!("campaign {hw}'s hardware"), &e))?;
     let lock = match db_path {

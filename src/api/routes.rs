@@ -609,6 +609,7 @@ async fn move_stage(
     }
     let kind = if out.is_ok() { "moved" } else { "move_failed" };
     if let Err(e) = stage_event(&app, &stage, kind, done).await {
+        // The move is done (its `move` entry is logged) and its result goes to the client.
         tracing::error!(stage = %stage, error = %e, "the end of a move was not logged");
     }
     out.map(Json)
@@ -625,9 +626,7 @@ async fn stage_event(
     let stage = stage.to_string();
     blocking(move || {
         m.store()
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .add_stage_event(&stage, kind, &data)
+            .with(|s| s.add_stage_event(&stage, kind, &data))
             .map_err(|e| {
                 tracing::error!(error = %e, "stage event not stored");
                 ApiError::internal("the stage's log could not be written")
@@ -666,9 +665,7 @@ async fn stage_events(
     let stage = name.clone();
     let rows = blocking(move || {
         m.store()
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .stage_events_after(&stage, after, limit)
+            .with(|s| s.stage_events_after(&stage, after, limit))
             .map_err(|e| {
                 tracing::error!(error = %e, "stage events not read");
                 ApiError::internal("the stage's log could not be read")

@@ -2,6 +2,7 @@
 //! verification): its start, its failure, its result files and its end are recorded the same
 //! way, here, once.
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 use serde::Serialize;
 use serde_json::{json, Value};
@@ -9,10 +10,11 @@ use tokio::sync::broadcast;
 
 use super::engine::Outcome;
 use super::error::CampaignError;
-use super::events::{emit, lock, Event, SharedStore};
+use super::events::{emit, store_sample, Event, SharedStore};
 use super::results::ResultsError;
 use super::spec::Campaign;
-use crate::types::{CampaignState, Origin};
+use crate::store::{Store, StoreError};
+use crate::types::{CampaignState, Origin, SampleRecord};
 
 /// What a finished campaign reports.
 #[derive(Debug, Clone, Serialize)]
@@ -25,16 +27,88 @@ pub struct Finished {
     pub out_dir: Option<PathBuf>,
 }
 
-/// Campaign `id` being run: where its state, events and results go.
+/// Campaign `id` being run: where its state, events and results go. Clones share the writes
+/// that failed (the reconstruction worker's thread writes too).
+#[derive(Clone)]
 pub struct Attempt {
     pub store: SharedStore,
     pub events: broadcast::Sender<Event>,
     pub id: i64,
+    /// Writes the store refused that no caller got back (events, curves): they end in the
+    /// campaign's `errors`, or in its state's message when it stops before its end.
+    failed_writes: Arc<Mutex<Vec<String>>>,
 }
 
 impl Attempt {
+    pub fn new(store: SharedStore, events: broadcast::Sender<Event>, id: i64) -> Attempt {
+        Attempt {
+            store,
+            events,
+            id,
+            failed_writes: Arc::default(),
+        }
+    }
+
+    /// Stores and streams event `kind`; one the store refuses is noted as a failed write.
     pub fn emit(&self, kind: &str, data: Value) {
-        emit(&self.store, &self.events, self.id, kind, data);
+        if let Err(e) = emit(&self.store, &self.events, self.id, kind, data) {
+            tracing::warn!(campaign = self.id, error = %e, kind, "event not stored");
+            self.write_failed(format!("event `{kind}` not stored: {e}"));
+        }
+    }
+
+    /// Commits sample `s` and streams it (see [`store_sample`]): its failure is the caller's.
+    pub fn store_sample(&self, s: &SampleRecord) -> Result<bool, StoreError> {
+        store_sample(&self.store, &self.events, self.id, s)
+    }
+
+    /// Notes a write of this attempt that failed, for the campaign's `errors`.
+    pub fn write_failed(&self, msg: String) {
+        self.failed_writes
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(msg);
+    }
+
+    /// The writes that failed since the last call, each failure once (with its count).
+    pub fn take_failed_writes(&self) -> Vec<String> {
+        let all =
+            std::mem::take(&mut *self.failed_writes.lock().unwrap_or_else(|e| e.into_inner()));
+        let mut counted: Vec<(String, usize)> = Vec::new();
+        for m in all {
+            match counted.iter_mut().find(|(c, _)| *c == m) {
+                Some((_, n)) => *n += 1,
+                None => counted.push((m, 1)),
+            }
+        }
+        counted
+            .into_iter()
+            .map(|(m, n)| {
+                if n == 1 {
+                    m
+                } else {
+                    format!("{m} ({n} times)")
+                }
+            })
+            .collect()
+    }
+
+    /// `msg` with the writes that failed in this attempt, for a state that ends it early.
+    fn with_failed_writes(&self, msg: &str) -> String {
+        let failed = self.take_failed_writes();
+        if failed.is_empty() {
+            msg.to_string()
+        } else {
+            format!("{msg}; {}", failed.join("; "))
+        }
+    }
+
+    /// An event after the campaign's final state is stored: nothing reads the failed writes
+    /// any more, and the state (what clients and a restart read) is in place; only said.
+    fn emit_after_state(&self, kind: &str, data: Value) {
+        if let Err(e) = emit(&self.store, &self.events, self.id, kind, data) {
+            tracing::error!(campaign = self.id, error = %e, kind, "event not stored after the final state");
+        }
     }
 
     /// Records the start: `planned` targets, state running, then `started` (or
@@ -48,11 +122,10 @@ impl Attempt {
         origin: &Origin,
         verify: Option<i64>,
     ) -> Result<(), CampaignError> {
-        {
-            let s = lock(&self.store);
+        self.store.with(|s| {
             s.set_planned(self.id, planned)?;
-            s.set_state(self.id, CampaignState::Running, None)?;
-        }
+            s.set_state(self.id, CampaignState::Running, None)
+        })?;
         let mut data = json!({"planned": planned, "stored": stored, "name": name,
                               "by": origin.describe(), "origin": origin});
         if let Some(v) = verify {
@@ -68,25 +141,29 @@ impl Attempt {
     }
 
     /// An attempt that cannot go on: the error, then the state change (interrupted, so it can
-    /// be resumed), both in the log. Returns the message, with the state's own failure.
+    /// be resumed), both in the log. Returns the message, with the writes that failed before
+    /// and the state's own failure.
     pub fn fail(&self, cause: &str, msg: String) -> String {
+        let msg = self.with_failed_writes(&msg);
         // A state that cannot be stored is said too (the store keeps the campaign `running`,
         // which the service's next start resumes).
-        let stored = lock(&self.store).set_state(self.id, CampaignState::Interrupted, Some(&msg));
+        let stored = self
+            .store
+            .with(|s| s.set_state(self.id, CampaignState::Interrupted, Some(&msg)));
         let msg = match stored {
             Ok(()) => msg,
             Err(e) => format!("{msg}; state not stored: {e}"),
         };
-        self.emit(
+        self.emit_after_state(
             "error",
             json!({"cause": cause, "error": msg, "resumable": true}),
         );
-        self.emit("finished", json!({"state": "interrupted", "error": msg}));
+        self.emit_after_state("finished", json!({"state": "interrupted", "error": msg}));
         msg
     }
 
-    /// Motion halted before the end (stopped or aborted): the state with its reason, then
-    /// `finished` with `data`.
+    /// Motion halted before the end (stopped or aborted): the state with its reason (and the
+    /// writes that failed), then `finished` with `data`.
     pub fn halted(
         &self,
         state: CampaignState,
@@ -95,16 +172,17 @@ impl Attempt {
         outcome: Outcome,
     ) -> Result<Finished, CampaignError> {
         let id = self.id;
+        let reason = self.with_failed_writes(reason);
         // Not stored, an aborted campaign would be left `running` and resumed by the
         // service's next start: an error, not a finished campaign.
-        lock(&self.store)
-            .set_state(id, state, Some(reason))
+        self.store
+            .with(|s| s.set_state(id, state, Some(&reason)))
             .map_err(|source| CampaignError::HaltNotStored {
                 id,
                 state: state.as_str(),
                 source: Box::new(source),
             })?;
-        self.emit("finished", data);
+        self.emit_after_state("finished", data);
         Ok(Finished {
             id,
             state,
@@ -117,7 +195,7 @@ impl Attempt {
 
     /// The store's id (results folders are marked with it).
     pub fn store_id(&self) -> String {
-        lock(&self.store).store_id().unwrap_or_else(|e| {
+        self.store.with(Store::store_id).unwrap_or_else(|e| {
             tracing::warn!(error = %e, "store id not read");
             "unknown".into()
         })
@@ -134,15 +212,15 @@ impl Attempt {
         errors: &mut Vec<String>,
     ) -> Result<PathBuf, ResultsError> {
         let id = self.id;
-        let mut store_err = None;
-        {
-            let s = lock(&self.store);
+        let store_err = self.store.with(|s| {
+            let mut last = None;
             for (name, ctype, bytes) in files {
                 if let Err(e) = s.put_result(id, name, ctype, bytes) {
-                    store_err = Some(e.to_string());
+                    last = Some(e.to_string());
                 }
             }
-        }
+            last
+        });
         if let Some(e) = store_err {
             errors.push(format!("results not stored: {e}"));
         }
@@ -161,9 +239,10 @@ impl Attempt {
     }
 
     /// Writes `summary.json` (store and output directory `dir`) with the campaign's final
-    /// `state` and `errors`, its own write's failure included: a failed write fails the
-    /// campaign and the summary is written again where it could be. `written`: the bytes stored
-    /// with the other result files; when the final summary reads the same, nothing is written.
+    /// `state` and `errors`, the writes that failed so far and its own write's failure
+    /// included: a failed write fails the campaign and the summary is written again where it
+    /// could be. `written`: the bytes stored with the other result files; when the final
+    /// summary reads the same, nothing is written.
     pub fn write_summary(
         &self,
         summary: &mut Value,
@@ -172,6 +251,11 @@ impl Attempt {
         dir: Option<&Path>,
         written: Option<&[u8]>,
     ) -> Result<(), serde_json::Error> {
+        let failed = self.take_failed_writes();
+        if !failed.is_empty() {
+            errors.extend(failed);
+            *state = CampaignState::Failed;
+        }
         let mut failed_before = false;
         loop {
             summary["state"] = json!(state.as_str());
@@ -181,8 +265,9 @@ impl Attempt {
                 return Ok(());
             }
             let mut failed = Vec::new();
-            let stored =
-                lock(&self.store).put_result(self.id, "summary.json", "application/json", &bytes);
+            let stored = self
+                .store
+                .with(|s| s.put_result(self.id, "summary.json", "application/json", &bytes));
             if let Err(e) = stored {
                 failed.push(format!("results not stored (summary.json): {e}"));
             }
@@ -219,12 +304,13 @@ impl Attempt {
         out_dir: Option<PathBuf>,
     ) -> Result<Finished, CampaignError> {
         let message = (!errors.is_empty()).then(|| errors.join("; "));
-        lock(&self.store).set_state(self.id, state, message.as_deref())?;
+        self.store
+            .with(|s| s.set_state(self.id, state, message.as_deref()))?;
         summary["state"] = json!(state.as_str());
         summary["errors"] = json!(errors);
         // `out_dir`: where the results folder went, so a later verification campaign can link
         // the report in it to its own.
-        self.emit(
+        self.emit_after_state(
             "finished",
             json!({"state": state.as_str(), "errors": errors, "summary": summary,
                    "out_dir": out_dir.as_ref().map(|d| d.display().to_string())}),
@@ -257,4 +343,33 @@ pub fn write_files(dir: &Path, files: &[(String, String, Vec<u8>)]) -> Result<()
         }
     }
     first.map_or(Ok(()), Err)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refused_events_are_noted_once_each_with_their_count_and_taken_once() {
+        let store = SharedStore::new(crate::store::Store::open_in_memory().unwrap());
+        // No campaign 9: the store refuses its events (foreign key).
+        let run = Attempt::new(store, broadcast::channel(4).0, 9);
+        let worker = run.clone();
+        for _ in 0..3 {
+            worker.emit("reconstructed", json!({}));
+        }
+        run.emit("rig", json!({}));
+        let failed = run.take_failed_writes();
+        assert_eq!(failed.len(), 2, "{failed:?}");
+        assert!(
+            failed[0].starts_with("event `reconstructed` not stored: ")
+                && failed[0].ends_with(" (3 times)"),
+            "{failed:?}"
+        );
+        assert!(
+            failed[1].starts_with("event `rig` not stored: "),
+            "{failed:?}"
+        );
+        assert!(run.take_failed_writes().is_empty());
+    }
 }

@@ -11,7 +11,6 @@ use super::attempt::Attempt;
 pub use super::attempt::Finished;
 use super::engine::{Control, EndState, Engine, EngineError, Recorder};
 pub use super::error::CampaignError;
-use super::events::{emit, lock, store_sample};
 /// Where they lived before: the log and stream have their own module.
 pub use super::events::{Event, SharedStore};
 use super::plan::{plan, Plan};
@@ -27,41 +26,41 @@ use crate::types::{CampaignState, Origin, RunKey, SampleRecord};
 /// Stores a new campaign (state queued) and returns its id.
 pub fn create(store: &SharedStore, c: &Campaign) -> Result<i64, CampaignError> {
     let planned = super::verification::planned(c).unwrap_or(plan(c).total() as u64);
-    let s = lock(store);
-    let id = s.create_campaign(
-        &c.spec().campaign.name,
-        c.text(),
-        c.origin(),
-        &c.spec().campaign.stage,
-        planned,
-    )?;
-    // The model it was validated with runs it, at every resume too.
-    if let Some(m) = c.model() {
-        s.set_model_snapshot(id, &m.text)?;
-    }
+    let id = store.with(|s| -> Result<i64, StoreError> {
+        let id = s.create_campaign(
+            &c.spec().campaign.name,
+            c.text(),
+            c.origin(),
+            &c.spec().campaign.stage,
+            planned,
+        )?;
+        // The model it was validated with runs it, at every resume too.
+        if let Some(m) = c.model() {
+            s.set_model_snapshot(id, &m.text)?;
+        }
+        Ok(id)
+    })?;
     Ok(id)
 }
 
 /// Reloads a stored campaign's file (its text was stored with it).
 pub fn load_stored(store: &SharedStore, id: i64) -> Result<Campaign, CampaignError> {
-    let row = lock(store)
-        .campaign(id)?
-        .ok_or(CampaignError::NotStored(id))?;
-    let base = PathBuf::from(&row.spec_path)
-        .parent()
-        .map(|p| p.to_path_buf())
-        .unwrap_or_default();
-    let snapshot = lock(store).model_snapshot(id)?;
-    let c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)?;
-    // `verify = ID`: the characterisation's axes.
-    Ok(super::verification::resolve(c, &lock(store))?)
+    store.with(|s| {
+        let row = s.campaign(id)?.ok_or(CampaignError::NotStored(id))?;
+        let base = PathBuf::from(&row.spec_path)
+            .parent()
+            .map(|p| p.to_path_buf())
+            .unwrap_or_default();
+        let snapshot = s.model_snapshot(id)?;
+        let c = Campaign::parse_stored(&row.spec_toml, &row.spec_path, &base, snapshot)?;
+        // `verify = ID`: the characterisation's axes.
+        Ok(super::verification::resolve(c, s)?)
+    })
 }
 
 struct StoreRecorder {
-    store: SharedStore,
-    id: i64,
+    run: Attempt,
     worker: Worker,
-    events: broadcast::Sender<Event>,
     samples: Vec<SampleRecord>,
     campaign: Campaign,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
@@ -83,14 +82,14 @@ impl Recorder for StoreRecorder {
         }
     }
     fn sample(&mut self, s: &SampleRecord) -> Result<bool, StoreError> {
-        let fresh = store_sample(&self.store, &self.events, self.id, s)?;
+        let fresh = self.run.store_sample(s)?;
         self.samples.push(*s);
         self.worker.sample(s);
         (self.on_sample)(s);
         Ok(fresh)
     }
     fn event(&mut self, kind: &str, data: Value) {
-        emit(&self.store, &self.events, self.id, kind, data);
+        self.run.emit(kind, data);
     }
     fn run_done(&mut self, run: RunKey) {
         self.worker.run_done(run);
@@ -172,11 +171,7 @@ pub async fn execute_with(
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
     opts: Options,
 ) -> Result<Finished, CampaignError> {
-    let run = Attempt {
-        store: store.clone(),
-        events: events.clone(),
-        id,
-    };
+    let run = Attempt::new(store.clone(), events, id);
     let origin = opts.origin.clone().unwrap_or_else(Origin::service);
     if c.spec().campaign.verify.is_some() {
         return super::verification::execute(&run, c, control, on_sample, origin).await;
@@ -195,8 +190,8 @@ pub async fn execute_with(
         None => None,
     };
     let p: Plan = plan(&c);
-    let done: BTreeMap<u64, SampleRecord> = lock(&store)
-        .samples(id)?
+    let done: BTreeMap<u64, SampleRecord> = store
+        .with(|s| s.samples(id))?
         .into_iter()
         .map(|s| (s.target.seq, s))
         .collect();
@@ -209,11 +204,8 @@ pub async fn execute_with(
     )?;
     let fail = |cause: &str, msg: String| run.fail(cause, msg);
     // `[compensation]`: resolved (and a bad table refused) before the hardware is touched.
-    let compensation = {
-        let s = lock(&store);
-        super::compensate::for_campaign(&c, &s)
-    };
-    let compensation = compensation
+    let compensation = store
+        .with(|s| super::compensate::for_campaign(&c, s))
         .map_err(|e| CampaignError::Recorded(fail("compensation", format!("stopped: {e}"))))?;
     let mut rig: Rig = rig::build(&c)
         .await
@@ -221,20 +213,12 @@ pub async fn execute_with(
             id,
             msg: fail("hardware", format!("hardware: {e}")),
         })?;
-    emit(
-        &store,
-        &events,
-        id,
-        "rig",
-        json!({"describe": rig.describe}),
-    );
+    run.emit("rig", json!({"describe": rig.describe}));
 
-    let (st2, ev2) = (store.clone(), events.clone());
     let recon_failures: Arc<Mutex<Vec<String>>> = Arc::default();
     let rf2 = recon_failures.clone();
-    // Writes of the worker that failed: the campaign ends `failed` with them.
-    let write_failures: Arc<Mutex<Vec<String>>> = Arc::default();
-    let wf2 = write_failures.clone();
+    // Writes of the worker that failed go with the attempt's: the campaign ends `failed`.
+    let run2 = run.clone();
     let worker = Worker::start(&c, move |r| match r {
         Ok(curve) => {
             let name = format!(
@@ -242,24 +226,19 @@ pub async fn execute_with(
                 curve.run.label(),
                 curve.component.name()
             );
-            // Bound first: the store's guard must be gone before `emit` locks it again.
-            let stored = lock(&st2).put_result(id, &name, "text/csv", curve.csv().as_bytes());
+            let stored = run2
+                .store
+                .with(|s| s.put_result(id, &name, "text/csv", curve.csv().as_bytes()));
             if let Err(e) = stored {
                 let msg = format!("{name} not stored: {e}");
-                emit(
-                    &st2,
-                    &ev2,
-                    id,
+                run2.emit(
                     "error",
                     json!({"cause": "storage", "error": msg, "resumable": false}),
                 );
-                wf2.lock().unwrap_or_else(|p| p.into_inner()).push(msg);
+                run2.write_failed(msg);
                 return;
             }
-            emit(
-                &st2,
-                &ev2,
-                id,
+            run2.emit(
                 "reconstructed",
                 json!({"run": curve.run.label(), "component": curve.component.name(), "method": curve.method,
                        "cv_error_um": curve.cv_error_um, "solve_ms": curve.solve_ms, "m": curve.samples.len()}),
@@ -267,15 +246,13 @@ pub async fn execute_with(
         }
         Err(e) => {
             let e = e.to_string();
-            emit(&st2, &ev2, id, "reconstruction_failed", json!({"error": e}));
+            run2.emit("reconstruction_failed", json!({"error": e}));
             rf2.lock().unwrap_or_else(|p| p.into_inner()).push(e);
         }
     });
     let mut rec = StoreRecorder {
-        store: store.clone(),
-        id,
+        run: run.clone(),
         worker,
-        events: events.clone(),
         samples: Vec::new(),
         campaign: c.clone(),
         on_sample,
@@ -298,13 +275,7 @@ pub async fn execute_with(
             .collect(),
         Err(_) => BTreeMap::new(),
     };
-    emit(
-        &store,
-        &events,
-        id,
-        "attempt",
-        json!({"decode_s": decode_s}),
-    );
+    run.emit("attempt", json!({"decode_s": decode_s}));
     let outcome = match outcome {
         Ok(o) => o,
         Err(e) => {
@@ -344,8 +315,8 @@ pub async fn execute_with(
     };
     if let Some((mut state, mut msg, mut data)) = halted {
         // Stopped (shutdown) while the operator held it paused: it stays paused.
-        let paused = lock(&store)
-            .campaign(id)
+        let paused = store
+            .with(|s| s.campaign(id))
             .ok()
             .flatten()
             .is_some_and(|r| r.state == CampaignState::Paused);
@@ -357,23 +328,16 @@ pub async fn execute_with(
         return run.halted(state, msg, data, outcome);
     }
     // Every figure from the store: the same whatever attempts it took.
-    let (samples, log) = {
-        let s = lock(&store);
-        (s.samples(id)?, s.events_after(id, 0)?)
-    };
+    let (samples, log) =
+        store.with(|s| Ok::<_, StoreError>((s.samples(id)?, s.events_after(id, 0)?)))?;
     let t = tally(&p, &samples, &log);
     let failures = recon_failures
         .lock()
         .unwrap_or_else(|e| e.into_inner())
         .clone();
     let mut errors = problems(&t, &failures);
-    errors.extend(
-        write_failures
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .iter()
-            .cloned(),
-    );
+    // The report says them too; those after it are added by `write_summary`.
+    errors.extend(run.take_failed_writes());
     let mut rep = super::results::build(
         &c,
         id,
@@ -394,8 +358,8 @@ pub async fn execute_with(
         &mut rep,
     ));
     let store_id = run.store_id();
-    let created = lock(&store)
-        .campaign(id)
+    let created = store
+        .with(|s| s.campaign(id))
         .ok()
         .flatten()
         .map(|r| r.created_unix_s);
@@ -464,7 +428,7 @@ fn write_nexus(
     name: &str,
     ok: bool,
 ) -> Result<(), crate::export::ExportError> {
-    let mut e = crate::export::Export::gather(&lock(store), id)?;
+    let mut e = store.with(|s| crate::export::Export::gather(s, id))?;
     e.state = if ok { "done" } else { "failed" }.into();
     crate::export::nexus::write(&e, &dir.join(format!("{name}-{id}.nxs")))
 }

@@ -8,13 +8,12 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use serde_json::{json, Value};
-use tokio::sync::{broadcast, watch};
+use tokio::sync::watch;
 
 use super::attempt::{Attempt, Finished};
 use super::compensate::stored;
 use super::engine::{Control, EndState, Outcome};
 use super::error::CampaignError;
-use super::events::{emit, lock, store_sample, Event, SharedStore};
 use super::spec::{Campaign, HardwareKind, SpecError};
 use super::verify::{self, prior_from_summary, Prior, Sink, VerifyError, VerifyOptions};
 use crate::store::{Store, StoreError};
@@ -151,20 +150,18 @@ pub fn planned(c: &Campaign) -> Option<u64> {
 
 /// Commits the samples and events of a verification campaign to its store and streams them.
 struct StoreSink {
-    store: SharedStore,
-    events: broadcast::Sender<Event>,
-    id: i64,
+    run: Attempt,
     on_sample: Box<dyn FnMut(&SampleRecord) + Send>,
 }
 
 impl Sink for StoreSink {
     fn sample(&mut self, s: &SampleRecord) -> Result<bool, StoreError> {
-        let fresh = store_sample(&self.store, &self.events, self.id, s)?;
+        let fresh = self.run.store_sample(s)?;
         (self.on_sample)(s);
         Ok(fresh)
     }
     fn event(&mut self, kind: &str, data: &Value) {
-        emit(&self.store, &self.events, self.id, kind, data.clone());
+        self.run.emit(kind, data.clone());
     }
 }
 
@@ -190,10 +187,9 @@ pub(super) async fn execute(
         msg: run.fail("verification", msg),
     };
     // Resolved again here: the characterisation may have gone since the file was loaded.
-    let resolved = {
-        let s = lock(store);
-        resolve(c, &s).map_err(CampaignError::from).and_then(|c| {
-            let comp = stored(&s, char_id, &c.spec().campaign.stage)?;
+    let resolved = store.with(|s| {
+        resolve(c, s).map_err(CampaignError::from).and_then(|c| {
+            let comp = stored(s, char_id, &c.spec().campaign.stage)?;
             let summary: Value = s
                 .result(char_id, "summary.json")
                 .ok()
@@ -209,7 +205,7 @@ pub(super) async fn execute(
                 .collect();
             Ok((c, comp, summary, measured, done))
         })
-    };
+    });
     let (c, comp, summary, measured, done) = resolved.map_err(|e| fail(format!("stopped: {e}")))?;
     let opts = VerifyOptions {
         measured_span_um: measured,
@@ -225,9 +221,7 @@ pub(super) async fn execute(
     )?;
     let prior = move |axis: AxisId| -> Prior { prior_from_summary(&summary, axis) };
     let mut sink = StoreSink {
-        store: store.clone(),
-        events: run.events.clone(),
-        id,
+        run: run.clone(),
         on_sample,
     };
     let r = verify::run(
@@ -303,9 +297,8 @@ pub(super) async fn execute(
     // verification's own results are in place).
     let note = format!("(verification campaign {id})");
     let (passed, dir) = (v.passed, written.as_ref().ok());
-    let warnings = {
-        let s = lock(store);
-        let char_dir = finished_out_dir(&s, char_id)
+    let warnings = store.with(|s| {
+        let char_dir = finished_out_dir(s, char_id)
             .and_then(|d| super::results::owned_out_dir(&d, &store_id, char_id));
         let file_href = char_dir
             .as_deref()
@@ -313,14 +306,14 @@ pub(super) async fn execute(
             .and_then(|(from, to)| relative_href(from, &to.join("report.html")));
         let store_href = format!("../../{id}/results/report.html");
         link_report(
-            &s,
+            s,
             char_id,
             char_dir.as_deref().zip(file_href.as_deref()),
             &store_href,
             passed,
             &note,
         )
-    };
+    });
     for w in warnings {
         tracing::warn!(campaign = char_id, "{w}");
     }

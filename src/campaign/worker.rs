@@ -89,7 +89,7 @@ pub enum ReconError {
     Curve {
         component: String,
         run: String,
-        reason: String,
+        reason: crate::recon::ReconError,
     },
     #[error("map {direction}: {reason}")]
     Map {
@@ -105,9 +105,8 @@ pub enum StopError {
     NoComponent,
     #[error("{0} samples: too few to estimate the error")]
     TooFew(usize),
-    /// The reconstruction's reason, in its own text.
-    #[error("{0}")]
-    Recon(String),
+    #[error(transparent)]
+    Recon(crate::recon::ReconError),
 }
 
 /// Reconstructs the components of `run` from its samples.

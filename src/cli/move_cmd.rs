@@ -6,7 +6,6 @@
 //! (same store, same stage), else a simulated stage (`--sim-model` or an ideal one).
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::{Arc, Mutex};
 
 use serde_json::json;
 
@@ -99,7 +98,7 @@ fn hardware(a: &Args, comp: Option<&Compensation>) -> Result<(Campaign, String),
         if let Ok(store) = Store::open(&a.db) {
             if let Ok(Some(row)) = store.campaign(id) {
                 if row.stage == a.stage {
-                    let shared = Arc::new(Mutex::new(store));
+                    let shared = crate::campaign::events::SharedStore::new(store);
                     let c = session::load_stored(&shared, id).map_err(CliError::failure)?;
                     return Ok((c, format!("campaign {id}'s hardware")));
                 }

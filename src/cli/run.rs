@@ -2,7 +2,6 @@
 //! `csmetro resume ID` (continue an interrupted campaign from its last stored sample).
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::{Arc, Mutex};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use tokio::sync::{broadcast, watch};
@@ -68,7 +67,7 @@ fn origin(operator: Option<&str>) -> Result<Origin, CliError> {
 
 fn open(db: &std::path::Path) -> Result<SharedStore, CliError> {
     Store::open(db)
-        .map(|s| Arc::new(Mutex::new(s)))
+        .map(SharedStore::new)
         .map_err(|e| CliError::failure(format!("store {}: {e}", db.display())))
 }
 
@@ -86,9 +85,9 @@ pub fn run(a: Args) -> CliResult {
     let origin = origin(a.operator.as_deref())?;
     let c = Campaign::load(&a.campaign).map_err(|e| CliError::input(e.to_string()))?;
     let store = open(&a.db)?;
-    let c =
-        crate::campaign::verification::resolve(c, &store.lock().unwrap_or_else(|e| e.into_inner()))
-            .map_err(|e| CliError::input(e.to_string()))?;
+    let c = store
+        .with(|s| crate::campaign::verification::resolve(c, s))
+        .map_err(|e| CliError::input(e.to_string()))?;
     let _stage = take_stage(
         &a.db,
         &c.spec().campaign.stage,
@@ -113,9 +112,7 @@ pub fn resume(a: ResumeArgs) -> CliResult {
     let origin = origin(a.operator.as_deref())?;
     let store = open(&a.db)?;
     let row = store
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .campaign(a.id)
+        .with(|s| s.campaign(a.id))
         .map_err(|e| CliError::failure(e.to_string()))?
         .ok_or_else(|| CliError::input(format!("no campaign {} in {}", a.id, a.db.display())))?;
     if row.state.is_final() {
@@ -216,11 +213,7 @@ fn foreground(
     rt.block_on(async move {
         let planned = crate::campaign::verification::planned(&c)
             .unwrap_or(crate::campaign::plan::plan(&c).total() as u64);
-        let stored = store
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .sample_count(id)
-            .unwrap_or(0);
+        let stored = store.with(|s| s.sample_count(id)).unwrap_or(0);
         let bar = if quiet {
             ProgressBar::hidden()
         } else {

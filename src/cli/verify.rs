@@ -3,14 +3,14 @@
 //! exceeds the expected one.
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use tokio::sync::watch;
 
 use super::run::DEFAULT_DB;
 use super::{CliError, CliResult};
 use crate::campaign::engine::Control;
-use crate::campaign::session;
+use crate::campaign::session::{self, SharedStore};
 use crate::campaign::stagelock;
 use crate::campaign::verify::map as verify_map;
 use crate::campaign::verify::{self, prior_from_summary, Prior, VerifyOptions};
@@ -107,7 +107,7 @@ pub fn run(a: Args) -> CliResult {
         .samples(a.id)
         .map_err(|e| CliError::failure(e.to_string()))?;
     let measured = [AxisId::X, AxisId::Y].map(|ax| verify::measured_span(&samples, ax));
-    let shared = Arc::new(Mutex::new(store));
+    let shared = SharedStore::new(store);
     let c = session::load_stored(&shared, a.id).map_err(CliError::failure)?;
     if c.map().is_some() {
         let opts = verify_map::MapVerifyOptions {
@@ -212,12 +212,12 @@ fn finish(
 /// The characterisation's `report.html`, in the store and in its output directory, links to
 /// the verification (`href`, relative to the results). A report that cannot be updated keeps
 /// its old content: the verification's own files are written already.
-fn link_report(shared: &Arc<Mutex<Store>>, dir: &Path, id: i64, href: &str, passed: bool) {
+fn link_report(shared: &SharedStore, dir: &Path, id: i64, href: &str, passed: bool) {
     let note = "(before / after figures and charts of the last `csmetro verify`)";
-    let s = shared.lock().unwrap_or_else(|e| e.into_inner());
-    for w in
-        crate::campaign::verification::link_report(&s, id, Some((dir, href)), href, passed, note)
-    {
+    let warnings = shared.with(|s| {
+        crate::campaign::verification::link_report(s, id, Some((dir, href)), href, passed, note)
+    });
+    for w in warnings {
         eprintln!("warning: {w}");
     }
 }
@@ -250,19 +250,18 @@ fn with_abort<T>(
 /// Stores the verification's files with the campaign's results (store and output directory);
 /// whether the directory was written.
 fn keep_files(
-    shared: &Arc<Mutex<Store>>,
+    shared: &SharedStore,
     c: &crate::campaign::spec::Campaign,
     id: i64,
     files: &[(String, String, Vec<u8>)],
 ) -> (bool, PathBuf) {
-    {
-        let s = shared.lock().unwrap_or_else(|e| e.into_inner());
+    shared.with(|s| {
         for (name, ctype, bytes) in files {
             if let Err(e) = s.put_result(id, name, ctype, bytes) {
                 eprintln!("warning: {name} not stored: {e}");
             }
         }
-    }
+    });
     let dir = crate::campaign::results::out_dir(c, id);
     let mut written = true;
     for (name, _, bytes) in files {
@@ -280,7 +279,7 @@ fn keep_files(
 fn run_map(
     a: &Args,
     stage: &str,
-    shared: &Arc<Mutex<Store>>,
+    shared: &SharedStore,
     c: &crate::campaign::spec::Campaign,
     comp: Compensation,
     opts: &verify_map::MapVerifyOptions,

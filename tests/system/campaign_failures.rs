@@ -231,3 +231,116 @@ fn an_abort_whose_state_cannot_be_stored_is_an_error() {
     );
     assert!(!err.contains("aborted; motion stopped"), "{err}");
 }
+
+#[test]
+fn an_event_that_cannot_be_stored_fails_the_campaign_and_loses_no_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    fail_writes(
+        &db,
+        "CREATE TRIGGER no_reconstructed BEFORE INSERT ON events \
+         WHEN NEW.kind = 'reconstructed' BEGIN SELECT RAISE(ABORT, 'injected (test)'); END;",
+    );
+    let c = campaign(dir.path(), 1000.0, &dir.path().join("out"), "");
+    let o = run_json(&c, &db);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("event `reconstructed` not stored"), "{err}");
+    let j = summary(&o);
+    assert_eq!(j["state"], "failed", "{j}");
+    let errors: Vec<&str> = j["errors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(Value::as_str)
+        .collect();
+    assert!(
+        errors.iter().any(
+            |e| e.contains("event `reconstructed` not stored") && e.contains("injected (test)")
+        ),
+        "{errors:?}"
+    );
+    // Only the event is lost: every sample, the curve and the figures are there.
+    assert_eq!(j["axes"][0]["phases"]["cs"]["measurements"], 5, "{j}");
+    let s = Store::open(&db).unwrap();
+    assert_eq!(s.samples(1).unwrap().len(), 5);
+    let names = s.result_names(1).unwrap();
+    assert!(names.iter().any(|n| n.starts_with("curves/")), "{names:?}");
+    let row = s.campaign(1).unwrap().unwrap();
+    assert_eq!(row.state, CampaignState::Failed);
+    assert!(
+        row.message.unwrap_or_default().contains("not stored"),
+        "the state's message says it"
+    );
+    // summary.json as stored and as written say the same.
+    let (_, stored) = s.result(1, "summary.json").unwrap().unwrap();
+    let stored: Value = serde_json::from_slice(&stored).unwrap();
+    assert_eq!(stored["state"], "failed");
+    assert_eq!(stored["errors"], j["errors"]);
+    let written: Value = serde_json::from_slice(
+        &std::fs::read(dir.path().join("out").join("summary.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(written["errors"], j["errors"]);
+    let log = s.events_after(1, 0).unwrap();
+    assert!(!log.iter().any(|e| e.kind == "reconstructed"));
+    let fin = log.iter().rfind(|e| e.kind == "finished").unwrap();
+    assert_eq!(fin.data["state"], "failed", "{}", fin.data);
+}
+
+#[test]
+fn events_not_stored_before_a_stop_are_in_the_interrupted_state() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    fail_writes(
+        &db,
+        "CREATE TRIGGER no_rig BEFORE INSERT ON events WHEN NEW.kind = 'rig' \
+         BEGIN SELECT RAISE(ABORT, 'injected (test)'); END;",
+    );
+    let c = campaign(dir.path(), 1000.0, &dir.path().join("out"), "");
+    // Time scale 1: still measuring when the stop comes.
+    let text = std::fs::read_to_string(&c)
+        .unwrap()
+        .replace("time_scale = 1000", "time_scale = 1");
+    std::fs::write(&c, text).unwrap();
+    let child = common::bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(&db)
+        .arg(&c)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    // The `rig` event is written (and refused) before anything moves.
+    while !rusqlite::Connection::open(&db)
+        .and_then(|c| {
+            c.query_row(
+                "SELECT count(*) FROM events WHERE campaign_id = 1 AND kind = 'started'",
+                [],
+                |r| r.get::<_, i64>(0),
+            )
+        })
+        .is_ok_and(|n| n == 1)
+    {
+        assert!(t0.elapsed().as_secs() < 30, "never started");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let pid = child.id().to_string();
+    assert!(std::process::Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .unwrap()
+        .success());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(143), "{err}");
+    let row = Store::open(&db).unwrap().campaign(1).unwrap().unwrap();
+    assert_eq!(row.state, CampaignState::Interrupted);
+    let msg = row.message.unwrap_or_default();
+    assert!(
+        msg.contains("event `rig` not stored") && msg.contains("injected (test)"),
+        "{msg}"
+    );
+}

@@ -38,7 +38,7 @@ impl Manager {
                 if in_queue.is_none() && row.state != CampaignState::Queued {
                     return Err(self.refuse(id, "pause"));
                 }
-                self.db().set_state(id, CampaignState::Paused, Some(&msg))?;
+                self.db(|s| s.set_state(id, CampaignState::Paused, Some(&msg)))?;
                 self.emit_by_operator(id, "paused", origin);
                 return self.status(id);
             };
@@ -48,7 +48,7 @@ impl Manager {
             }
             a.control.send_replace(Control::Pause);
             a.progress.pause(crate::store::now_unix_s());
-            self.db().set_state(id, CampaignState::Paused, Some(&msg))?;
+            self.db(|s| s.set_state(id, CampaignState::Paused, Some(&msg)))?;
         }
         self.emit_by_operator(id, "paused", origin);
         self.status(id)
@@ -86,7 +86,7 @@ impl Manager {
                 }
                 a.control.send_replace(Control::Run);
                 a.progress.resume(crate::store::now_unix_s());
-                self.db().set_state(id, CampaignState::Running, None)?;
+                self.db(|s| s.set_state(id, CampaignState::Running, None))?;
                 drop(inner);
                 self.emit_by_operator(id, "resumed", origin);
                 return self.status(id);
@@ -103,11 +103,13 @@ impl Manager {
                     drop(inner);
                     return Err(self.refuse(id, "resume"));
                 }
-                self.db().set_state(
-                    id,
-                    CampaignState::Queued,
-                    Some(&format!("resumed by {}", origin.describe())),
-                )?;
+                self.db(|s| {
+                    s.set_state(
+                        id,
+                        CampaignState::Queued,
+                        Some(&format!("resumed by {}", origin.describe())),
+                    )
+                })?;
                 inner
                     .queues
                     .entry(row.stage.clone())
@@ -162,14 +164,16 @@ impl Manager {
         if queued.is_none() && !resting {
             return Err(self.refuse(id, "abort"));
         }
-        self.db().set_state(
-            id,
-            CampaignState::Aborted,
-            Some(&format!(
-                "aborted by {} before it ran again",
-                origin.describe()
-            )),
-        )?;
+        self.db(|s| {
+            s.set_state(
+                id,
+                CampaignState::Aborted,
+                Some(&format!(
+                    "aborted by {} before it ran again",
+                    origin.describe()
+                )),
+            )
+        })?;
         let mut data = origin.fields();
         data["state"] = json!("aborted");
         self.emit(id, "finished", data);

@@ -10,7 +10,7 @@ impl Manager {
     /// [`STAGE_RETRY`]), so that resume and abort take them through the API instead of refusing
     /// a campaign that looks alive until the next service start.
     pub(super) fn watch_orphans(self: &Arc<Self>) {
-        let Some(db_path) = self.db().path().map(Path::to_path_buf) else {
+        let Some(db_path) = self.store.path().map(Path::to_path_buf) else {
             return;
         };
         let me = Arc::downgrade(self);
@@ -52,7 +52,7 @@ impl Manager {
     /// The store's unfinished campaigns; none (and a warning naming `what`) when it cannot be
     /// read: the check runs again later.
     pub(super) fn unfinished_rows(&self, what: &str) -> Vec<CampaignRow> {
-        self.db().unfinished().unwrap_or_else(|e| {
+        self.db(|s| s.unfinished()).unwrap_or_else(|e| {
             tracing::warn!(error = %e, "{what}: cannot read the store");
             Vec::new()
         })
@@ -61,11 +61,11 @@ impl Manager {
     /// Marks campaign `id` `interrupted` if the store still says `running`: the caller holds its
     /// stage's lock, so the process that ran it is gone.
     pub(super) fn mark_orphan(&self, id: i64) {
-        let now = self.db().campaign(id).ok().flatten();
+        let now = self.db(|s| s.campaign(id)).ok().flatten();
         let Some(now) = now.filter(|r| r.state == CampaignState::Running) else {
             return;
         };
-        let stored = self.db().sample_count(id).unwrap_or(0);
+        let stored = self.db(|s| s.sample_count(id)).unwrap_or(0);
         let msg = format!(
             "the process that ran it exited without finishing (was {}); {stored} of {} \
              samples are stored and a resume continues from there",
@@ -73,10 +73,8 @@ impl Manager {
             now.planned
         );
         tracing::warn!(campaign = id, stage = %now.stage, "{msg}");
-        if let Err(e) = self
-            .db()
-            .set_state(id, CampaignState::Interrupted, Some(&msg))
-        {
+        if let Err(e) = self.db(|s| s.set_state(id, CampaignState::Interrupted, Some(&msg))) {
+            // Still `running` in the store: the next sweep finds it again.
             tracing::warn!(campaign = id, error = %e, "orphan check: state not stored");
             return;
         }
@@ -125,11 +123,13 @@ impl Manager {
                     .active(e.campaign)
                     .is_some_and(|a| *a.control.borrow() == Control::Pause);
                 if paused {
-                    if let Err(err) = m.db().set_state(
-                        e.campaign,
-                        CampaignState::Paused,
-                        Some("paused by the operator"),
-                    ) {
+                    if let Err(err) = m.db(|s| {
+                        s.set_state(
+                            e.campaign,
+                            CampaignState::Paused,
+                            Some("paused by the operator"),
+                        )
+                    }) {
                         // The engine holds anyway; only the stored state lags.
                         tracing::error!(campaign = e.campaign, error = %err, "paused state not stored");
                     }

@@ -183,8 +183,9 @@ impl Manager {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn db(&self) -> MutexGuard<'_, crate::store::Store> {
-        self.store.lock().unwrap_or_else(|e| e.into_inner())
+    /// The store, off the async runtime (see [`SharedStore::with`]).
+    fn db<T>(&self, f: impl FnOnce(&crate::store::Store) -> T) -> T {
+        self.store.with(f)
     }
 
     /// A campaign of `stage` runs or waits in its queue: a move would cut in (409).
@@ -211,29 +212,21 @@ impl Manager {
         *self.shutdown.borrow()
     }
 
-    /// Stores an event in the campaign's log and broadcasts it.
+    /// Stores an event in the campaign's log and broadcasts it. The service's own events
+    /// (queued, paused, requeued...) record a change already made and answered: one the store
+    /// refuses goes to the service's log, as no campaign run collects it.
     fn emit(&self, id: i64, kind: &str, data: Value) {
-        let r = self.db().add_event(id, kind, &data);
-        match r {
-            Ok(eid) => {
-                let _ = self.events.send(Event {
-                    id: eid,
-                    campaign: id,
-                    unix_s: crate::store::now_unix_s(),
-                    kind: kind.into(),
-                    data,
-                });
-            }
-            Err(e) => tracing::warn!(campaign = id, kind, error = %e, "event not stored"),
+        if let Err(e) = crate::campaign::events::emit(&self.store, &self.events, id, kind, data) {
+            tracing::error!(campaign = id, kind, error = %e, "event not stored");
         }
     }
 
     /// Queues every campaign a previous service left unfinished (oldest first) and starts what
     /// can start. Returns their ids.
     pub fn start(self: &Arc<Self>) -> Result<Vec<i64>, StoreError> {
-        let rows = self.db().unfinished()?;
+        let rows = self.db(|s| s.unfinished())?;
         let mut ids = Vec::new();
-        let db_path = self.db().path().map(Path::to_path_buf);
+        let db_path = self.store.path().map(Path::to_path_buf);
         for row in rows {
             // Running or paused in a process that is still alive (a foreground `csmetro run` on
             // this store): that process owns it; do not drive the stage a second time.
@@ -253,8 +246,7 @@ impl Manager {
             }
             if row.state != CampaignState::Queued {
                 let msg = format!("resumed at service start (was {})", row.state.as_str());
-                self.db()
-                    .set_state(row.id, CampaignState::Queued, Some(&msg))?;
+                self.db(|s| s.set_state(row.id, CampaignState::Queued, Some(&msg)))?;
                 self.emit(
                     row.id,
                     "requeued",
@@ -282,7 +274,8 @@ impl Manager {
     }
 
     fn row(&self, id: i64) -> Result<CampaignRow, ManagerError> {
-        self.db().campaign(id)?.ok_or(ManagerError::NoCampaign(id))
+        self.db(|s| s.campaign(id))?
+            .ok_or(ManagerError::NoCampaign(id))
     }
 
     fn status_of(
@@ -290,7 +283,7 @@ impl Manager {
         row: CampaignRow,
         queue: Option<usize>,
     ) -> Result<CampaignStatus, ManagerError> {
-        let stored = self.db().sample_count(row.id)?;
+        let stored = self.db(|s| s.sample_count(row.id))?;
         let percent = if row.planned == 0 {
             0.0
         } else {
@@ -331,7 +324,7 @@ impl Manager {
 
     /// Every campaign, newest first.
     pub fn list(&self) -> Result<Vec<CampaignStatus>, ManagerError> {
-        let rows = self.db().campaigns()?;
+        let rows = self.db(|s| s.campaigns())?;
         rows.into_iter()
             .map(|r| {
                 let pos = self.inner().queue_position(r.id).map(|(_, p)| p);
@@ -352,8 +345,7 @@ impl Manager {
     /// A campaign's log after event `after` (0: all).
     pub fn events_after(&self, id: i64, after: i64) -> Result<Vec<EventRow>, ManagerError> {
         self.row(id)?;
-        self.db()
-            .events_after(id, after)
+        self.db(|s| s.events_after(id, after))
             .map_err(ManagerError::from)
     }
 
@@ -366,21 +358,19 @@ impl Manager {
         limit: usize,
     ) -> Result<Vec<(i64, crate::types::SampleRecord)>, ManagerError> {
         self.row(id)?;
-        self.db()
-            .samples_after(id, after, limit)
+        self.db(|s| s.samples_after(id, after, limit))
             .map_err(ManagerError::from)
     }
 
     pub fn result_names(&self, id: i64) -> Result<Vec<String>, ManagerError> {
         self.row(id)?;
-        self.db().result_names(id).map_err(ManagerError::from)
+        self.db(|s| s.result_names(id)).map_err(ManagerError::from)
     }
 
     /// (content type, bytes) of a stored result.
     pub fn result(&self, id: i64, name: &str) -> Result<(String, Vec<u8>), ManagerError> {
         self.row(id)?;
-        self.db()
-            .result(id, name)?
+        self.db(|s| s.result(id, name))?
             .ok_or_else(|| ManagerError::NoResult {
                 id,
                 name: name.to_string(),

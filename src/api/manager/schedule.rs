@@ -11,7 +11,7 @@ impl Manager {
             if self.shutting_down() {
                 return;
             }
-            let db_path = self.db().path().map(Path::to_path_buf);
+            let db_path = self.store.path().map(Path::to_path_buf);
             // The head's lock scope (its hardware kind), read before `inner` is taken: the store
             // is never locked inside it. A head that changed meanwhile locks machine-wide.
             let head = self
@@ -20,7 +20,7 @@ impl Manager {
                 .get(stage)
                 .and_then(|q| q.front().copied());
             let head_scope = head
-                .and_then(|id| self.db().campaign(id).ok().flatten())
+                .and_then(|id| self.db(|s| s.campaign(id)).ok().flatten())
                 .map_or(stagelock::Scope::Machine, |r| {
                     stagelock::Scope::of_spec_toml(&r.spec_toml)
                 });
@@ -86,8 +86,7 @@ impl Manager {
             }
             // Another process may have finished it while it waited for the stage.
             if self
-                .db()
-                .campaign(id)
+                .db(|s| s.campaign(id))
                 .ok()
                 .flatten()
                 .is_some_and(|r| r.state.is_final())
@@ -115,14 +114,14 @@ impl Manager {
     pub(super) fn wait_for_stage(self: &Arc<Self>, id: i64, stage: &str, e: StageLockError) {
         let msg = e.to_string();
         let first = self
-            .db()
-            .campaign(id)
+            .db(|s| s.campaign(id))
             .ok()
             .flatten()
             .is_none_or(|r| r.message.as_deref() != Some(msg.as_str()));
         if first {
             tracing::warn!(campaign = id, error = %msg, "waiting for the stage");
-            if let Err(e) = self.db().set_state(id, CampaignState::Queued, Some(&msg)) {
+            if let Err(e) = self.db(|s| s.set_state(id, CampaignState::Queued, Some(&msg))) {
+                // It is `queued` already and waits all the same; only the reason is not stored.
                 tracing::error!(campaign = id, error = %e, "waiting state not stored");
             }
             self.emit(
@@ -149,10 +148,7 @@ impl Manager {
 
     /// Ends a campaign's attempt as resumable (state interrupted) and closes its event stream.
     pub(super) fn interrupt(&self, id: i64, msg: String) {
-        if let Err(e) = self
-            .db()
-            .set_state(id, CampaignState::Interrupted, Some(&msg))
-        {
+        if let Err(e) = self.db(|s| s.set_state(id, CampaignState::Interrupted, Some(&msg))) {
             // The event below still tells clients; the store is what a restart reads.
             tracing::error!(campaign = id, error = %e, "interrupted state not stored");
         }
@@ -181,7 +177,7 @@ impl Manager {
         let c = c.with_outputs_dir(dir);
         tracing::info!(campaign = id, name = %c.spec().campaign.name, stage = %stage, "starting");
         // Nothing is measured before `execute` runs: this is what earlier attempts stored.
-        let stored = self.db().sample_count(id).unwrap_or(0);
+        let stored = self.db(|s| s.sample_count(id)).unwrap_or(0);
         if let Some(a) = self.inner().active(id) {
             a.progress = Progress::new(stored);
         }
@@ -258,8 +254,7 @@ impl Manager {
     /// Either way it stays controllable. Returns whether it was queued again.
     pub(super) fn retry_start(self: &Arc<Self>, id: i64, stage: &str, error: &str) -> bool {
         let queued = self
-            .db()
-            .campaign(id)
+            .db(|s| s.campaign(id))
             .ok()
             .flatten()
             .is_some_and(|r| r.state == CampaignState::Queued);

@@ -32,7 +32,7 @@ impl Manager {
         self.check_quota()?;
         let c = Campaign::parse(text, &file, &self.campaigns_dir)?;
         // `verify = ID`: a characterisation in this service's store only.
-        let c = crate::campaign::verification::resolve(c, &self.db())?;
+        let c = self.db(|s| crate::campaign::verification::resolve(c, s))?;
         // load_stored resolves relative paths from the stored path's directory.
         let c = c.stored_as(self.campaigns_dir.join(&file).display().to_string());
         self.preflight_at_submit(&c)?;
@@ -65,7 +65,7 @@ impl Manager {
     /// 507 while the store file (and its write-ahead log) is over [`Limits::max_store_bytes`]:
     /// clients cannot fill the disk one campaign at a time.
     pub(super) fn check_quota(&self) -> Result<(), ManagerError> {
-        let Some(db) = self.db().path().map(Path::to_path_buf) else {
+        let Some(db) = self.store.path().map(Path::to_path_buf) else {
             return Ok(());
         };
         let size = |p: &Path| std::fs::metadata(p).map_or(0, |m| m.len());
@@ -100,7 +100,7 @@ impl Manager {
                 return Ok(());
             }
         }
-        let db_path = self.db().path().map(Path::to_path_buf);
+        let db_path = self.store.path().map(Path::to_path_buf);
         let scope = stagelock::Scope::of(c.spec().hardware.kind);
         let _lock = match db_path
             .as_deref()

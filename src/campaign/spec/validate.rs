@@ -406,7 +406,7 @@ pub(super) fn validate(
         }
         let m = if s.design == DesignKind::Full { n } else { m };
         crate::recon::limits::check_solve_size(method, solver, n, m)
-            .map_err(|e| fail(&key("range_um"), e))?;
+            .map_err(|e| fail(&key("range_um"), e.to_string()))?;
         let per_run = m as u64 + if s.full_scan { n as u64 } else { 0 };
         planned += per_run * a.directions.len() as u64 * u64::from(a.cycles);
         if planned > MAX_PLANNED {

@@ -172,7 +172,7 @@ pub(super) struct RealBand {
     pub(super) band_sharpness: f64,
 }
 
-pub(super) fn real(seeds: u64, ms: &[usize]) -> Result<Vec<RealBand>, String> {
+pub(super) fn real(seeds: u64, ms: &[usize]) -> anyhow::Result<Vec<RealBand>> {
     let mut rows = Vec::new();
     for name in ["resolver_250um", "ild2300_yscan"] {
         let Ok(text) = std::fs::read_to_string(format!("tests/data/real/{name}.csv")) else {
@@ -191,7 +191,7 @@ pub(super) fn real(seeds: u64, ms: &[usize]) -> Result<Vec<RealBand>, String> {
             continue;
         }
         let step = ((pts[n - 1].0 - pts[0].0) / (n - 1) as f64 * 1000.0).round() / 1000.0;
-        let grid = Grid::new(0.0, step, step * (n - 1) as f64)?;
+        let grid = Grid::new(0.0, step, step * (n - 1) as f64).map_err(anyhow::Error::msg)?;
         let truth: Vec<f64> = pts.iter().map(|p| p.1).collect();
         for &m_ref in ms {
             let m = curves::scaled_m(m_ref, n);

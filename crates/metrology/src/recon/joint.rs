@@ -8,7 +8,7 @@
 //! direction alone: a difference that is not smooth (a cyclic error that shifts with the
 //! backlash) leaves the pooled samples inconsistent and their held-out error higher.
 use super::physics::legendre;
-use super::{reconstruct, ReconSettings, Reconstruction};
+use super::{reconstruct, ReconError, ReconSettings, Reconstruction};
 use crate::grid::Grid;
 use crate::samples::{nearest_steps, GridSamples};
 use nalgebra::{DMatrix, DVector};
@@ -27,7 +27,7 @@ pub fn reconstruct_joint(
     own: &GridSamples,
     other: &GridSamples,
     s: &ReconSettings,
-) -> Result<Reconstruction, String> {
+) -> Result<Reconstruction, ReconError> {
     reconstruct_joint_among(grid, own, other, s, &DIFF_DEGREES)
 }
 
@@ -39,7 +39,7 @@ pub fn reconstruct_joint_among(
     other: &GridSamples,
     s: &ReconSettings,
     degrees: &[usize],
-) -> Result<Reconstruction, String> {
+) -> Result<Reconstruction, ReconError> {
     let alone = reconstruct(grid, own, s)?;
     let new_positions = other
         .idx

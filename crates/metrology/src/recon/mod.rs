@@ -7,6 +7,7 @@
 pub mod band;
 pub mod bp;
 pub mod dct;
+mod error;
 pub mod interp;
 pub mod joint;
 pub mod limits;
@@ -20,6 +21,8 @@ use std::str::FromStr;
 use std::time::Instant;
 
 use serde::Serialize;
+
+pub use error::ReconError;
 
 use crate::grid::Grid;
 use crate::samples::GridSamples;
@@ -186,16 +189,16 @@ pub fn reconstruct(
     grid: &Grid,
     samples: &GridSamples,
     s: &ReconSettings,
-) -> Result<Reconstruction, String> {
+) -> Result<Reconstruction, ReconError> {
     let (n, m) = (grid.n, samples.len());
     if m < 2 {
-        return Err(format!("need at least 2 samples, got {m}"));
+        return Err(ReconError::TooFewSamples { m });
     }
     if m > n {
-        return Err(format!("more samples ({m}) than grid points ({n})"));
+        return Err(ReconError::MoreSamplesThanPoints { m, n });
     }
     if samples.idx.windows(2).any(|w| w[0] >= w[1]) || samples.idx.last().is_some_and(|&i| i >= n) {
-        return Err("sample indices must be distinct, ascending and on the grid".into());
+        return Err(ReconError::BadIndices);
     }
     let t0 = Instant::now();
     let mut out = Reconstruction {
@@ -413,12 +416,12 @@ fn physics_curve(
     samples: &GridSamples,
     s: &ReconSettings,
     p: &PhysicsParams,
-) -> Result<Vec<f64>, String> {
+) -> Result<Vec<f64>, ReconError> {
     let (n, start, step) = (grid.n, grid.start_um, grid.step_um);
     let rows = physics::design(p, n, start, step, &samples.idx);
     let all: Vec<usize> = (0..n).collect();
     let fitted = physics::fit(p, &rows, n, step, &samples.idx, &samples.values, s.noise_um)
-        .ok_or("physics model fit failed (singular system)")?;
+        .ok_or(ReconError::PhysicsSingular)?;
     Ok(fitted.predict(&physics::design(p, n, start, step, &all), &all))
 }
 
