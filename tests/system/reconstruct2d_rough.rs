@@ -146,13 +146,22 @@ fn read_map(path: &std::path::Path, g: &Grid2) -> MapColumns {
 
 /// Share of the grid with |map − truth| ≤ 2u, and mean(2u) / mean |map − truth|, of e_x and e_y.
 fn band_figures(stage: &Stage, g: &Grid2, map: [&[f64]; 4]) -> [(f64, f64); 2] {
+    band_figures_of(|x, y| stage.truth(x, y), g, map)
+}
+
+/// [`band_figures`] against any truth (x, y) ↦ (e_x, e_y, …).
+fn band_figures_of(
+    truth: impl Fn(f64, f64) -> (f64, f64, f64),
+    g: &Grid2,
+    map: [&[f64]; 4],
+) -> [(f64, f64); 2] {
     let [ex, ey, ux, uy] = map;
     let mut out = [(0.0, 0.0); 2];
     for (c, (v, u)) in [(ex, ux), (ey, uy)].into_iter().enumerate() {
         let (mut inside, mut err, mut band) = (0usize, 0.0, 0.0);
         for j in 0..g.y.n {
             for i in 0..g.x.n {
-                let t = stage.truth(g.x.position(i), g.y.position(j));
+                let t = truth(g.x.position(i), g.y.position(j));
                 let k = j * g.x.n + i;
                 let e = (v[k] - if c == 0 { t.0 } else { t.1 }).abs();
                 inside += usize::from(e <= 2.0 * u[k]);
@@ -213,12 +222,11 @@ fn rough_maps_meet_the_2_percent_targets_through_the_binary() {
     // The pointwise band (u_ex_um, u_ey_um) against this test's own truth.
     let [(cx, sx), (cy, sy)] = band_figures(&stage, &g, [&ex, &ey, &ux, &uy]);
     eprintln!("band: e_x coverage {cx:.3} sharpness {sx:.2}, e_y {cy:.3} / {sy:.2}");
-    // Measured (XEON-S33): coverage 0.996-1.000, sharpness 4.0-7.0. The band is conservative
-    // on maps: the model smooths the 0.01 µm noise to a 0.002 µm error, and the held-out
-    // residuals' noise is taken out down to a third of their figure, not below (band.rs).
+    // Measured (XEON-S33): coverage 0.981 / 0.987, sharpness 2.79 / 3.15 (with the in-sample
+    // residual RMS taken out down to a third of the quantile: 1.000, 6.63 / 7.00).
     for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
         assert!(
-            (0.95..=1.0).contains(&cover) && sharp <= 8.0,
+            (0.93..=0.995).contains(&cover) && sharp <= 3.6,
             "{what}: band coverage {cover} sharpness {sharp}"
         );
     }
@@ -266,12 +274,11 @@ fn rough_maps_meet_the_half_percent_targets() {
     );
     let [(cx, sx), (cy, sy)] = band_figures(&stage, &g, [&map.ex, &map.ey, &map.u_ex, &map.u_ey]);
     eprintln!("band 0.5 %: e_x coverage {cx:.3} sharpness {sx:.2}, e_y {cy:.3} / {sy:.2}");
-    // Measured (XEON-S33): coverage 0.996-1.000, sharpness 4.0-7.0. The band is conservative
-    // on maps: the model smooths the 0.01 µm noise to a 0.002 µm error, and the held-out
-    // residuals' noise is taken out down to a third of their figure, not below (band.rs).
+    // Measured (XEON-S33): coverage 0.978 / 0.967, sharpness 3.02 / 2.92 (before: 0.997 /
+    // 0.996, 4.01 / 4.28).
     for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
         assert!(
-            (0.95..=1.0).contains(&cover) && sharp <= 8.0,
+            (0.93..=0.995).contains(&cover) && sharp <= 3.5,
             "{what}: band coverage {cover} sharpness {sharp}"
         );
     }
@@ -361,4 +368,196 @@ fn bp_through_the_binary_is_feasible_with_a_certified_gap() {
         bp["cv_error_um"].as_f64().unwrap() > 0.0 && bp["folds"] == 1,
         "{j}"
     );
+}
+
+/// A second map family for the band, independent of tests/common/mapstage.rs (its own generator
+/// and RNG, another structure): per component a cubic polynomial in both coordinates, a
+/// leadscrew-like periodic term along its own axis (fundamental and 2nd harmonic, amplitude
+/// drifting linearly over the travel), the other axis's leadscrew seen weakly across, and one
+/// local Gaussian bump (a guideway defect) that no separable model holds.
+mod surface {
+    use std::f64::consts::TAU;
+
+    /// PCG-XSH-RR 32 (O'Neill 2014): not the SplitMix64 of mapstage.rs.
+    pub(super) struct Pcg(u64);
+    impl Pcg {
+        pub(super) fn new(seed: u64) -> Self {
+            let mut p = Pcg(seed.wrapping_mul(2_862_933_555_777_941_757).wrapping_add(7));
+            p.u32();
+            p
+        }
+        fn u32(&mut self) -> u32 {
+            let old = self.0;
+            self.0 = old
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
+            xorshifted.rotate_right((old >> 59) as u32)
+        }
+        /// Uniform in [0, 1).
+        pub(super) fn unit(&mut self) -> f64 {
+            let hi = u64::from(self.u32()) << 21;
+            let lo = u64::from(self.u32()) >> 11;
+            (hi | lo) as f64 / (1u64 << 53) as f64
+        }
+        pub(super) fn range(&mut self, a: f64, b: f64) -> f64 {
+            a + (b - a) * self.unit()
+        }
+        /// Standard normal (Marsaglia's polar method).
+        pub(super) fn normal(&mut self) -> f64 {
+            loop {
+                let (u, v) = (self.range(-1.0, 1.0), self.range(-1.0, 1.0));
+                let s = u * u + v * v;
+                if s > 0.0 && s < 1.0 {
+                    return u * (-2.0 * s.ln() / s).sqrt();
+                }
+            }
+        }
+    }
+
+    /// One component over [0, lx] × [0, ly].
+    struct Component {
+        /// Coefficients of x̂^i ŷ^j, i + j ≤ 3 (µm), x̂, ŷ ∈ [-1, 1].
+        poly: Vec<(i32, i32, f64)>,
+        /// Own axis's leadscrew: pitch µm, amplitude µm, drift per unit x̂, 2nd harmonic, phases.
+        pitch: f64,
+        amp: f64,
+        drift: f64,
+        second: f64,
+        phase: [f64; 2],
+        /// The other axis's leadscrew seen across (amplitude µm, phase).
+        across: (f64, f64),
+        /// Bump amplitude (µm).
+        bump: f64,
+    }
+
+    pub(super) struct Surface {
+        lx: f64,
+        ly: f64,
+        c: [Component; 2],
+        /// Bump centre and radius (µm), shared by both components.
+        bump_at: (f64, f64, f64),
+    }
+
+    impl Surface {
+        pub(super) fn new(seed: u64, lx: f64, ly: f64) -> Self {
+            let mut r = Pcg::new(seed);
+            let bump_at = (
+                r.range(0.2, 0.8) * lx,
+                r.range(0.2, 0.8) * ly,
+                r.range(150.0, 400.0),
+            );
+            // Pitches with at least 4 cycles over the travel (the period search needs them).
+            let pitch = [r.range(250.0, lx / 5.0), r.range(200.0, ly / 5.0)];
+            let comp = |pitch: f64, r: &mut Pcg| {
+                let mut poly = Vec::new();
+                for i in 0..=3 {
+                    for j in 0..=(3 - i) {
+                        poly.push((i, j, r.range(-0.5, 0.5) / f64::from(1 + i + j)));
+                    }
+                }
+                Component {
+                    poly,
+                    pitch,
+                    amp: r.range(0.8, 2.0),
+                    drift: r.range(-0.2, 0.2),
+                    second: r.range(0.1, 0.4),
+                    phase: [TAU * r.unit(), TAU * r.unit()],
+                    across: (r.range(0.05, 0.2), TAU * r.unit()),
+                    bump: r.range(0.05, 0.15) * if r.unit() < 0.5 { -1.0 } else { 1.0 },
+                }
+            };
+            let c = [comp(pitch[0], &mut r), comp(pitch[1], &mut r)];
+            Self { lx, ly, c, bump_at }
+        }
+
+        /// (e_x, e_y, 0) µm at (x, y) µm.
+        pub(super) fn truth(&self, x: f64, y: f64) -> (f64, f64, f64) {
+            let (xh, yh) = (2.0 * x / self.lx - 1.0, 2.0 * y / self.ly - 1.0);
+            let (bx, by, br) = self.bump_at;
+            let bump = (-((x - bx).powi(2) + (y - by).powi(2)) / (2.0 * br * br)).exp();
+            let pitches = [self.c[0].pitch, self.c[1].pitch];
+            let mut out = [0.0; 2];
+            for (own, (c, o)) in self.c.iter().zip(&mut out).enumerate() {
+                let (t, s, other) = if own == 0 { (x, xh, y) } else { (y, yh, x) };
+                let w = TAU * t / c.pitch;
+                let poly: f64 = c
+                    .poly
+                    .iter()
+                    .map(|&(i, j, a)| a * xh.powi(i) * yh.powi(j))
+                    .sum();
+                let lead = c.amp
+                    * (1.0 + c.drift * s)
+                    * ((w + c.phase[0]).sin() + c.second * (2.0 * w + c.phase[1]).sin());
+                let across = c.across.0 * (TAU * other / pitches[1 - own] + c.across.1).sin();
+                *o = poly + lead + across + c.bump * bump;
+            }
+            (out[0], out[1], 0.0)
+        }
+    }
+}
+
+/// m = frac · grid points of the second surface, distinct, at random, noise σ = 0.01 µm, all from
+/// the surface module's own RNG.
+fn draw_surface(f: &surface::Surface, g: &Grid2, frac: f64, seed: u64) -> MapSamples {
+    let mut r = surface::Pcg::new(seed ^ 0xd1ce);
+    let n = g.len();
+    let m = (frac * n as f64).round() as usize;
+    let mut idx: Vec<usize> = (0..n).collect();
+    let mut s = MapSamples::default();
+    for i in 0..m {
+        let j = (i + (r.unit() * (n - i) as f64) as usize).min(n - 1);
+        idx.swap(i, j);
+        let (ix, iy) = (idx[i] % g.x.n, idx[i] / g.x.n);
+        let (ex, ey, _) = f.truth(g.x.position(ix), g.y.position(iy));
+        s.ix.push(ix);
+        s.iy.push(iy);
+        s.ex.push(ex + 0.01 * r.normal());
+        s.ey.push(ey + 0.01 * r.normal());
+    }
+    s
+}
+
+#[test]
+fn rough_maps_band_holds_on_a_second_surface() {
+    let g = grid("0:5:4000", "0:5:3000");
+    let mut failed = Vec::new();
+    for (frac, seed) in [(0.02, 21), (0.005, 22)] {
+        let f = surface::Surface::new(seed, 4000.0, 3000.0);
+        let s = draw_surface(&f, &g, frac, seed);
+        let (map, r) = recon2d::reconstruct(&g, &s, Method2::Auto).unwrap();
+        let [(cx, sx), (cy, sy)] = band_figures_of(
+            |x, y| f.truth(x, y),
+            &g,
+            [&map.ex, &map.ey, &map.u_ex, &map.u_ey],
+        );
+        let mean = |v: &[f64], c: usize| {
+            let mut e = 0.0;
+            for j in 0..g.y.n {
+                for i in 0..g.x.n {
+                    let t = f.truth(g.x.position(i), g.y.position(j));
+                    e += (v[j * g.x.n + i] - if c == 0 { t.0 } else { t.1 }).abs();
+                }
+            }
+            e / g.len() as f64
+        };
+        eprintln!(
+            "second surface {:.1} %: m {} {} e_x mean {:.4} µm coverage {cx:.3} sharpness {sx:.2}, \
+             e_y mean {:.4} µm {cy:.3} / {sy:.2}",
+            100.0 * frac,
+            r.m,
+            r.method,
+            mean(&map.ex, 0),
+            mean(&map.ey, 1)
+        );
+        // Measured (XEON-S33): 2 %: 0.936 / 0.934, sharpness 3.12 / 3.08; 0.5 %: 0.946 / 0.947,
+        // 3.08 / 2.91 (the old band: 0.763 / 0.750 at 2 %). The bump is the map's error, and a
+        // band that depends on the distance to the samples only spreads it over the whole map.
+        for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
+            if !((0.90..=0.98).contains(&cover) && sharp <= 3.5) {
+                failed.push(format!("{frac} {what}: coverage {cover} sharpness {sharp}"));
+            }
+        }
+    }
+    assert!(failed.is_empty(), "{failed:?}");
 }

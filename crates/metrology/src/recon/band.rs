@@ -83,6 +83,91 @@ pub fn u_at_distances(dist: &[f64], cv: &[(f64, f64)], noise_um: f64) -> Vec<f64
     }
 }
 
+/// One held-out sample of a 2D map with the fitted model's noise reference at it (see
+/// [`u_at_distances_denoised`]).
+#[derive(Debug, Clone, Copy)]
+pub struct HeldOut {
+    /// Distance to the nearest training sample of its fold (µm).
+    pub d: f64,
+    /// Held-out residual: the prediction by the fold that left it out − the sample (µm).
+    pub r: f64,
+    /// A noise proxy there (µm) that shares the sample's noise draw: for the physics model its
+    /// in-sample residual less its neighbours' (recon2d::physics::NoiseReference).
+    pub noise: f64,
+    /// The proxy's expected square over the noise variance.
+    pub noise_var: f64,
+    /// The fit's own noise-induced variance there over the noise variance, (H²)_kk.
+    pub fit_var: f64,
+}
+
+/// u (µm, k = 1) at the given distances to the nearest sample, for a map whose model is a linear
+/// smoother: its held-out residuals are mostly the sensor noise (the fit averages the noise of
+/// thousands of samples down to a fraction of it), so the band is the excess of their mean square
+/// over the noise, with the noise estimated from the same samples' in-sample residuals.
+///
+/// Per distance bin (equal counts, as [`pointwise_u`]): σ² = Σ r_in² / Σ ((I − H)²)_kk (the
+/// residual variance with the fit's degrees of freedom taken out, E r_in² = σ²((I − H)²)_kk
+/// without bias), the map's squared error e² = mean r² − σ² (E r² = e² + σ², the held-out
+/// prediction being independent of the held-out sample's noise). Both sums run over the same
+/// samples, so their noise draws largely cancel (a bin's mean square carries ~3 % sampling noise,
+/// the size of e² itself at 2 % sampled). The held-out fits' extra noise-induced variance
+/// (trained on (folds − 1)/folds of the samples) is taken out as well. e² is at least the fit's
+/// own noise-induced variance σ²·mean (H²)_kk, which the map carries whatever its bias (this floor
+/// keeps a bias in the in-sample residuals, which inflates σ², from zeroing the band). u is e
+/// times the bin's tail shape, its split-conformal quantile of |r| at level (k + ½)·0.95/k over
+/// 2·rms(r) (≈ 1 for Gaussian residuals, more for heavy tails; the curves' band reads the same
+/// quantile). Then non-decreasing in d. Empty without residuals.
+pub fn u_at_distances_denoised(dist: &[f64], held: &[HeldOut], folds: usize) -> Vec<f64> {
+    let mut h: Vec<HeldOut> = held
+        .iter()
+        .copied()
+        .filter(|h| {
+            [h.d, h.r, h.noise, h.noise_var, h.fit_var]
+                .iter()
+                .all(|v| v.is_finite())
+        })
+        .collect();
+    if h.len() < 2 {
+        return Vec::new();
+    }
+    h.sort_by(|a, b| a.d.total_cmp(&b.d));
+    let bins = (h.len() / PER_BIN).clamp(1, MAX_BINS);
+    let (mut d, mut u, mut w) = (Vec::new(), Vec::new(), Vec::new());
+    for b in 0..bins {
+        let part = &h[b * h.len() / bins..(b + 1) * h.len() / bins];
+        let k = part.len() as f64;
+        let ms = part.iter().map(|p| p.r * p.r).sum::<f64>() / k;
+        let dof = part.iter().map(|p| p.noise_var).sum::<f64>();
+        let sigma2 = if dof > 0.0 {
+            part.iter().map(|p| p.noise * p.noise).sum::<f64>() / dof
+        } else {
+            0.0
+        };
+        let floor = sigma2 * part.iter().map(|p| p.fit_var.max(0.0)).sum::<f64>() / k;
+        // The held-out fit saw (folds − 1)/folds of the samples: its noise-induced variance is
+        // the map's times folds/(folds − 1) (a fixed basis: variance ∝ 1/m); the excess is not
+        // the map's.
+        let refit = floor / (folds.max(2) - 1) as f64;
+        let e2 = (ms - sigma2 - refit).max(floor);
+        let mut r: Vec<f64> = part.iter().map(|p| p.r.abs()).collect();
+        r.sort_by(f64::total_cmp);
+        let level = ((k + 0.5) * QUANTILE / k).min(1.0);
+        let shape = if ms > 0.0 {
+            quantile(&r, level) / 2.0 / ms.sqrt()
+        } else {
+            1.0
+        };
+        d.push(part.iter().map(|p| p.d).sum::<f64>() / k);
+        u.push(shape * e2.sqrt());
+        w.push(k);
+    }
+    let curve = DistanceCurve {
+        d,
+        u: non_decreasing(&u, &w),
+    };
+    dist.iter().map(|&x| curve.at(x)).collect()
+}
+
 /// u at the samples themselves: the curve's miss of a sample (half its 95 % quantile over the
 /// samples) and the sample's own noise σ in quadrature, g − f = (g − y) + (y − f). For a curve
 /// through its samples this is σ; a smoothing curve is bounded by its miss plus σ.
@@ -328,6 +413,40 @@ mod tests {
         // At the sample: σ (a curve through its samples); 5 µm off it the calibrated band.
         assert!((u[0] - 0.03).abs() < 1e-12, "{u:?}");
         assert!(u[1] > 0.2, "{u:?}");
+    }
+
+    #[test]
+    fn a_maps_band_is_its_error_beyond_the_noise_the_samples_share() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut normal = || {
+            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        };
+        // Held-out error of scale s under noise σ = 0.01 (the map's case: s ≪ σ); the in-sample
+        // residual is the same noise shrunk by the fit, ((I − H)²)_kk = 0.9, (H²)_kk = 0.1.
+        let held = |s: f64, normal: &mut dyn FnMut() -> f64| -> Vec<HeldOut> {
+            (0..6000)
+                .map(|k| {
+                    let eps = 0.01 * normal();
+                    HeldOut {
+                        d: (k % 100) as f64,
+                        r: s * normal() - eps,
+                        noise: 0.9f64.sqrt() * eps,
+                        noise_var: 0.9,
+                        fit_var: 0.1,
+                    }
+                })
+                .collect()
+        };
+        let u = u_at_distances_denoised(&[0.0, 50.0, 99.0], &held(0.004, &mut normal), 5);
+        // 0.004 (times the Gaussian tail shape, 0.98) in every bin.
+        assert!(u.iter().all(|&u| (u / 0.004 - 1.0).abs() < 0.15), "{u:?}");
+        // Noise only: the fit's own noise-induced variance, 0.01·√0.1, not zero.
+        let u = u_at_distances_denoised(&[0.0, 99.0], &held(0.0, &mut normal), 5);
+        let floor = 0.01 * 0.1f64.sqrt();
+        assert!(u.iter().all(|&u| (u / floor - 1.0).abs() < 0.15), "{u:?}");
+        assert!(u_at_distances_denoised(&[0.0], &[], 5).is_empty());
     }
 
     #[test]

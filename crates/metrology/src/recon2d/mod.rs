@@ -11,6 +11,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::grid::Grid;
+use crate::recon::band::HeldOut;
 use crate::recon::periods::Period;
 
 pub mod bp;
@@ -248,12 +249,25 @@ fn bp_cv_error(g: &Grid2, s: &MapSamples, sigma: &[f64]) -> (f64, Vec<Vec<f64>>)
 /// curve's ([`crate::recon::band`]): the chosen method's held-out residuals `pred[c][k] − value`
 /// paired with each held-out sample's distance to the nearest training sample of its fold (in
 /// the plane), calibrated into u(d), read at every grid point's distance to the nearest sample.
-/// Samples without a prediction (NaN: basis pursuit holds one fold out) are left out. `noise[c]`
-/// is the sensor noise taken out of the held-out residuals (a map has no noise setting: the
-/// physics model's in-sample residual RMS per component when it was fitted, else 0). Without it
-/// the band was the noise: 11–20 times the mean error of a map the model smooths the 0.01 µm
-/// noise out of (tests/system/reconstruct2d_rough.rs).
-fn map_band(g: &Grid2, s: &MapSamples, pred: &[Vec<f64>], noise: &[f64]) -> (Vec<f64>, Vec<f64>) {
+/// Samples without a prediction (NaN: basis pursuit holds one fold out) are left out.
+///
+/// The held-out residuals carry the sensor noise, which a map has no setting for. With the physics
+/// model's `reference` (its in-sample residuals and hat-matrix diagonals) the noise is estimated
+/// per distance bin from the same samples and taken out of their mean square
+/// ([`crate::recon::band::u_at_distances_denoised`]); before, its in-sample residual RMS was
+/// taken out of the bin's quantile down to a floor of a third of it, and the band was 4–7 times
+/// the mean error of a map the model smooths the 0.01 µm noise out of, and 0.75 covering on a
+/// map whose error is a bump the model cannot hold (tests/system/reconstruct2d_rough.rs). For
+/// the other methods (linear interpolation passes
+/// through its samples, basis pursuit within ε of them: no in-sample residual tells the noise)
+/// `noise[c]` is taken out of the quantile as the curves' band does.
+fn map_band(
+    g: &Grid2,
+    s: &MapSamples,
+    pred: &[Vec<f64>],
+    noise: &[f64],
+    reference: Option<&physics::NoiseReference>,
+) -> (Vec<f64>, Vec<f64>) {
     let m = s.len();
     let fold = folds(m, CV_FOLDS);
     let mut dist = vec![f64::NAN; m];
@@ -273,11 +287,25 @@ fn map_band(g: &Grid2, s: &MapSamples, pred: &[Vec<f64>], noise: &[f64]) -> (Vec
     }
     let all = nearest_sample_distance(g, &s.ix, &s.iy);
     let comp = |c: usize, value: &[f64]| {
-        let cv: Vec<(f64, f64)> = (0..m)
-            .filter(|&k| dist[k].is_finite())
-            .map(|k| (dist[k], pred[c][k] - value[k]))
-            .collect();
-        crate::recon::band::u_at_distances(&all, &cv, noise.get(c).copied().unwrap_or(0.0))
+        let held = (0..m).filter(|&k| dist[k].is_finite());
+        match reference {
+            Some(nr) => {
+                let h: Vec<HeldOut> = held
+                    .map(|k| HeldOut {
+                        d: dist[k],
+                        r: pred[c][k] - value[k],
+                        noise: nr.noise[c][k],
+                        noise_var: nr.noise_var[k],
+                        fit_var: nr.fit_var[k],
+                    })
+                    .collect();
+                crate::recon::band::u_at_distances_denoised(&all, &h, CV_FOLDS)
+            }
+            None => {
+                let cv: Vec<(f64, f64)> = held.map(|k| (dist[k], pred[c][k] - value[k])).collect();
+                crate::recon::band::u_at_distances(&all, &cv, noise.get(c).copied().unwrap_or(0.0))
+            }
+        }
     };
     (comp(0, &s.ex), comp(1, &s.ey))
 }
@@ -519,11 +547,27 @@ pub fn reconstruct(g: &Grid2, s: &MapSamples, method: Method2) -> Result<(Map, R
         _ => lin_pred.or_else(|| Some(linear::cv_predictions(g, s))),
     };
     if let Some(pred) = held {
-        let noise = match &phys {
-            Some(_) => sigma.clone(),
-            None => vec![0.0; 2],
+        // The physics model's noise reference: its own held-out residuals are denoised with it;
+        // for the other methods its noise estimate with the fit's degrees of freedom taken out,
+        // σ² = Σ r_in² / Σ((I − H)²)_kk (the in-sample RMS reads low by the fit's share).
+        let reference = phys.as_ref().and_then(|p| p.noise_reference(g, s));
+        let noise: Vec<f64> = match (&reference, &phys) {
+            (Some(nr), _) => {
+                let dof = nr.noise_var.iter().sum::<f64>();
+                nr.noise
+                    .iter()
+                    .map(|r| (r.iter().map(|v| v * v).sum::<f64>() / dof.max(1.0)).sqrt())
+                    .collect()
+            }
+            (None, Some(_)) => sigma.clone(),
+            (None, None) => vec![0.0; 2],
         };
-        (map.u_ex, map.u_ey) = map_band(g, s, &pred, &noise);
+        let denoise = if choice == "physics" {
+            reference.as_ref()
+        } else {
+            None
+        };
+        (map.u_ex, map.u_ey) = map_band(g, s, &pred, &noise, denoise);
     }
     let stats = |u: &[f64]| {
         (!u.is_empty()).then(|| {

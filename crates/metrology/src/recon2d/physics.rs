@@ -264,6 +264,102 @@ fn solve(d: &Design, nm: &Normal, mu_rel: f64) -> Option<Mat<f64>> {
     finite.then_some(x)
 }
 
+/// Random probes of the Hutchinson estimates in [`PhysicsFit::noise_reference`]: a bin of the
+/// band sums a few hundred samples' diagonals, whose estimation error then is well under 1 %.
+const HAT_PROBES: usize = 32;
+/// Nearest other samples whose in-sample residuals a sample's noise proxy is taken against.
+const NOISE_NEIGHBOURS: usize = 4;
+
+/// What the fit knows about the sensor noise at each sample, for the pointwise band. With
+/// y = f + ε (noise variance σ²) and H the fit's hat matrix, the in-sample residual is
+/// (I − H)ε plus the fit's bias, and the bias is where the map is wrong: taken as noise it
+/// removes the very error the band is for (a bump the model cannot hold, 0.1 µm high, zeroed
+/// the band there: coverage 0.48 on tests/system/reconstruct2d_rough.rs's second surface). The
+/// bias is smooth over the few tens of µm between neighbouring samples, the noise is not: each
+/// sample's proxy is its residual less the mean residual of its nearest samples, which keeps its
+/// own noise draw (the held-out residual carries the same one) and cancels most of the bias.
+#[derive(Debug, Clone)]
+pub struct NoiseReference {
+    /// The noise proxy of e_x and e_y per sample (µm), `noise[c][k]`: r_k − mean of r_j over its
+    /// [`NOISE_NEIGHBOURS`] nearest samples j, r the in-sample residual.
+    pub noise: Vec<Vec<f64>>,
+    /// The proxy's expected square over σ² (from M = (I − H)²: M_kk − 2 mean_j M_kj +
+    /// mean_jl M_jl).
+    pub noise_var: Vec<f64>,
+    /// (H²)_kk per sample: the fit's noise-induced variance over σ².
+    pub fit_var: Vec<f64>,
+}
+
+/// The `k` nearest other points of every point (µm), by a bucket grid of about 2 points per cell
+/// searched ring by ring (linear in the points, where all pairs would be 10⁹ at 2 % of a 1.6 M
+/// map).
+fn nearest_neighbours(pts: &[(f64, f64)], k: usize) -> Vec<Vec<usize>> {
+    let m = pts.len();
+    let k = k.min(m.saturating_sub(1));
+    if k == 0 {
+        return vec![Vec::new(); m];
+    }
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for &(x, y) in pts {
+        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+    }
+    // At most 4096 cells a side (samples on a line would otherwise ask for millions); the cells
+    // stay square, which the search's distance bound needs.
+    let cell = ((x1 - x0).max(1e-9) * (y1 - y0).max(1e-9) * 2.0 / m as f64)
+        .sqrt()
+        .max((x1 - x0).max(y1 - y0) / 4096.0)
+        .max(1e-9);
+    let nx = ((x1 - x0) / cell) as usize + 1;
+    let ny = ((y1 - y0) / cell) as usize + 1;
+    let cx = |x: f64| (((x - x0) / cell) as usize).min(nx - 1);
+    let cy = |y: f64| (((y - y0) / cell) as usize).min(ny - 1);
+    let mut bucket = vec![Vec::new(); nx * ny];
+    for (i, &(x, y)) in pts.iter().enumerate() {
+        bucket[cy(y) * nx + cx(x)].push(i);
+    }
+    pts.iter()
+        .enumerate()
+        .map(|(i, &(x, y))| {
+            let (ci, cj) = (cx(x) as i64, cy(y) as i64);
+            let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
+            for ring in 0i64.. {
+                // Every point of ring r + 1 or beyond is at least r cells away.
+                if best.len() == k
+                    && best[k - 1].0 <= (ring as f64 - 1.0).max(0.0).powi(2) * cell * cell
+                {
+                    break;
+                }
+                if ring > nx.max(ny) as i64 {
+                    break;
+                }
+                for dj in -ring..=ring {
+                    for di in -ring..=ring {
+                        if di.abs() != ring && dj.abs() != ring {
+                            continue;
+                        }
+                        let (a, b) = (ci + di, cj + dj);
+                        if a < 0 || b < 0 || a >= nx as i64 || b >= ny as i64 {
+                            continue;
+                        }
+                        for &j in &bucket[b as usize * nx + a as usize] {
+                            if j == i {
+                                continue;
+                            }
+                            let d2 = (pts[j].0 - x).powi(2) + (pts[j].1 - y).powi(2);
+                            if best.len() < k || d2 < best[k - 1].0 {
+                                let at = best.partition_point(|b| b.0 <= d2);
+                                best.insert(at, (d2, j));
+                                best.truncate(k);
+                            }
+                        }
+                    }
+                }
+            }
+            best.into_iter().map(|b| b.1).collect()
+        })
+        .collect()
+}
+
 /// A fitted physics model.
 #[derive(Debug, Clone)]
 pub struct PhysicsFit {
@@ -649,6 +745,87 @@ impl PhysicsFit {
             .collect()
     }
 
+    /// The noise reference of the pointwise band (see [`NoiseReference`]): per sample the noise
+    /// proxies of e_x and e_y, their variance factors and (H²)_kk, with M = (I − H)² and H² by
+    /// Hutchinson's estimator (E[z_a (Mz)_b] = M_ab for random ±1 probes z; [`HAT_PROBES`] of
+    /// them, seeded: the band is reproducible); None if singular.
+    pub fn noise_reference(&self, g: &Grid2, s: &MapSamples) -> Option<NoiseReference> {
+        use rand::{Rng, SeedableRng};
+        const P: usize = HAT_PROBES;
+        let d = &self.design;
+        let (m, p, r) = (s.len(), d.unknowns(), d.nnz());
+        let mut rows = vec![(0usize, 0.0f64); m * r];
+        for (k, row) in rows.chunks_exact_mut(r).enumerate() {
+            let (x, y) = positions(g, s, k);
+            d.row(x, y, row);
+        }
+        let at = |x: &Mat<f64>, k: usize, c: usize| -> f64 {
+            rows[k * r..(k + 1) * r]
+                .iter()
+                .map(|&(i, a)| a * x[(i, c)])
+                .sum()
+        };
+        // H applied to P columns at once (sample-major, k · P + j).
+        let hat = |v: &[f64]| -> Option<Vec<f64>> {
+            let mut nm = Normal::new(p, P);
+            for (k, row) in rows.chunks_exact(r).enumerate() {
+                nm.add(row, &v[k * P..(k + 1) * P]);
+            }
+            let x = solve(d, &nm, self.penalty)?;
+            Some((0..m * P).map(|t| at(&x, t / P, t % P)).collect())
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x4841_5431);
+        let z: Vec<f64> = (0..m * P)
+            .map(|_| if rng.random::<bool>() { 1.0 } else { -1.0 })
+            .collect();
+        let hz = hat(&z)?;
+        let w: Vec<f64> = z.iter().zip(&hz).map(|(a, b)| a - b).collect();
+        let hw = hat(&w)?;
+        // (I − H)²z = w − Hw and H²z = Hz − Hw.
+        let mz: Vec<f64> = w.iter().zip(&hw).map(|(a, b)| a - b).collect();
+        let entry = |v: &[f64], a: usize, b: usize| -> f64 {
+            let (za, zb) = (&z[a * P..(a + 1) * P], &z[b * P..(b + 1) * P]);
+            let (va, vb) = (&v[a * P..(a + 1) * P], &v[b * P..(b + 1) * P]);
+            let ab: f64 = za.iter().zip(vb).map(|(x, y)| x * y).sum();
+            let ba: f64 = zb.iter().zip(va).map(|(x, y)| x * y).sum();
+            (ab + ba) / (2 * P) as f64
+        };
+        let h2z: Vec<f64> = hz.iter().zip(&hw).map(|(a, b)| a - b).collect();
+        let comps = s.components();
+        let resid: Vec<Vec<f64>> = (0..2)
+            .map(|c| (0..m).map(|k| comps[c][k] - at(&self.coef, k, c)).collect())
+            .collect();
+        let pts: Vec<(f64, f64)> = (0..m).map(|k| positions(g, s, k)).collect();
+        let nb = nearest_neighbours(&pts, NOISE_NEIGHBOURS);
+        let mut noise = vec![vec![0.0; m]; 2];
+        let (mut noise_var, mut fit_var) = (vec![0.0; m], vec![0.0; m]);
+        for k in 0..m {
+            fit_var[k] = entry(&h2z, k, k);
+            let n = &nb[k];
+            if n.is_empty() {
+                (noise[0][k], noise[1][k]) = (resid[0][k], resid[1][k]);
+                noise_var[k] = entry(&mz, k, k);
+                continue;
+            }
+            let q = n.len() as f64;
+            for c in 0..2 {
+                noise[c][k] = resid[c][k] - n.iter().map(|&j| resid[c][j]).sum::<f64>() / q;
+            }
+            let cross: f64 = n.iter().map(|&j| entry(&mz, k, j)).sum();
+            let among: f64 = n
+                .iter()
+                .flat_map(|&a| n.iter().map(move |&b| (a, b)))
+                .map(|(a, b)| entry(&mz, a, b))
+                .sum();
+            noise_var[k] = entry(&mz, k, k) - 2.0 * cross / q + among / (q * q);
+        }
+        Some(NoiseReference {
+            noise,
+            noise_var,
+            fit_var,
+        })
+    }
+
     /// Held-out predictions of e_x and e_y at every sample by the chosen structure and penalty
     /// (the selection's folds), for the pointwise band; None if singular.
     pub fn held_out(&self, g: &Grid2, s: &MapSamples) -> Option<Vec<Vec<f64>>> {
@@ -747,6 +924,32 @@ mod tests {
         let got = axis_roughness(n, &idx, &white);
         let most = got.iter().map(|v| v.abs()).fold(0.0, f64::max);
         assert!(most < 0.004, "white noise gave offsets up to {most} µm");
+    }
+
+    #[test]
+    fn nearest_neighbours_match_brute_force() {
+        // A clustered, anisotropic scatter (most points in one corner) and a few far ones.
+        let mut pts: Vec<(f64, f64)> = (0..400)
+            .map(|i| {
+                let t = i as f64;
+                ((t * 7.31).sin().abs() * 50.0, (t * 3.17).cos().abs() * 20.0)
+            })
+            .collect();
+        pts.extend([(4000.0, 3000.0), (3990.0, 2990.0), (0.0, 3000.0)]);
+        // Points on one line: the cells are bounded, the neighbours still exact.
+        let line: Vec<(f64, f64)> = (0..300).map(|i| ((i * i % 997) as f64, 5.0)).collect();
+        for pts in [pts, line] {
+            let nb = nearest_neighbours(&pts, 4);
+            for (i, &(x, y)) in pts.iter().enumerate() {
+                let d2 = |j: usize| (pts[j].0 - x).powi(2) + (pts[j].1 - y).powi(2);
+                let mut all: Vec<usize> = (0..pts.len()).filter(|&j| j != i).collect();
+                all.sort_by(|&a, &b| d2(a).total_cmp(&d2(b)));
+                let want: Vec<f64> = all[..4].iter().map(|&j| d2(j)).collect();
+                let got: Vec<f64> = nb[i].iter().map(|&j| d2(j)).collect();
+                assert_eq!(got, want, "point {i}");
+            }
+        }
+        assert!(nearest_neighbours(&[(1.0, 1.0)], 4)[0].is_empty());
     }
 
     #[test]
