@@ -63,12 +63,7 @@ fn points_rejected_beyond_the_pattern_fail_the_campaign() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     let j = summary(&o);
     assert_eq!(j["state"], "failed", "{j}");
-    let errors: Vec<&str> = j["errors"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(Value::as_str)
-        .collect();
+    let errors = errors_of(&j);
     assert!(
         errors
             .iter()
@@ -135,6 +130,60 @@ fn results_that_cannot_be_written_are_an_error() {
 
 /// Makes the store refuse one kind of write, as a full disk or a read-only store would: the
 /// schema is created first, then a trigger fails the writes `when` selects.
+/// `csmetro run` of the failing-stage campaign at time scale 1 (physical time is wall time, so a
+/// signal or abort lands mid-run), stderr piped.
+fn run_at_time_scale_1(dir: &Path, db: &Path) -> std::process::Child {
+    let c = campaign(dir, 1000.0, &dir.join("out"), "");
+    let text = std::fs::read_to_string(&c)
+        .unwrap()
+        .replace("time_scale = 1000", "time_scale = 1");
+    std::fs::write(&c, text).unwrap();
+    common::bin()
+        .args(["run", "--quiet", "--db"])
+        .arg(db)
+        .arg(&c)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Sends `signal` to `child` 300 ms after `ready` (a count) first reads 1 in the store at `db`
+/// (within 30 s), and waits for it.
+fn signal_when(
+    db: &Path,
+    child: std::process::Child,
+    ready: &str,
+    signal: &str,
+) -> std::process::Output {
+    let t0 = std::time::Instant::now();
+    while !rusqlite::Connection::open(db)
+        .and_then(|c| c.query_row(ready, [], |r| r.get::<_, i64>(0)))
+        .is_ok_and(|n| n == 1)
+    {
+        assert!(t0.elapsed().as_secs() < 30, "never ready: {ready}");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let pid = child.id().to_string();
+    assert!(std::process::Command::new("kill")
+        .args([signal, &pid])
+        .status()
+        .unwrap()
+        .success());
+    child.wait_with_output().unwrap()
+}
+
+/// A summary's `errors`.
+fn errors_of(j: &Value) -> Vec<&str> {
+    j["errors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(Value::as_str)
+        .collect()
+}
+
 fn fail_writes(db: &Path, trigger: &str) {
     drop(Store::open(db).unwrap());
     let c = rusqlite::Connection::open(db).unwrap();
@@ -186,43 +235,14 @@ fn an_abort_whose_state_cannot_be_stored_is_an_error() {
         "CREATE TRIGGER no_abort BEFORE UPDATE OF state ON campaigns \
          WHEN NEW.state = 'aborted' BEGIN SELECT RAISE(FAIL, 'disk full (test)'); END;",
     );
-    let c = campaign(dir.path(), 1000.0, &dir.path().join("out"), "");
     // Time scale 1: still referencing when the abort comes.
-    let text = std::fs::read_to_string(&c)
-        .unwrap()
-        .replace("time_scale = 1000", "time_scale = 1");
-    std::fs::write(&c, text).unwrap();
-    let child = common::bin()
-        .args(["run", "--quiet", "--db"])
-        .arg(&db)
-        .arg(&c)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = std::time::Instant::now();
-    loop {
-        let running = rusqlite::Connection::open(&db)
-            .and_then(|c| {
-                c.query_row("SELECT state FROM campaigns WHERE id = 1", [], |r| {
-                    r.get::<_, String>(0)
-                })
-            })
-            .is_ok_and(|s| s == "running");
-        if running {
-            break;
-        }
-        assert!(t0.elapsed().as_secs() < 30, "never running");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    std::thread::sleep(std::time::Duration::from_millis(300));
-    let pid = child.id().to_string();
-    assert!(std::process::Command::new("kill")
-        .args(["-INT", &pid])
-        .status()
-        .unwrap()
-        .success());
-    let o = child.wait_with_output().unwrap();
+    let child = run_at_time_scale_1(dir.path(), &db);
+    let o = signal_when(
+        &db,
+        child,
+        "SELECT count(*) FROM campaigns WHERE id = 1 AND state = 'running'",
+        "-INT",
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
@@ -248,12 +268,7 @@ fn an_event_that_cannot_be_stored_fails_the_campaign_and_loses_no_sample() {
     assert!(err.contains("event `reconstructed` not stored"), "{err}");
     let j = summary(&o);
     assert_eq!(j["state"], "failed", "{j}");
-    let errors: Vec<&str> = j["errors"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(Value::as_str)
-        .collect();
+    let errors = errors_of(&j);
     assert!(
         errors.iter().any(
             |e| e.contains("event `reconstructed` not stored") && e.contains("injected (test)")
@@ -297,43 +312,15 @@ fn events_not_stored_before_a_stop_are_in_the_interrupted_state() {
         "CREATE TRIGGER no_rig BEFORE INSERT ON events WHEN NEW.kind = 'rig' \
          BEGIN SELECT RAISE(ABORT, 'injected (test)'); END;",
     );
-    let c = campaign(dir.path(), 1000.0, &dir.path().join("out"), "");
     // Time scale 1: still measuring when the stop comes.
-    let text = std::fs::read_to_string(&c)
-        .unwrap()
-        .replace("time_scale = 1000", "time_scale = 1");
-    std::fs::write(&c, text).unwrap();
-    let child = common::bin()
-        .args(["run", "--quiet", "--db"])
-        .arg(&db)
-        .arg(&c)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = std::time::Instant::now();
+    let child = run_at_time_scale_1(dir.path(), &db);
     // The `rig` event is written (and refused) before anything moves.
-    while !rusqlite::Connection::open(&db)
-        .and_then(|c| {
-            c.query_row(
-                "SELECT count(*) FROM events WHERE campaign_id = 1 AND kind = 'started'",
-                [],
-                |r| r.get::<_, i64>(0),
-            )
-        })
-        .is_ok_and(|n| n == 1)
-    {
-        assert!(t0.elapsed().as_secs() < 30, "never started");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    std::thread::sleep(std::time::Duration::from_millis(300));
-    let pid = child.id().to_string();
-    assert!(std::process::Command::new("kill")
-        .args(["-TERM", &pid])
-        .status()
-        .unwrap()
-        .success());
-    let o = child.wait_with_output().unwrap();
+    let o = signal_when(
+        &db,
+        child,
+        "SELECT count(*) FROM events WHERE campaign_id = 1 AND kind = 'started'",
+        "-TERM",
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(143), "{err}");
     let row = Store::open(&db).unwrap().campaign(1).unwrap().unwrap();
