@@ -83,10 +83,13 @@ fn signal(child: Child, signal: &str) -> Output {
 fn wait_for_samples(child: &mut Child, db: &Path, n: u64) -> u64 {
     let t0 = Instant::now();
     loop {
-        assert!(
-            child.try_wait().unwrap().is_none(),
-            "campaign ended before {n} samples"
-        );
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut err = String::new();
+            if let Some(mut e) = child.stderr.take() {
+                let _ = std::io::Read::read_to_string(&mut e, &mut err);
+            }
+            panic!("campaign ended ({status}) before {n} samples: {err}");
+        }
         if db.exists() {
             if let Ok(k) = store(db).sample_count(1) {
                 if k >= n {
@@ -388,6 +391,12 @@ fn one_process_per_stage_a_second_run_and_a_starting_service_keep_off() {
     std::fs::create_dir_all(dir.path().join("var")).unwrap();
     let db = dir.path().join("var/csmetro.db");
     let c = campaign(dir.path(), 2000.0, 60);
+    // Time scale 250, not 1000: the run (~10 s) must outlast the second run, the resume and the
+    // service's start while six test threads share two cores.
+    let text = std::fs::read_to_string(&c)
+        .unwrap()
+        .replace("time_scale = 1000", "time_scale = 250");
+    std::fs::write(&c, text).unwrap();
     let mut child = spawn_run(&c, &db);
     wait_for_samples(&mut child, &db, 20);
 
