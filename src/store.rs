@@ -423,10 +423,24 @@ impl Store {
             .conn
             .busy_timeout(BUSY_TIMEOUT)
             .map_err(|e| store.err("set busy_timeout", e))?;
-        let mode: String = store
-            .conn
-            .query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0))
-            .map_err(|e| store.err("set journal_mode=WAL", e))?;
+        // Entering WAL needs an exclusive lock and SQLite answers busy at once, without its busy
+        // handler, while another process opens the same new file (CI saw `csmetro run` fail so
+        // against a reader): retried for the busy timeout.
+        let t0 = std::time::Instant::now();
+        let mode: String = loop {
+            match store
+                .conn
+                .query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0))
+            {
+                Err(rusqlite::Error::SqliteFailure(e, _))
+                    if e.code == rusqlite::ErrorCode::DatabaseBusy
+                        && t0.elapsed() < BUSY_TIMEOUT =>
+                {
+                    std::thread::sleep(std::time::Duration::from_millis(10));
+                }
+                r => break r.map_err(|e| store.err("set journal_mode=WAL", e))?,
+            }
+        };
         if store.path.is_some() && !mode.eq_ignore_ascii_case("wal") {
             // E.g. a file system without shared memory: still crash-safe (rollback journal),
             // just slower and without concurrent readers.

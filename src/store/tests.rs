@@ -845,3 +845,24 @@ fn stage_events_are_logged_per_stage_in_order() {
     assert_eq!(store.stage_events_after("sim-xy", a, 10).unwrap().len(), 1);
     assert_eq!(store.stage_events_after("sim-xy", 0, 1).unwrap().len(), 1);
 }
+
+/// Two processes (here threads, each its own connection) opening the same new store at once
+/// both get it: entering WAL mode answers busy without SQLite's busy handler, and is retried.
+#[test]
+fn two_openers_of_a_new_store_at_once_both_succeed() {
+    let dir = tempfile::tempdir().unwrap();
+    for k in 0..40 {
+        let path = dir.path().join(format!("s{k}.db"));
+        let gate = std::sync::Arc::new(std::sync::Barrier::new(2));
+        let open = |path: std::path::PathBuf, gate: std::sync::Arc<std::sync::Barrier>| {
+            std::thread::spawn(move || {
+                gate.wait();
+                Store::open(&path).map(|_| ())
+            })
+        };
+        let a = open(path.clone(), gate.clone());
+        let b = open(path, gate);
+        a.join().unwrap().unwrap();
+        b.join().unwrap().unwrap();
+    }
+}
