@@ -178,7 +178,7 @@ pub fn accuracy(seeds: u64, ms: &[usize], methods: &[Method]) -> anyhow::Result<
                     method,
                     ..Default::default()
                 };
-                let r = recon::reconstruct(&grid, &p.samples, &s).map_err(anyhow::Error::msg)?;
+                let r = recon::reconstruct(&grid, &p.samples, &s)?;
                 let (mean, max, std) = synth::error_stats(&r.values, &p.truth);
                 acc.0 += mean;
                 acc.1 += max;

@@ -45,7 +45,7 @@ fn time_method(
             solver,
             ..Default::default()
         };
-        let out = recon::reconstruct(grid, &p.samples, &s).map_err(anyhow::Error::msg)?;
+        let out = recon::reconstruct(grid, &p.samples, &s)?;
         times.push(out.solve_ms);
         solver_used = out.solver.clone();
         iters.push(out.iterations as f64);
@@ -101,7 +101,7 @@ fn sustained(grid: &Grid, m: usize, repeat: usize, secs: f64) -> anyhow::Result<
         ..Default::default()
     };
     // The first solve plans the transforms (`first_ms` of the other rows): not timed here.
-    recon::reconstruct(grid, &problems[0].samples, &s).map_err(anyhow::Error::msg)?;
+    recon::reconstruct(grid, &problems[0].samples, &s)?;
     let mut times = Vec::new();
     let mut windows = vec![Vec::new(); WINDOWS];
     let mut status = Vec::new();
@@ -111,7 +111,7 @@ fn sustained(grid: &Grid, m: usize, repeat: usize, secs: f64) -> anyhow::Result<
         if at >= secs {
             break;
         }
-        let out = recon::reconstruct(grid, &p.samples, &s).map_err(anyhow::Error::msg)?;
+        let out = recon::reconstruct(grid, &p.samples, &s)?;
         times.push(out.solve_ms);
         windows[((at / secs * WINDOWS as f64) as usize).min(WINDOWS - 1)].push(out.solve_ms);
         status.push(out.status.map(|s| format!("{s:?}")).unwrap_or_default());

@@ -180,7 +180,7 @@ impl Sim<'_> {
                 noise_um: self.noise_um,
                 ..Default::default()
             };
-            let r = recon::reconstruct(&grid, &samples, &s).map_err(anyhow::Error::msg)?;
+            let r = recon::reconstruct(&grid, &samples, &s)?;
             let direction = if forward {
                 Direction::Forward
             } else {
