@@ -105,6 +105,12 @@ class Service:
         self._log.close()
 
 
+# Time scale of the campaigns a test pauses, stops or aborts while they run: 20 samples take
+# ~3 s, several of the device's 0.2 s status polls. At 100 they took 0.6 s on an idle host and
+# ended before the pause or stop the test sends after the 2nd sample (CI, 2026-12-06).
+SLOW = 20
+
+
 def campaign(
     name: str,
     stage: str,

@@ -3,7 +3,7 @@
 import pytest
 
 from csmetro_bluesky import ApiError, Client
-from support import Service, campaign, wait_state
+from support import SLOW, Service, campaign, wait_state
 
 
 def test_health(client):
@@ -63,7 +63,7 @@ def test_refusals_carry_the_reason(client):
 
 
 def test_pause_resume_abort_name_the_operator(client, stage):
-    cid = client.submit(campaign("py-control", stage, m=10, time_scale=100))["id"]
+    cid = client.submit(campaign("py-control", stage, m=10, time_scale=SLOW))["id"]
     wait_state(client, cid, "running")
     st = client.pause(cid)
     assert st["state"] == "paused"

@@ -11,7 +11,7 @@ from bluesky import RunEngine
 from bluesky.utils import FailedStatus, RunEngineInterrupted
 
 from csmetro_bluesky import AXIS_FIGURES, ApiError, CampaignError, CsmetroCampaign
-from support import Docs, Service, campaign, held, pause_when, wait_state, when
+from support import SLOW, Docs, Service, campaign, held, pause_when, wait_state, when
 
 
 class Watched:
@@ -131,7 +131,7 @@ def test_failing_campaign_fails_the_status_with_the_reason(service, stage, RE):
 
 
 def test_pause_resume(service, client, stage, RE):
-    dev = device(service, campaign("py-pause", stage, m=10, time_scale=100))
+    dev = device(service, campaign("py-pause", stage, m=10, time_scale=SLOW))
     pause_when(RE, dev, 2)
     with pytest.raises(RunEngineInterrupted):
         RE(bp.count([dev]))
@@ -153,7 +153,7 @@ def test_pause_resume(service, client, stage, RE):
 
 
 def test_campaign_ending_during_the_pause_is_not_run_twice(service, client, stage, RE):
-    dev = device(service, campaign("py-pause-end", stage, m=10, time_scale=100))
+    dev = device(service, campaign("py-pause-end", stage, m=10, time_scale=SLOW))
     pause_when(RE, dev, 2)
     with pytest.raises(RunEngineInterrupted):
         RE(bp.count([dev]))
@@ -169,7 +169,7 @@ def test_campaign_ending_during_the_pause_is_not_run_twice(service, client, stag
 
 
 def test_abort_while_paused_aborts_the_campaign(service, client, stage, RE):
-    dev = device(service, campaign("py-abort", stage, m=10, time_scale=100))
+    dev = device(service, campaign("py-abort", stage, m=10, time_scale=SLOW))
     pause_when(RE, dev, 2)
     with pytest.raises(RunEngineInterrupted):
         RE(bp.count([dev]))
@@ -190,7 +190,7 @@ def test_abort_while_paused_aborts_the_campaign(service, client, stage, RE):
 
 
 def test_halt_while_paused_aborts_the_campaign(service, client, stage, RE):
-    dev = device(service, campaign("py-halt", stage, m=10, time_scale=100))
+    dev = device(service, campaign("py-halt", stage, m=10, time_scale=SLOW))
     pause_when(RE, dev, 2)
     with pytest.raises(RunEngineInterrupted):
         RE(bp.count([dev]))
@@ -202,7 +202,7 @@ def test_halt_while_paused_aborts_the_campaign(service, client, stage, RE):
 
 
 def test_stop_while_running_aborts_the_campaign(service, client, stage, RE):
-    dev = device(service, campaign("py-stop", stage, m=10, time_scale=100))
+    dev = device(service, campaign("py-stop", stage, m=10, time_scale=SLOW))
 
     def stop():
         when(lambda: dev.stored.get() >= 2, timeout=60, poll_s=0.01)

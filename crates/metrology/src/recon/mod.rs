@@ -237,7 +237,7 @@ pub fn reconstruct(
             CrossValidation::new(grid, samples, s).score_bp(
                 s.method,
                 f64::INFINITY,
-                Some(&mut held),
+                Some((&mut held, BAND_RESIDUALS)),
             );
         }
         Method::Linear | Method::Pchip => {
@@ -305,7 +305,9 @@ pub fn reconstruct(
                     }
                     let mut sink = Vec::new();
                     let e = match base {
-                        Method::Bp | Method::Bpdn => cv.score_bp(base, chosen.1, Some(&mut sink)),
+                        Method::Bp | Method::Bpdn => {
+                            cv.score_bp(base, chosen.1, Some((&mut sink, usize::MAX)))
+                        }
                         _ => cv.score_interp(base, Some(&mut sink)),
                     };
                     residuals.push((base, e, sink));
@@ -325,11 +327,20 @@ pub fn reconstruct(
             out.method = chosen.0.as_str().into();
             out.cv_error_um = Some(calibrate(chosen.1, m, n, s.noise_um));
             out.candidates = scores;
-            match chosen.0 {
-                Method::Physics => cv.score_physics(&best_params, Some(&mut held)),
-                Method::Bp | Method::Bpdn => cv.score_bp(chosen.0, f64::INFINITY, Some(&mut held)),
-                m => cv.score_interp(m, Some(&mut held)),
-            };
+            // The chosen method's held-out residuals: kept from its score when it was a
+            // baseline (bp's folds are its dearest solves), else scored again with the sink.
+            match residuals.iter().position(|r| r.0 == chosen.0) {
+                Some(i) => held = residuals[i].2.clone(),
+                None => {
+                    match chosen.0 {
+                        Method::Physics => cv.score_physics(&best_params, Some(&mut held)),
+                        Method::Bp | Method::Bpdn => {
+                            cv.score_bp(chosen.0, f64::INFINITY, Some((&mut held, usize::MAX)))
+                        }
+                        m => cv.score_interp(m, Some(&mut held)),
+                    };
+                }
+            }
             match chosen.0 {
                 Method::Physics => {
                     out.values = physics_curve(grid, samples, s, &best_params)?;
@@ -503,6 +514,10 @@ struct NormalEq {
 
 /// Held-out (distance to the nearest training sample µm, residual µm) pairs, fold by fold.
 type HeldOut = Vec<(f64, f64)>;
+
+/// Held-out residuals the band of `bp`/`bpdn` asked for directly is calibrated on: folds are
+/// solved until this many are in (six bins of 100; every fold below m ≈ 3,000 at five folds).
+const BAND_RESIDUALS: usize = 600;
 
 /// Physics structure: trend_k, harmonics, envelope degree, periods (bits).
 type StructureKey = (usize, usize, usize, Vec<u64>);
@@ -700,16 +715,23 @@ impl<'a> CrossValidation<'a> {
     /// Bp or bpdn scored on the folds (bpdn's radius from the training-set size). Its solves are
     /// the dearest of the candidates: once two folds put its mean error 30 % above `to_beat`
     /// (the best candidate so far) it cannot plausibly win, and that partial mean is returned.
+    ///
+    /// `sink`: where the held-out (distance, residual) pairs go, and how many are enough (the
+    /// folds stop once that many are in: the band's bins need a few hundred, and at m = 6,554
+    /// one fold holds 1,311 of them, so the band costs one solve there instead of five).
     fn score_bp(
         &self,
         method: Method,
         to_beat: f64,
-        mut sink: Option<&mut Vec<(f64, f64)>>,
+        mut sink: Option<(&mut Vec<(f64, f64)>, usize)>,
     ) -> f64 {
         let n = self.grid.n;
         let (mut sum, mut cnt) = (0.0, 0usize);
         for (f, (train, test)) in self.folds.iter().enumerate() {
             if f >= 2 && cnt > 0 && sum / cnt as f64 > 1.3 * to_beat {
+                break;
+            }
+            if sink.as_ref().is_some_and(|(k, enough)| k.len() >= *enough) {
                 break;
             }
             let (ti, ty) = self.subset(train);
@@ -732,7 +754,7 @@ impl<'a> CrossValidation<'a> {
                 let e = g[self.samples.idx[r]] - self.samples.values[r];
                 sum += e.abs();
                 cnt += 1;
-                if let Some(k) = sink.as_deref_mut() {
+                if let Some((k, _)) = sink.as_mut() {
                     k.push((self.held_distance(&ti, r), e));
                 }
             }
