@@ -1,4 +1,5 @@
 use super::*;
+use crate::types::{AxisId, Direction, Phase, RunKey, Target};
 use rand::{Rng, SeedableRng};
 use std::process::{Child, Command, Stdio};
 use std::time::Instant;
