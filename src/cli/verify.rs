@@ -169,36 +169,37 @@ pub fn run(a: Args) -> CliResult {
     })?;
     // Results next to the characterisation's: in the store (so `report` and the API serve
     // them) and in its output directory.
-    let (written, dir) = keep_files(&shared, &c, a.id, &verify::files(&v));
-    link_report(&shared, &dir, a.id, verify::REPORT_FILE, v.passed);
-    finish(
-        &a,
-        written,
-        &dir,
-        verify::json(&v),
-        &verify::table(&v),
-        v.passed,
-    )
+    let kept = keep_files(&shared, &c, a.id, &verify::files(&v));
+    link_report(&shared, &kept.dir, a.id, verify::REPORT_FILE, v.passed);
+    finish(&a, &kept, verify::json(&v), &verify::table(&v), v.passed)
 }
 
-/// The verdict on stdout (JSON or the table), where the files went, exit 1 when it failed.
-fn finish(
-    a: &Args,
-    written: bool,
-    dir: &Path,
-    json: serde_json::Value,
-    table: &str,
-    passed: bool,
-) -> CliResult {
+/// The verdict on stdout (JSON or the table), where the files went; exit 1 when it failed or
+/// when the store refused its files (a verdict printed but not kept is not a verification the
+/// lab has: `report` and the API would still show the last one).
+fn finish(a: &Args, kept: &Kept, json: serde_json::Value, table: &str, passed: bool) -> CliResult {
     if a.json {
         outln!("{json}");
     } else {
         out!("{table}");
     }
-    if written && !a.quiet {
+    if !kept.unstored.is_empty() {
+        return Err(CliError::failure(format!(
+            "the verification's results were not stored in campaign {}: {}",
+            a.id,
+            kept.unstored.join("; ")
+        )));
+    }
+    if !kept.written {
+        eprintln!(
+            "warning: {} not written (the results are in the store, campaign {})",
+            kept.dir.join("verify").display(),
+            a.id
+        );
+    } else if !a.quiet {
         eprintln!(
             "results: {} (and in the store, campaign {})",
-            dir.join("verify").display(),
+            kept.dir.join("verify").display(),
             a.id
         );
     }
@@ -247,20 +248,30 @@ fn with_abort<T>(
     }))
 }
 
-/// Stores the verification's files with the campaign's results (store and output directory);
-/// whether the directory was written.
+/// What became of the verification's files: the store's refusals (name: error) and whether
+/// the output directory was written.
+struct Kept {
+    unstored: Vec<String>,
+    written: bool,
+    dir: PathBuf,
+}
+
+/// Stores the verification's files with the campaign's results (store and output directory).
 fn keep_files(
     shared: &SharedStore,
     c: &crate::campaign::spec::Campaign,
     id: i64,
     files: &[(String, String, Vec<u8>)],
-) -> (bool, PathBuf) {
-    shared.with(|s| {
-        for (name, ctype, bytes) in files {
-            if let Err(e) = s.put_result(id, name, ctype, bytes) {
-                eprintln!("warning: {name} not stored: {e}");
-            }
-        }
+) -> Kept {
+    let unstored = shared.with(|s| {
+        files
+            .iter()
+            .filter_map(|(name, ctype, bytes)| {
+                s.put_result(id, name, ctype, bytes)
+                    .err()
+                    .map(|e| format!("{name}: {e}"))
+            })
+            .collect()
     });
     let dir = crate::campaign::results::out_dir(c, id);
     let mut written = true;
@@ -272,7 +283,11 @@ fn keep_files(
             .and_then(|()| std::fs::write(&p, bytes));
         written &= ok.is_ok();
     }
-    (written, dir)
+    Kept {
+        unstored,
+        written,
+        dir,
+    }
 }
 
 /// `csmetro verify ID` of a map campaign (see [`verify_map`]).
@@ -312,12 +327,11 @@ fn run_map(
         verify::VerifyError::Refused(m) => CliError::input(m),
         e => CliError::failure(e.to_string()),
     })?;
-    let (written, dir) = keep_files(shared, c, a.id, &verify_map::files(&v));
-    link_report(shared, &dir, a.id, verify::REPORT_FILE, v.passed);
+    let kept = keep_files(shared, c, a.id, &verify_map::files(&v));
+    link_report(shared, &kept.dir, a.id, verify::REPORT_FILE, v.passed);
     finish(
         a,
-        written,
-        &dir,
+        &kept,
         verify_map::json(&v),
         &verify_map::table(&v),
         v.passed,

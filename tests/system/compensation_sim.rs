@@ -529,3 +529,38 @@ fn a_verify_campaign_runs_the_verification_and_refuses_what_it_cannot_verify() {
     refused(&run(&p), "leave out [axes]");
     assert_eq!(count(), before);
 }
+
+#[test]
+fn a_verification_the_store_refuses_is_an_error_not_a_verdict_kept() {
+    let _one = serial();
+    let (db, _) = characterised();
+    // A copy of the characterisation's store whose results table refuses the verification.
+    let dir = tempfile::tempdir().unwrap();
+    let copy = dir.path().join("copy.db");
+    let c = rusqlite::Connection::open(db).unwrap();
+    c.execute("VACUUM INTO ?1", [copy.to_str().unwrap()])
+        .unwrap();
+    drop(c);
+    rusqlite::Connection::open(&copy)
+        .unwrap()
+        .execute_batch(
+            "CREATE TRIGGER no_verify BEFORE INSERT ON results WHEN NEW.name LIKE 'verify/%' \
+             BEGIN SELECT RAISE(FAIL, 'disk full (test)'); END;",
+        )
+        .unwrap();
+    let o = bin()
+        .args(["verify", "1", "--quiet", "--json", "--cycles", "2", "--db"])
+        .arg(&copy)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    // The verdict is shown, and the exit says it was not kept.
+    assert!(only_json(&o)["passed"].is_boolean());
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("results were not stored")
+            && err.contains("verify/")
+            && err.contains("disk full"),
+        "{err}"
+    );
+}
