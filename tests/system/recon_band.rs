@@ -74,9 +74,9 @@ fn basis_pursuit_asked_directly_has_a_band_from_its_own_folds() {
 
 #[test]
 fn basis_pursuit_s_band_on_part_of_its_folds_still_covers() {
-    // m = 2,037 of 4,303: five folds of 407, the band stops after two (600 residuals).
+    // m = 2,037 of 4,303: ten folds of ~204, the band stops after three (600 residuals).
     let (cover, sharp) = band("leadscrew", 900, 1, Method::Bp);
-    eprintln!("bp, two folds: coverage {cover:.3} sharpness {sharp:.2}");
+    eprintln!("bp, three folds of ten: coverage {cover:.3} sharpness {sharp:.2}");
     assert!((0.88..=0.995).contains(&cover), "coverage {cover}");
     assert!(sharp <= 4.0, "sharpness {sharp}");
 }
