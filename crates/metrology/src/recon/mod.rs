@@ -169,8 +169,8 @@ pub struct Reconstruction {
     #[serde(skip)]
     pub values: Vec<f64>,
     /// Pointwise standard uncertainty (k = 1) of `values`, µm ([`band`]): the method's
-    /// cross-validation residuals by distance to the nearest sample (bp and bpdn asked for
-    /// directly: k more solves on the folds), for `auto` with the model-choice term.
+    /// cross-validation residuals by distance to the nearest sample (bp and bpdn: solves on ten
+    /// folds of their own, see `BAND_FOLDS`), for `auto` with the model-choice term.
     #[serde(skip)]
     pub u_um: Vec<f64>,
     /// Mean and largest of `u_um`, µm.
@@ -232,7 +232,7 @@ pub fn reconstruct(
     match s.method {
         Method::Bp | Method::Bpdn => {
             solve_bp(s.method, samples, s, &mut out);
-            // The band's residuals: the same method on the folds (k more solves of a smaller
+            // The band's residuals: the same method on its folds (more solves of a smaller
             // problem; the fast solver whichever solved the curve).
             bp_band_residuals(grid, samples, s, s.method, &mut held);
         }
