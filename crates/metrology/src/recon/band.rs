@@ -132,10 +132,8 @@ pub fn u_at_distances_denoised(dist: &[f64], held: &[HeldOut], folds: usize) -> 
         return Vec::new();
     }
     h.sort_by(|a, b| a.d.total_cmp(&b.d));
-    let bins = (h.len() / PER_BIN).clamp(1, MAX_BINS);
     let (mut d, mut u, mut w) = (Vec::new(), Vec::new(), Vec::new());
-    for b in 0..bins {
-        let part = &h[b * h.len() / bins..(b + 1) * h.len() / bins];
+    for part in equal_bins(&h) {
         let k = part.len() as f64;
         let ms = part.iter().map(|p| p.r * p.r).sum::<f64>() / k;
         let dof = part.iter().map(|p| p.noise_var).sum::<f64>();
@@ -152,9 +150,8 @@ pub fn u_at_distances_denoised(dist: &[f64], held: &[HeldOut], folds: usize) -> 
         let e2 = (ms - sigma2 - refit).max(floor);
         let mut r: Vec<f64> = part.iter().map(|p| p.r.abs()).collect();
         r.sort_by(f64::total_cmp);
-        let level = ((k + 0.5) * QUANTILE / k).min(1.0);
         let shape = if ms > 0.0 {
-            quantile(&r, level) / 2.0 / ms.sqrt()
+            quantile(&r, conformal_level(k)) / 2.0 / ms.sqrt()
         } else {
             1.0
         };
@@ -328,23 +325,13 @@ impl DistanceCurve {
 
 fn distance_curve(mut cv: Vec<(f64, f64)>, noise_um: f64) -> DistanceCurve {
     cv.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let bins = (cv.len() / PER_BIN).clamp(1, MAX_BINS);
-    let mut d = Vec::with_capacity(bins);
-    let mut u = Vec::with_capacity(bins);
-    let mut w = Vec::with_capacity(bins);
-    for b in 0..bins {
-        let part = &cv[b * cv.len() / bins..(b + 1) * cv.len() / bins];
+    let (mut d, mut u, mut w) = (Vec::new(), Vec::new(), Vec::new());
+    for part in equal_bins(&cv) {
         let mut r: Vec<f64> = part.iter().map(|p| p.1.abs()).collect();
         r.sort_by(f64::total_cmp);
-        // Split-conformal finite-sample level: the ⌈(k + 1)(1 − α)⌉-th of k residuals bounds a
-        // new one with probability ≥ 1 − α; the randomised version (a new residual's rank
-        // uniform, ties split) is exact on average at (k + ½)(1 − α)/k, read between order
-        // statistics (a bin of 33 reads 96.4 %; see the module's notes).
-        let k = r.len() as f64;
-        let level = ((k + 0.5) * QUANTILE / k).min(1.0);
         // The held-out residual is (curve error − sensor noise): take the noise out in quadrature,
         // keeping at least a third of the figure (a noise σ set too high must not zero the band).
-        let q = quantile(&r, level) / 2.0;
+        let q = quantile(&r, conformal_level(r.len() as f64)) / 2.0;
         let clean = (q * q - noise_um * noise_um).max(q * q / 9.0).sqrt();
         d.push(part.iter().map(|p| p.0).sum::<f64>() / part.len() as f64);
         u.push(clean);
@@ -352,6 +339,20 @@ fn distance_curve(mut cv: Vec<(f64, f64)>, noise_um: f64) -> DistanceCurve {
     }
     let u = non_decreasing(&u, &w);
     DistanceCurve { d, u }
+}
+
+/// Equal-count bins of `v` (sorted by distance): about [`PER_BIN`] each, at most [`MAX_BINS`].
+fn equal_bins<T>(v: &[T]) -> impl Iterator<Item = &[T]> {
+    let bins = (v.len() / PER_BIN).clamp(1, MAX_BINS);
+    (0..bins).map(move |b| &v[b * v.len() / bins..(b + 1) * v.len() / bins])
+}
+
+/// The quantile level read from a bin of k residuals. Split-conformal finite-sample level: the
+/// ⌈(k + 1)(1 − α)⌉-th of k residuals bounds a new one with probability ≥ 1 − α; the randomised
+/// version (a new residual's rank uniform, ties split) is exact on average at (k + ½)(1 − α)/k,
+/// read between order statistics (a bin of 33 reads 96.4 %; see the module's notes).
+fn conformal_level(k: f64) -> f64 {
+    ((k + 0.5) * QUANTILE / k).min(1.0)
 }
 
 /// The q-quantile of ascending `v` (linear between order statistics).

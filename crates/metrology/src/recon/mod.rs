@@ -323,24 +323,31 @@ pub fn reconstruct(
             out.method = chosen.0.as_str().into();
             out.cv_error_um = Some(calibrate(chosen.1, m, n, s.noise_um));
             out.candidates = scores;
-            // The chosen method's held-out residuals: bp's from its own folds (see
-            // `bp_band_residuals`), the others' kept from their score when they were a
-            // baseline, else scored again with the sink.
+            // The chosen method's held-out residuals on the shared folds (the model choice below
+            // pairs them with the others' fold by fold): kept from its score when it was a
+            // baseline (taken: the chosen one's entry leaves `residuals` below), else scored
+            // again with the sink.
             match (chosen.0, residuals.iter().position(|r| r.0 == chosen.0)) {
-                (Method::Bp | Method::Bpdn, _) if cv.folds.len() < BAND_FOLDS => {
-                    bp_band_residuals(grid, samples, s, chosen.0, &mut held)
+                (_, Some(i)) => held = std::mem::take(&mut residuals[i].2),
+                (Method::Physics, None) => {
+                    cv.score_physics(&best_params, Some(&mut held));
                 }
-                (_, Some(i)) => held = residuals[i].2.clone(),
-                (method, None) => {
-                    match method {
-                        Method::Physics => cv.score_physics(&best_params, Some(&mut held)),
-                        Method::Bp | Method::Bpdn => {
-                            cv.score_bp(method, f64::INFINITY, Some((&mut held, usize::MAX)))
-                        }
-                        m => cv.score_interp(m, Some(&mut held)),
-                    };
+                (Method::Bp | Method::Bpdn, None) => {
+                    cv.score_bp(chosen.0, f64::INFINITY, Some((&mut held, usize::MAX)));
+                }
+                (m, None) => {
+                    cv.score_interp(m, Some(&mut held));
                 }
             }
+            // bp's band on folds of its own when the shared ones are fewer (see `BAND_FOLDS`);
+            // it replaces `held` once the model choice is made.
+            let own_band = (matches!(chosen.0, Method::Bp | Method::Bpdn)
+                && cv.folds.len() < BAND_FOLDS)
+                .then(|| {
+                    let mut h = Vec::new();
+                    bp_band_residuals(grid, samples, s, chosen.0, &mut h);
+                    h
+                });
             match chosen.0 {
                 Method::Physics => {
                     out.values = physics_curve(grid, samples, s, &best_params)?;
@@ -372,6 +379,9 @@ pub fn reconstruct(
                     alternatives.push((w, g));
                 }
                 choice = band::choice_variance(&out.values, &alternatives);
+            }
+            if let Some(h) = own_band {
+                held = h;
             }
         }
     }
