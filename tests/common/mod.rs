@@ -370,6 +370,14 @@ impl Drop for Server {
     }
 }
 
+/// The store at `db` (created if new) with `trigger` added: a second connection's SQLite trigger
+/// makes chosen writes fail, as a full disk or a lost file would.
+pub fn fail_writes(db: &Path, trigger: &str) {
+    drop(csmetro::store::Store::open(db).unwrap());
+    let c = rusqlite::Connection::open(db).unwrap();
+    c.execute_batch(trigger).unwrap();
+}
+
 /// The stored samples' seqs of a campaign, read from the store file directly.
 pub fn stored_seqs(db: &Path, id: i64) -> Vec<u64> {
     let s = csmetro::store::Store::open(db).unwrap();

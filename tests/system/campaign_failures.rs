@@ -6,7 +6,7 @@ use crate::common;
 use std::path::Path;
 use std::process::Output;
 
-use common::{repo, resume, run_json, sim_header};
+use common::{fail_writes, repo, resume, run_json, sim_header};
 use csmetro::store::Store;
 use csmetro::types::CampaignState;
 use serde_json::Value;
@@ -182,12 +182,6 @@ fn errors_of(j: &Value) -> Vec<&str> {
         .iter()
         .filter_map(Value::as_str)
         .collect()
-}
-
-fn fail_writes(db: &Path, trigger: &str) {
-    drop(Store::open(db).unwrap());
-    let c = rusqlite::Connection::open(db).unwrap();
-    c.execute_batch(trigger).unwrap();
 }
 
 #[test]

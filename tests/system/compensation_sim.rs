@@ -50,7 +50,11 @@ fn characterised() -> &'static (PathBuf, PathBuf) {
 }
 
 fn verify(extra: &[&str]) -> Output {
-    let (db, _) = characterised();
+    verify_in(&characterised().0, extra)
+}
+
+/// `csmetro verify 1` of the characterisation with the store at `db`.
+fn verify_in(db: &Path, extra: &[&str]) -> Output {
     bin()
         .args(["verify", "1", "--quiet", "--cycles", "2", "--db"])
         .arg(db)
@@ -537,22 +541,16 @@ fn a_verification_the_store_refuses_is_an_error_not_a_verdict_kept() {
     // A copy of the characterisation's store whose results table refuses the verification.
     let dir = tempfile::tempdir().unwrap();
     let copy = dir.path().join("copy.db");
-    let c = rusqlite::Connection::open(db).unwrap();
-    c.execute("VACUUM INTO ?1", [copy.to_str().unwrap()])
-        .unwrap();
-    drop(c);
-    rusqlite::Connection::open(&copy)
+    rusqlite::Connection::open(db)
         .unwrap()
-        .execute_batch(
-            "CREATE TRIGGER no_verify BEFORE INSERT ON results WHEN NEW.name LIKE 'verify/%' \
-             BEGIN SELECT RAISE(FAIL, 'disk full (test)'); END;",
-        )
+        .execute("VACUUM INTO ?1", [copy.to_str().unwrap()])
         .unwrap();
-    let o = bin()
-        .args(["verify", "1", "--quiet", "--json", "--cycles", "2", "--db"])
-        .arg(&copy)
-        .output()
-        .unwrap();
+    common::fail_writes(
+        &copy,
+        "CREATE TRIGGER no_verify BEFORE INSERT ON results WHEN NEW.name LIKE 'verify/%' \
+         BEGIN SELECT RAISE(FAIL, 'disk full (test)'); END;",
+    );
+    let o = verify_in(&copy, &["--json"]);
     let err = String::from_utf8_lossy(&o.stderr);
     // The verdict is shown, and the exit says it was not kept.
     assert!(only_json(&o)["passed"].is_boolean());
