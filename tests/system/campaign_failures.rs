@@ -13,11 +13,22 @@ use serde_json::Value;
 
 /// `m` random targets per direction on x from `lo_um` over 250 µm (step 25 µm), results to `out`.
 fn campaign(dir: &Path, lo_um: f64, out: &Path, extra: &str) -> std::path::PathBuf {
+    campaign_at(dir, lo_um, out, extra, 1000.0)
+}
+
+/// [`campaign`] at the given simulated time scale.
+fn campaign_at(
+    dir: &Path,
+    lo_um: f64,
+    out: &Path,
+    extra: &str,
+    time_scale: f64,
+) -> std::path::PathBuf {
     let head = sim_header(
         "fails",
         "sim-fail",
         &repo("config/sim/ideal.toml").display().to_string(),
-        1000.0,
+        time_scale,
         3,
     );
     let text = format!(
@@ -133,11 +144,7 @@ fn results_that_cannot_be_written_are_an_error() {
 /// `csmetro run` of the failing-stage campaign at time scale 1 (physical time is wall time, so a
 /// signal or abort lands mid-run), stderr piped.
 fn run_at_time_scale_1(dir: &Path, db: &Path) -> std::process::Child {
-    let c = campaign(dir, 1000.0, &dir.join("out"), "");
-    let text = std::fs::read_to_string(&c)
-        .unwrap()
-        .replace("time_scale = 1000", "time_scale = 1");
-    std::fs::write(&c, text).unwrap();
+    let c = campaign_at(dir, 1000.0, &dir.join("out"), "", 1.0);
     common::bin()
         .args(["run", "--quiet", "--db"])
         .arg(db)

@@ -13,11 +13,16 @@ use csmetro::types::CampaignState;
 
 /// A small Y campaign: `points` grid points, `m` random targets per direction, full scan.
 fn campaign(dir: &Path, range_um: f64, m: usize) -> PathBuf {
+    campaign_at(dir, range_um, m, 1000.0)
+}
+
+/// [`campaign`] at the given simulated time scale.
+fn campaign_at(dir: &Path, range_um: f64, m: usize, time_scale: f64) -> PathBuf {
     let head = sim_header(
         "it",
         "sim-xy",
         &repo("config/sim/demo_xy.toml").display().to_string(),
-        1000.0,
+        time_scale,
         5,
     );
     let text = format!(
@@ -390,13 +395,9 @@ fn one_process_per_stage_a_second_run_and_a_starting_service_keep_off() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(dir.path().join("var")).unwrap();
     let db = dir.path().join("var/csmetro.db");
-    let c = campaign(dir.path(), 2000.0, 60);
     // Time scale 250, not 1000: the run (~10 s) must outlast the second run, the resume and the
     // service's start while six test threads share two cores.
-    let text = std::fs::read_to_string(&c)
-        .unwrap()
-        .replace("time_scale = 1000", "time_scale = 250");
-    std::fs::write(&c, text).unwrap();
+    let c = campaign_at(dir.path(), 2000.0, 60, 250.0);
     let mut child = spawn_run(&c, &db);
     wait_for_samples(&mut child, &db, 20);
 
