@@ -28,6 +28,15 @@
 //!   1–2 steps away, noise and all): 2–300 times the curve's actual miss there, which made the
 //!   band 3–4.5 times the mean error at m = 900 and on rough curves.
 //!
+//! Where along the travel matters as well: a step or a narrow defect the model cannot hold
+//! makes the held-out residuals about it large, and a band of the distance alone spreads that
+//! error over the whole curve (too wide away from it, too narrow on it: 0.64 of one stretch of
+//! tests/gp/compare_gp.py's step-and-defect curve covered, seed 0). Off the samples u is scaled
+//! by [`LocalScale`], the held-out residuals' mean square about the position (the nearest 25th
+//! of them, each over the distance curve's u at its own distance, shrunk towards 1) — normalised
+//! split-conformal: the distance curve is calibrated on the residuals divided by their scale
+//! from the others about them, so the whole still covers at its level. That curve: 0.880 → 0.939.
+//!
 //! Which candidate `auto` picked is itself uncertain when the candidates' cross-validated errors
 //! are close: [`choice_weight`] and [`choice_variance`] add the spread between the chosen curve
 //! and the close candidates' curves, weighted by how likely each is the better predictor.
@@ -43,35 +52,178 @@ const QUANTILE: f64 = 0.95;
 /// curve is not computed).
 pub const MIN_CHOICE_WEIGHT: f64 = 0.01;
 
+/// One held-out sample of a curve's cross-validation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Residual {
+    /// Distance to the nearest training sample of its fold (µm).
+    pub d: f64,
+    /// The prediction by the fold that left it out − the sample (µm).
+    pub r: f64,
+    /// Its position (µm).
+    pub x: f64,
+}
+
 /// u (µm, k = 1) at every grid point: `sample_pos` the design's positions (µm, ascending),
 /// `grid_pos` the grid's, `misfit` the curve's |g − y| at the samples (empty: not known, the
-/// sample points then take the off-sample u at distance 0), `cv` (distance to the nearest
-/// training sample µm, held-out residual µm) pairs, `noise_um` the sensor noise σ the residuals
-/// carry. Empty without residuals.
+/// sample points then take the off-sample u at distance 0), `cv` the held-out residuals,
+/// `noise_um` the sensor noise σ the residuals carry. Empty without residuals.
 pub fn pointwise_u(
     grid_pos: &[f64],
     sample_pos: &[f64],
     misfit: &[f64],
-    cv: &[(f64, f64)],
+    cv: &[Residual],
     noise_um: f64,
 ) -> Vec<f64> {
     if sample_pos.is_empty() {
         return Vec::new();
     }
-    let d: Vec<f64> = grid_pos
+    let cv: Vec<Residual> = cv
         .iter()
-        .map(|&p| nearest_distance(sample_pos, p))
+        .copied()
+        .filter(|c| c.d.is_finite() && c.r.is_finite() && c.x.is_finite())
         .collect();
-    let Some(curve) = DistanceCurve::calibrate(cv, noise_um) else {
+    let local = LocalScale::new(&cv);
+    let pairs: Vec<(f64, f64)> = match &local {
+        Some(l) => cv
+            .iter()
+            .enumerate()
+            .map(|(k, c)| (c.d, c.r / l.left_out(k)))
+            .collect(),
+        None => cv.iter().map(|c| (c.d, c.r)).collect(),
+    };
+    let Some(curve) = DistanceCurve::calibrate(&pairs, noise_um) else {
         return Vec::new();
     };
     let at_sample = at_samples(misfit, noise_um, curve.u[0]);
-    d.iter()
-        .map(|&d| match at_sample {
-            Some(u0) if d == 0.0 => u0,
-            _ => curve.at(d),
+    // The scale multiplies the band with the noise taken out (taking σ out of the scaled raw
+    // figure instead made the band where the scale is below 1 its floor, a third: the step and
+    // defect curve of tests/gp/compare_gp.py, seed 0, fell to 0.872 off its samples).
+    grid_pos
+        .iter()
+        .map(|&p| {
+            let d = nearest_distance(sample_pos, p);
+            match (at_sample, &local) {
+                (Some(u0), _) if d == 0.0 => u0,
+                (_, Some(l)) => curve.at(d) * l.at(p),
+                _ => curve.at(d),
+            }
         })
         .collect()
+}
+
+/// Held-out residuals per window of [`LocalScale`]: a 25th of them, between these. At m = 600
+/// on the GP script's curves windows of 16–40 gave the same coverage (0.960–0.962 over its 12
+/// curves) and 12 lost the step-and-defect curve's gain; at m = 300 on `bench families`' steps
+/// 24 widened the band (sharpness 3.29 on the system test's two seeds against 3.14 with 12).
+const LOCAL_K_MIN: usize = 12;
+const LOCAL_K_MAX: usize = 48;
+/// The share of the residuals in a window.
+const LOCAL_SHARE: usize = 25;
+
+/// How much larger or smaller the held-out residuals are about a position than over the whole
+/// travel, at the same distance to the nearest sample (see the module's notes). Below 48
+/// residuals there is none (a window would be a quarter of the travel or more).
+struct LocalScale {
+    /// Held-out positions, ascending, and the square of each residual over the distance curve's
+    /// raw u at its distance (the global mean of these is 1).
+    x: Vec<f64>,
+    s2: Vec<f64>,
+    /// Index into `x` of each residual of the input order.
+    rank: Vec<usize>,
+    /// Residuals per window; the prior weighs half as many at the mean square 1.
+    k: usize,
+}
+
+impl LocalScale {
+    fn new(cv: &[Residual]) -> Option<Self> {
+        let k = (cv.len() / LOCAL_SHARE).clamp(LOCAL_K_MIN, LOCAL_K_MAX);
+        if cv.len() < 4 * k {
+            return None;
+        }
+        let pairs: Vec<(f64, f64)> = cv.iter().map(|c| (c.d, c.r)).collect();
+        let raw = DistanceCurve::calibrate(&pairs, 0.0)?;
+        let mut order: Vec<usize> = (0..cv.len()).collect();
+        order.sort_by(|&a, &b| cv[a].x.total_cmp(&cv[b].x));
+        let mut rank = vec![0; cv.len()];
+        for (i, &o) in order.iter().enumerate() {
+            rank[o] = i;
+        }
+        let mut s2: Vec<f64> = order
+            .iter()
+            .map(|&o| {
+                let q = raw.at(cv[o].d);
+                if q > 0.0 {
+                    (cv[o].r / q).powi(2)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let mean = s2.iter().sum::<f64>() / s2.len() as f64;
+        if !(mean > 0.0 && mean.is_finite()) {
+            return None;
+        }
+        s2.iter_mut().for_each(|v| *v /= mean);
+        Some(Self {
+            x: order.iter().map(|&o| cv[o].x).collect(),
+            s2,
+            rank,
+            k,
+        })
+    }
+
+    /// The scale at position `p`: the root of the mean square of the `k` nearest residuals,
+    /// shrunk towards 1 with the weight of k/2 residuals.
+    fn at(&self, p: f64) -> f64 {
+        self.window(self.x.partition_point(|&q| q < p), p, None)
+    }
+
+    /// The scale at residual `k`'s position from the others (its own square would pull the
+    /// scale towards itself, and the calibration would read the band as covering it).
+    fn left_out(&self, k: usize) -> f64 {
+        let i = self.rank[k];
+        self.window(i, self.x[i], Some(i))
+    }
+
+    /// [`Self::at`] from the residuals nearest to `p` (`i`: where `p` would insert in `x`),
+    /// `skip` left out.
+    fn window(&self, i: usize, p: f64, skip: Option<usize>) -> f64 {
+        let n = self.x.len();
+        let (mut lo, mut hi) = (i, i); // the window is [lo, hi)
+        let (mut sum, mut taken) = (0.0, 0usize);
+        while taken < self.k {
+            if lo > 0 && Some(lo - 1) == skip {
+                lo -= 1;
+                continue;
+            }
+            if hi < n && Some(hi) == skip {
+                hi += 1;
+                continue;
+            }
+            let left = if lo > 0 {
+                p - self.x[lo - 1]
+            } else {
+                f64::INFINITY
+            };
+            let right = if hi < n {
+                self.x[hi] - p
+            } else {
+                f64::INFINITY
+            };
+            if lo > 0 && left <= right {
+                lo -= 1;
+                sum += self.s2[lo];
+            } else if hi < n {
+                sum += self.s2[hi];
+                hi += 1;
+            } else {
+                break;
+            }
+            taken += 1;
+        }
+        let kappa = self.k as f64 / 2.0;
+        ((sum + kappa) / (taken as f64 + kappa)).sqrt()
+    }
 }
 
 /// u (µm, k = 1) at the given distances to the nearest sample from the `cv` pairs (the 2D maps'
@@ -198,7 +350,7 @@ fn at_samples(misfit: &[f64], noise_um: f64, near: f64) -> Option<f64> {
 /// scored on fewer folds is compared on those): Φ(−z) with z the mean difference over its
 /// standard error (a normal approximation of the cross-validation's own sampling noise, as
 /// pseudo-BMA+ weights, Yao et al. 2018). 0.5 for a tie, ~0 for one clearly worse.
-pub fn choice_weight(chosen: &[(f64, f64)], alternative: &[(f64, f64)]) -> f64 {
+pub fn choice_weight(chosen: &[Residual], alternative: &[Residual]) -> f64 {
     let k = chosen.len().min(alternative.len());
     if k < 2 {
         return 0.0;
@@ -206,7 +358,7 @@ pub fn choice_weight(chosen: &[(f64, f64)], alternative: &[(f64, f64)]) -> f64 {
     let d: Vec<f64> = chosen[..k]
         .iter()
         .zip(&alternative[..k])
-        .map(|(c, a)| a.1.abs() - c.1.abs())
+        .map(|(c, a)| a.r.abs() - c.r.abs())
         .filter(|v| v.is_finite())
         .collect();
     let k = d.len() as f64;
@@ -329,16 +481,23 @@ fn distance_curve(mut cv: Vec<(f64, f64)>, noise_um: f64) -> DistanceCurve {
     for part in equal_bins(&cv) {
         let mut r: Vec<f64> = part.iter().map(|p| p.1.abs()).collect();
         r.sort_by(f64::total_cmp);
-        // The held-out residual is (curve error − sensor noise): take the noise out in quadrature,
-        // keeping at least a third of the figure (a noise σ set too high must not zero the band).
-        let q = quantile(&r, conformal_level(r.len() as f64)) / 2.0;
-        let clean = (q * q - noise_um * noise_um).max(q * q / 9.0).sqrt();
+        // The held-out residual is (curve error − sensor noise).
+        let clean = denoise(
+            quantile(&r, conformal_level(r.len() as f64)) / 2.0,
+            noise_um,
+        );
         d.push(part.iter().map(|p| p.0).sum::<f64>() / part.len() as f64);
         u.push(clean);
         w.push(part.len() as f64);
     }
     let u = non_decreasing(&u, &w);
     DistanceCurve { d, u }
+}
+
+/// A held-out residual's u `q` (µm) with the sensor noise σ taken out in quadrature, at least a
+/// third of it (a noise σ set too high must not zero the band).
+fn denoise(q: f64, noise_um: f64) -> f64 {
+    (q * q - noise_um * noise_um).max(q * q / 9.0).sqrt()
 }
 
 /// Equal-count bins of `v` (sorted by distance): about [`PER_BIN`] each, at most [`MAX_BINS`].
@@ -387,11 +546,13 @@ mod tests {
 
     #[test]
     fn the_band_widens_with_the_distance_to_the_nearest_sample() {
-        // Residuals growing with the distance: |r| ≈ 0.01 d.
-        let cv: Vec<(f64, f64)> = (0..300)
+        // Residuals growing with the distance: |r| ≈ 0.01 d (held out beyond the grid: the
+        // same local scale at every grid point).
+        let cv: Vec<Residual> = (0..300)
             .map(|i| {
                 let d = (i % 100) as f64;
-                (d, 0.01 * d * if i % 2 == 0 { 1.0 } else { -1.0 })
+                let x = 1000.0 + i as f64;
+                res(d, 0.01 * d * if i % 2 == 0 { 1.0 } else { -1.0 }, x)
             })
             .collect();
         let samples = [0.0, 200.0];
@@ -403,13 +564,51 @@ mod tests {
         assert!(u.windows(2).take(10).all(|w| w[1] >= w[0] - 1e-12));
     }
 
+    fn res(d: f64, r: f64, x: f64) -> Residual {
+        Residual { d, r, x }
+    }
+
+    #[test]
+    fn the_band_widens_where_the_held_out_residuals_are_large() {
+        // 400 held-out residuals 1–10 µm from their fold's samples, 10 µm apart: ±0.01 µm, but
+        // ±0.05 µm over 2,000–2,400 µm (a defect the model cannot hold).
+        let cv: Vec<Residual> = (0..400)
+            .map(|i| {
+                let x = 10.0 * i as f64;
+                let r = if (2000.0..2400.0).contains(&x) {
+                    0.05
+                } else {
+                    0.01
+                };
+                res((1 + i * 37 % 10) as f64, if i % 2 == 0 { r } else { -r }, x)
+            })
+            .collect();
+        let u = pointwise_u(&[500.0, 2200.0], &[495.0, 2195.0], &[], &cv, 0.0);
+        // By the distance alone both would read the 96 % point of all of them, 0.05 / 2; the
+        // scale (shrunk towards 1) reads 0.005 and 0.016.
+        assert!(u[0] < 0.01 && u[1] > 3.0 * u[0], "{u:?}");
+        // The held-out residuals stay covered as a whole (each against the band read from the
+        // others about it).
+        let l = LocalScale::new(&cv).expect("enough residuals");
+        let pairs: Vec<(f64, f64)> = cv
+            .iter()
+            .enumerate()
+            .map(|(k, c)| (c.d, c.r / l.left_out(k)))
+            .collect();
+        let curve = DistanceCurve::calibrate(&pairs, 0.0).expect("a curve");
+        let inside = (0..cv.len())
+            .filter(|&k| cv[k].r.abs() <= 2.0 * curve.at(cv[k].d) * l.left_out(k))
+            .count();
+        assert!(inside as f64 / cv.len() as f64 >= 0.93, "{inside}");
+    }
+
     #[test]
     fn violators_are_pooled_and_noise_is_taken_out() {
         assert_eq!(
             non_decreasing(&[1.0, 3.0, 2.0, 4.0], &[1.0; 4]),
             vec![1.0, 2.5, 2.5, 4.0]
         );
-        let cv: Vec<(f64, f64)> = (0..100).map(|i| (i as f64, 0.2)).collect();
+        let cv: Vec<Residual> = (0..100).map(|i| res(i as f64, 0.2, i as f64)).collect();
         let u = pointwise_u(&[0.0], &[0.0], &[], &cv, 0.06);
         // q95 = 0.2 → 0.1, less 0.06 in quadrature: 0.08.
         assert!((u[0] - 0.08).abs() < 1e-9, "{u:?}");
@@ -418,7 +617,9 @@ mod tests {
 
     #[test]
     fn sample_points_take_the_curves_miss_and_the_noise() {
-        let cv: Vec<(f64, f64)> = (0..100).map(|i| (5.0 + i as f64, 0.5)).collect();
+        let cv: Vec<Residual> = (0..100)
+            .map(|i| res(5.0 + i as f64, 0.5, i as f64))
+            .collect();
         let misfit = vec![0.0; 20];
         let u = pointwise_u(&[0.0, 5.0], &[0.0, 100.0], &misfit, &cv, 0.03);
         // At the sample: σ (a curve through its samples); 5 µm off it the calibrated band.
@@ -429,7 +630,9 @@ mod tests {
     #[test]
     fn a_smoothing_fit_keeps_part_of_the_noise_at_its_samples() {
         // Held-out residuals within the noise: the nearest bin's u is a third of its quantile.
-        let cv: Vec<(f64, f64)> = (0..100).map(|i| (5.0 + i as f64, 0.01)).collect();
+        let cv: Vec<Residual> = (0..100)
+            .map(|i| res(5.0 + i as f64, 0.01, i as f64))
+            .collect();
         // The fit misses its samples by half the noise: the other half is in the curve.
         let misfit: Vec<f64> = (0..40)
             .map(|i| if i % 2 == 0 { 0.015 } else { -0.015 })
@@ -475,14 +678,14 @@ mod tests {
 
     #[test]
     fn close_candidates_weigh_about_half_and_clear_losers_nothing() {
-        let chosen: Vec<(f64, f64)> = (0..200)
-            .map(|i| (1.0, if i % 2 == 0 { 0.1 } else { -0.12 }))
+        let chosen: Vec<Residual> = (0..200)
+            .map(|i| res(1.0, if i % 2 == 0 { 0.1 } else { -0.12 }, i as f64))
             .collect();
         // As good on average: |residual| 0.11 throughout against 0.10 / 0.12 alternately.
-        let twin: Vec<(f64, f64)> = (0..200)
-            .map(|i| (1.0, if i % 4 < 2 { 0.11 } else { -0.11 }))
+        let twin: Vec<Residual> = (0..200)
+            .map(|i| res(1.0, if i % 4 < 2 { 0.11 } else { -0.11 }, i as f64))
             .collect();
-        let worse: Vec<(f64, f64)> = chosen.iter().map(|&(d, r)| (d, 2.0 * r)).collect();
+        let worse: Vec<Residual> = chosen.iter().map(|c| res(c.d, 2.0 * c.r, c.x)).collect();
         let w = choice_weight(&chosen, &twin);
         assert!(w > 0.2 && w < 0.8, "{w}");
         assert!(choice_weight(&chosen, &worse) < 1e-6);

@@ -178,10 +178,10 @@ pub struct Reconstruction {
     pub u_mean_um: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub u_max_um: Option<f64>,
-    /// The held-out (distance to the nearest training sample µm, residual µm) pairs of the
-    /// method's cross-validation that calibrated `u_um`.
+    /// The held-out residuals of the method's cross-validation (with their distance to the
+    /// nearest training sample and their position) that calibrated `u_um`.
     #[serde(skip)]
-    pub cv_residuals: Vec<(f64, f64)>,
+    pub cv_residuals: Vec<band::Residual>,
 }
 
 /// Reconstructs the curve at every grid point from the samples.
@@ -226,7 +226,7 @@ pub fn reconstruct(
         cv_residuals: Vec::new(),
     };
     // Held-out (distance to the nearest training sample, residual) pairs of the method used.
-    let mut held: Vec<(f64, f64)> = Vec::new();
+    let mut held: Vec<band::Residual> = Vec::new();
     // The model-choice variance at every grid point (`auto`; empty otherwise).
     let mut choice: Vec<f64> = Vec::new();
     match s.method {
@@ -523,7 +523,7 @@ struct NormalEq {
 }
 
 /// Held-out (distance to the nearest training sample µm, residual µm) pairs, fold by fold.
-type HeldOut = Vec<(f64, f64)>;
+type HeldOut = Vec<band::Residual>;
 
 /// Held-out residuals the band of `bp`/`bpdn` is calibrated on: folds are solved until this
 /// many are in (six bins of 100).
@@ -537,13 +537,13 @@ const BAND_RESIDUALS: usize = 600;
 /// m = 2,037, one from m = 6,000).
 const BAND_FOLDS: usize = 10;
 
-/// The held-out (distance, residual) pairs of `method` (bp or bpdn) on [`BAND_FOLDS`] folds.
+/// The held-out residuals of `method` (bp or bpdn) on [`BAND_FOLDS`] folds.
 fn bp_band_residuals(
     grid: &Grid,
     samples: &GridSamples,
     s: &ReconSettings,
     method: Method,
-    held: &mut Vec<(f64, f64)>,
+    held: &mut Vec<band::Residual>,
 ) {
     let s = ReconSettings {
         folds: s.folds.max(BAND_FOLDS),
@@ -637,7 +637,17 @@ impl<'a> CrossValidation<'a> {
         d as f64 * self.grid.step_um
     }
 
-    fn score_interp(&self, method: Method, mut sink: Option<&mut Vec<(f64, f64)>>) -> f64 {
+    /// Held-out sample `r`'s residual `e` with its distance to the nearest of the training grid
+    /// indices `ti` and its position.
+    fn residual(&self, ti: &[usize], r: usize, e: f64) -> band::Residual {
+        band::Residual {
+            d: self.held_distance(ti, r),
+            r: e,
+            x: self.grid.position(self.samples.idx[r]),
+        }
+    }
+
+    fn score_interp(&self, method: Method, mut sink: Option<&mut Vec<band::Residual>>) -> f64 {
         let (mut sum, mut cnt) = (0.0, 0usize);
         for (train, test) in &self.folds {
             let (ti, ty) = self.subset(train);
@@ -655,7 +665,7 @@ impl<'a> CrossValidation<'a> {
                 sum += e.abs();
                 cnt += 1;
                 if let Some(k) = sink.as_deref_mut() {
-                    k.push((self.held_distance(&ti, r), e));
+                    k.push(self.residual(&ti, r, e));
                 }
             }
         }
@@ -698,7 +708,7 @@ impl<'a> CrossValidation<'a> {
         ne
     }
 
-    fn score_physics(&self, p: &PhysicsParams, mut sink: Option<&mut Vec<(f64, f64)>>) -> f64 {
+    fn score_physics(&self, p: &PhysicsParams, mut sink: Option<&mut Vec<band::Residual>>) -> f64 {
         let n = self.grid.n;
         // Each fold's normal equations are the whole set's minus its held-out rows' (a fifth of
         // the work of forming them from the training rows).
@@ -742,7 +752,7 @@ impl<'a> CrossValidation<'a> {
                 sum += e.abs();
                 cnt += 1;
                 if let Some(k) = sink.as_deref_mut() {
-                    k.push((self.held_distance(&ti, r), e));
+                    k.push(self.residual(&ti, r, e));
                 }
             }
         }
@@ -760,7 +770,7 @@ impl<'a> CrossValidation<'a> {
         &self,
         method: Method,
         to_beat: f64,
-        mut sink: Option<(&mut Vec<(f64, f64)>, usize)>,
+        mut sink: Option<(&mut Vec<band::Residual>, usize)>,
     ) -> f64 {
         let n = self.grid.n;
         let (mut sum, mut cnt) = (0.0, 0usize);
@@ -792,7 +802,7 @@ impl<'a> CrossValidation<'a> {
                 sum += e.abs();
                 cnt += 1;
                 if let Some((k, _)) = sink.as_mut() {
-                    k.push((self.held_distance(&ti, r), e));
+                    k.push(self.residual(&ti, r, e));
                 }
             }
         }
