@@ -222,11 +222,13 @@ fn rough_maps_meet_the_2_percent_targets_through_the_binary() {
     // The pointwise band (u_ex_um, u_ey_um) against this test's own truth.
     let [(cx, sx), (cy, sy)] = band_figures(&stage, &g, [&ex, &ey, &ux, &uy]);
     eprintln!("band: e_x coverage {cx:.3} sharpness {sx:.2}, e_y {cy:.3} / {sy:.2}");
-    // Measured (XEON-S33): coverage 0.981 / 0.987, sharpness 2.79 / 3.15 (with the in-sample
-    // residual RMS taken out down to a third of the quantile: 1.000, 6.63 / 7.00).
+    // Measured (XEON-S33): coverage 0.965 / 0.969, sharpness 2.54 / 2.69 (the targets
+    // for curves, 0.90–0.98 and ≤ 3); with each distance bin's excess over the floor taken as
+    // it came instead of shrunk by its sampling error: 0.981 / 0.987, 2.79 / 3.15; with the
+    // in-sample residual RMS taken out down to a third of the quantile: 1.000, 6.63 / 7.00.
     for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
         assert!(
-            (0.93..=0.995).contains(&cover) && sharp <= 3.6,
+            (0.90..=0.98).contains(&cover) && sharp <= 3.0,
             "{what}: band coverage {cover} sharpness {sharp}"
         );
     }
@@ -274,11 +276,12 @@ fn rough_maps_meet_the_half_percent_targets() {
     );
     let [(cx, sx), (cy, sy)] = band_figures(&stage, &g, [&map.ex, &map.ey, &map.u_ex, &map.u_ey]);
     eprintln!("band 0.5 %: e_x coverage {cx:.3} sharpness {sx:.2}, e_y {cy:.3} / {sy:.2}");
-    // Measured (XEON-S33): coverage 0.978 / 0.967, sharpness 3.02 / 2.92 (before: 0.997 /
-    // 0.996, 4.01 / 4.28).
+    // Measured (XEON-S33): coverage 0.966 / 0.963, sharpness 2.72 / 2.78 (the excess taken as
+    // it came: 0.978 / 0.967, 3.02 / 2.92; before the noise reference: 0.997 / 0.996, 4.01 /
+    // 4.28).
     for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
         assert!(
-            (0.93..=0.995).contains(&cover) && sharp <= 3.5,
+            (0.90..=0.98).contains(&cover) && sharp <= 3.0,
             "{what}: band coverage {cover} sharpness {sharp}"
         );
     }
@@ -550,8 +553,8 @@ fn rough_maps_band_holds_on_a_second_surface() {
             mean(&map.ex, 0),
             mean(&map.ey, 1)
         );
-        // Measured (XEON-S33): 2 %: 0.936 / 0.934, sharpness 3.12 / 3.08; 0.5 %: 0.946 / 0.947,
-        // 3.08 / 2.91 (the old band: 0.763 / 0.750 at 2 %). The bump is the map's error, and a
+        // Measured (XEON-S33): 2 %: 0.935 / 0.934, sharpness 3.11 / 3.07; 0.5 %: 0.944 / 0.945,
+        // 3.04 / 2.87 (the old band: 0.763 / 0.750 at 2 %). The bump is the map's error, and a
         // band that depends on the distance to the samples only spreads it over the whole map.
         for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
             if !((0.90..=0.98).contains(&cover) && sharp <= 3.5) {
