@@ -584,6 +584,16 @@ mod tests {
         assert!(u.windows(2).take(10).all(|w| w[1] >= w[0] - 1e-12));
     }
 
+    /// Standard normal draws (Box–Muller), seeded.
+    fn normals(seed: u64) -> impl FnMut() -> f64 {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        move || {
+            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        }
+    }
+
     fn res(d: f64, r: f64, x: f64) -> Residual {
         Residual { d, r, x }
     }
@@ -664,12 +674,7 @@ mod tests {
 
     #[test]
     fn a_maps_band_is_its_error_beyond_the_noise_the_samples_share() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let mut normal = || {
-            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
-            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-        };
+        let mut normal = normals(7);
         // Held-out error of scale s under noise σ = 0.01 (the map's case: s ≪ σ); the in-sample
         // residual is the same noise shrunk by the fit, ((I − H)²)_kk = 0.9, (H²)_kk = 0.1.
         let held = |s: f64, normal: &mut dyn FnMut() -> f64| -> Vec<HeldOut> {
@@ -698,12 +703,7 @@ mod tests {
 
     #[test]
     fn a_maps_band_does_not_take_the_noise_of_its_noise_estimate_for_error() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let mut normal = || {
-            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
-            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-        };
+        let mut normal = normals(11);
         // Noise only (σ = 0.01), 600 held-out samples whose noise proxy shares 70 % of their
         // draw (a fit's proxy also carries its neighbours'): each bin's excess over the floor is
         // sampling noise of ~10⁻⁵ µm², the floor's own size. Twenty designs, every distance.
