@@ -553,11 +553,12 @@ fn rough_maps_band_holds_on_a_second_surface() {
             mean(&map.ex, 0),
             mean(&map.ey, 1)
         );
-        // Measured (XEON-S33): 2 %: 0.935 / 0.934, sharpness 3.11 / 3.07; 0.5 %: 0.944 / 0.945,
-        // 3.04 / 2.87 (the old band: 0.763 / 0.750 at 2 %). The bump is the map's error, and a
-        // band that depends on the distance to the samples only spreads it over the whole map.
+        // Measured (XEON-S33): 2 %: 0.955 / 0.947, sharpness 2.58 / 2.57; 0.5 %: 0.954 / 0.958,
+        // 2.91 / 2.82. The bump is the map's error: a band of the distance to the samples only
+        // spread it over the whole map (2 %: 0.935 / 0.934, 3.11 / 3.07; 0.5 %: 0.944 / 0.945,
+        // 3.04 / 2.87); its excess over the noise floor now varies over the plane.
         for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
-            if !((0.90..=0.98).contains(&cover) && sharp <= 3.5) {
+            if !((0.90..=0.98).contains(&cover) && sharp <= 3.0) {
                 failed.push(format!("{frac} {what}: coverage {cover} sharpness {sharp}"));
             }
         }
