@@ -525,7 +525,14 @@ fn draw_surface(f: &surface::Surface, g: &Grid2, frac: f64, seed: u64) -> MapSam
 fn rough_maps_band_holds_on_a_second_surface() {
     let g = grid("0:5:4000", "0:5:3000");
     let mut failed = Vec::new();
-    for (frac, seed) in [(0.02, 21), (0.005, 22)] {
+    for (frac, seed) in [
+        (0.02, 21),
+        (0.005, 22),
+        (0.02, 31),
+        (0.02, 41),
+        (0.005, 32),
+        (0.005, 42),
+    ] {
         let f = surface::Surface::new(seed, 4000.0, 3000.0);
         let s = draw_surface(&f, &g, frac, seed);
         let (map, r) = recon2d::reconstruct(&g, &s, Method2::Auto).unwrap();
@@ -553,10 +560,11 @@ fn rough_maps_band_holds_on_a_second_surface() {
             mean(&map.ex, 0),
             mean(&map.ey, 1)
         );
-        // Measured (XEON-S33): 2 %: 0.955 / 0.947, sharpness 2.58 / 2.57; 0.5 %: 0.954 / 0.958,
-        // 2.91 / 2.82. The bump is the map's error: a band of the distance to the samples only
-        // spread it over the whole map (2 %: 0.935 / 0.934, 3.11 / 3.07; 0.5 %: 0.944 / 0.945,
-        // 3.04 / 2.87); its excess over the noise floor now varies over the plane.
+        // Measured (XEON-S33), six surfaces: coverage 0.947–0.968, sharpness 2.60–2.92 (seeds
+        // 21 / 22: 0.957 / 0.954, 2.65 / 2.63; 0.954 / 0.958, 2.91 / 2.82). The bump is the
+        // map's error: a band of the distance to the samples only spread it over the whole map
+        // (0.934–0.955, sharpness 2.86–3.42); its excess over the noise floor now varies over
+        // the plane.
         for (what, cover, sharp) in [("e_x", cx, sx), ("e_y", cy, sy)] {
             if !((0.90..=0.98).contains(&cover) && sharp <= 3.0) {
                 failed.push(format!("{frac} {what}: coverage {cover} sharpness {sharp}"));
