@@ -276,21 +276,19 @@ pub struct Cells<'a> {
 /// the size of e² itself at 2 % sampled). The held-out fits' extra noise-induced variance
 /// (trained on (folds − 1)/folds of the samples) is taken out as well. e² is at least the fit's
 /// own noise-induced variance σ²·mean (H²)_kk, which the map carries whatever its bias (this floor
-/// keeps a bias in the in-sample residuals, which inflates σ², from zeroing the band). u is e
+/// keeps a bias in the in-sample residuals, which inflates σ², from zeroing the band), and the
+/// excess over that floor is shrunk by its sampling error ([`shrunk_mean`]). u is e
 /// times the bin's tail shape, its split-conformal quantile of |r| at level (k + ½)·0.95/k over
 /// 2·rms(r) (≈ 1 for Gaussian residuals, more for heavy tails; the curves' band reads the same
 /// quantile). Then non-decreasing in d. Empty without residuals.
-pub fn u_at_distances_denoised(dist: &[f64], held: &[HeldOut], folds: usize) -> Vec<f64> {
-    u_at_distances_denoised_in(dist, held, folds, None)
-}
-
-/// [`u_at_distances_denoised`] with the excess over the noise floor varying over the plane: each
+///
+/// With `cells`, the excess over the noise floor varies over the plane: each
 /// held-out sample's excess (r² less its bin's noise share, refit and floor) is summed per cell;
 /// a cell's excess is its 3 × 3 block's mean, shrunk by its sampling error as the bins' are,
 /// over the whole map's (shrunk alike); at a grid point u² = u_floor(d)² + (u(d)² − u_floor(d)²)
 /// × that ratio of its cell. A map whose excess is within the noise as a whole (the rough stage)
-/// keeps [`u_at_distances_denoised`]'s band.
-pub fn u_at_distances_denoised_in(
+/// keeps the band of the distance alone.
+pub fn u_at_distances_denoised(
     dist: &[f64],
     held: &[HeldOut],
     folds: usize,
@@ -333,25 +331,19 @@ pub fn u_at_distances_denoised_in(
         // (1 − se²/excess²)₊, which keeps an excess many se wide (a bump the model cannot hold:
         // 10⁻⁴ against se 10⁻⁵) and drops one within the noise.
         let scale = if dof > 0.0 { k / dof } else { 0.0 };
-        let t: Vec<f64> = part
+        // Per sample: r² less its share of the noise, the refit and the floor (their mean is
+        // ms − σ² − refit − floor).
+        let excess: Vec<f64> = part
             .iter()
-            .map(|p| p.r * p.r - p.noise * p.noise * scale)
+            .map(|p| p.r * p.r - p.noise * p.noise * scale - refit - floor)
             .collect();
-        let mean_t = t.iter().sum::<f64>() / k;
-        let se2 = t.iter().map(|v| (v - mean_t).powi(2)).sum::<f64>() / (k - 1.0).max(1.0) / k;
-        let excess = ms - sigma2 - refit - floor;
-        let shrunk = if excess > 0.0 {
-            excess * (1.0 - se2 / (excess * excess)).max(0.0)
-        } else {
-            0.0
-        };
-        let e2 = floor + shrunk;
-        per_sample.extend(
-            part.iter()
-                .zip(&t)
-                .map(|(p, &v)| (p.cell, v - refit - floor)),
-        );
-        u_floor.push(shape_of(part, ms, k) * floor.sqrt());
+        let e2 = floor
+            + shrunk_mean(
+                excess.iter().sum(),
+                excess.iter().map(|v| v * v).sum(),
+                part.len(),
+            );
+        per_sample.extend(part.iter().map(|p| p.cell).zip(excess));
         let mut r: Vec<f64> = part.iter().map(|p| p.r.abs()).collect();
         r.sort_by(f64::total_cmp);
         let shape = if ms > 0.0 {
@@ -359,6 +351,7 @@ pub fn u_at_distances_denoised_in(
         } else {
             1.0
         };
+        u_floor.push(shape * floor.sqrt());
         d.push(part.iter().map(|p| p.d).sum::<f64>() / k);
         u.push(shape * e2.sqrt());
         w.push(k);
@@ -387,13 +380,20 @@ pub fn u_at_distances_denoised_in(
         .collect()
 }
 
-fn shape_of(part: &[HeldOut], ms: f64, k: f64) -> f64 {
-    let mut r: Vec<f64> = part.iter().map(|p| p.r.abs()).collect();
-    r.sort_by(f64::total_cmp);
-    if ms > 0.0 {
-        quantile(&r, conformal_level(k)) / 2.0 / ms.sqrt()
+/// The mean of k values from their sum and sum of squares, shrunk by its sampling error: its
+/// positive-part James–Stein factor (1 − se²/mean²)₊, se² their variance over k. A mean many se
+/// above zero is kept, one within its noise is dropped; a negative one is 0.
+fn shrunk_mean(sum: f64, sum_sq: f64, k: usize) -> f64 {
+    if k < 2 {
+        return 0.0;
+    }
+    let kf = k as f64;
+    let mean = sum / kf;
+    let se2 = ((sum_sq / kf - mean * mean) * kf / (kf - 1.0)).max(0.0) / kf;
+    if mean > 0.0 {
+        mean * (1.0 - se2 / (mean * mean)).max(0.0)
     } else {
-        1.0
+        0.0
     }
 }
 
@@ -415,20 +415,7 @@ fn local_excess(c: &Cells<'_>, per_sample: &[(usize, f64)]) -> Option<Vec<f64>> 
             cnt[cell] += 1;
         }
     }
-    let shrink = |s: f64, q: f64, k: usize| -> f64 {
-        if k < 2 {
-            return 0.0;
-        }
-        let kf = k as f64;
-        let mean = s / kf;
-        let se2 = ((q / kf - mean * mean) * kf / (kf - 1.0)).max(0.0) / kf;
-        if mean > 0.0 {
-            mean * (1.0 - se2 / (mean * mean)).max(0.0)
-        } else {
-            0.0
-        }
-    };
-    let all = shrink(sum.iter().sum(), sq.iter().sum(), cnt.iter().sum());
+    let all = shrunk_mean(sum.iter().sum(), sq.iter().sum(), cnt.iter().sum());
     if all <= 0.0 {
         return None;
     }
@@ -447,7 +434,7 @@ fn local_excess(c: &Cells<'_>, per_sample: &[(usize, f64)]) -> Option<Vec<f64>> 
                         k += cnt[j];
                     }
                 }
-                (shrink(s, q, k) / all).max(MIN_CELL_SHARE)
+                (shrunk_mean(s, q, k) / all).max(MIN_CELL_SHARE)
             })
             .collect(),
     )
@@ -807,14 +794,14 @@ mod tests {
                 })
                 .collect()
         };
-        let u = u_at_distances_denoised(&[0.0, 50.0, 99.0], &held(0.004, &mut normal), 5);
+        let u = u_at_distances_denoised(&[0.0, 50.0, 99.0], &held(0.004, &mut normal), 5, None);
         // 0.004 (times the Gaussian tail shape, 0.98) in every bin.
         assert!(u.iter().all(|&u| (u / 0.004 - 1.0).abs() < 0.15), "{u:?}");
         // Noise only: the fit's own noise-induced variance, 0.01·√0.1, not zero.
-        let u = u_at_distances_denoised(&[0.0, 99.0], &held(0.0, &mut normal), 5);
+        let u = u_at_distances_denoised(&[0.0, 99.0], &held(0.0, &mut normal), 5, None);
         let floor = 0.01 * 0.1f64.sqrt();
         assert!(u.iter().all(|&u| (u / floor - 1.0).abs() < 0.15), "{u:?}");
-        assert!(u_at_distances_denoised(&[0.0], &[], 5).is_empty());
+        assert!(u_at_distances_denoised(&[0.0], &[], 5, None).is_empty());
     }
 
     #[test]
@@ -841,7 +828,7 @@ mod tests {
                     }
                 })
                 .collect();
-            let u = u_at_distances_denoised(&dist, &held, 5);
+            let u = u_at_distances_denoised(&dist, &held, 5, None);
             widest = u.iter().copied().fold(widest, f64::max);
         }
         // Widest 1.15 floors; 1.38 with the excess taken as it came.
@@ -874,8 +861,8 @@ mod tests {
             ny: 4,
             grid: &grid,
         };
-        let u = u_at_distances_denoised_in(&[50.0; 3], &held, 5, Some(&cells));
-        let flat = u_at_distances_denoised(&[50.0], &held, 5)[0];
+        let u = u_at_distances_denoised(&[50.0; 3], &held, 5, Some(&cells));
+        let flat = u_at_distances_denoised(&[50.0], &held, 5, None)[0];
         // By the distance alone: 0.03/4 (a sixteenth of the squared error) everywhere.
         assert!((flat / 0.0075 - 1.0).abs() < 0.2, "{flat}");
         // Cell 5 and the blocks it is in carry it (cell 0's block of 4 more than cell 5's of 9);

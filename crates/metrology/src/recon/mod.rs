@@ -225,7 +225,7 @@ pub fn reconstruct(
         u_max_um: None,
         cv_residuals: Vec::new(),
     };
-    // Held-out (distance to the nearest training sample, residual) pairs of the method used.
+    // Held-out residuals (with their distance to the nearest training sample) of the method used.
     let mut held: Vec<band::Residual> = Vec::new();
     // The model-choice variance at every grid point (`auto`; empty otherwise).
     let mut choice: Vec<f64> = Vec::new();
@@ -522,7 +522,7 @@ struct NormalEq {
     aty: nalgebra::DVector<f64>,
 }
 
-/// Held-out (distance to the nearest training sample µm, residual µm) pairs, fold by fold.
+/// Held-out residuals, fold by fold.
 type HeldOut = Vec<band::Residual>;
 
 /// Held-out residuals the band of `bp`/`bpdn` is calibrated on: folds are solved until this

@@ -260,13 +260,13 @@ fn bp_cv_error(g: &Grid2, s: &MapSamples, sigma: &[f64]) -> (f64, Vec<Vec<f64>>)
 /// map whose error is a bump the model cannot hold (tests/system/reconstruct2d_rough.rs).
 /// The excess over the fit's noise floor (its error beyond the noise it propagates) varies over
 /// the plane: a bump the model cannot hold is the map's error where it is and nowhere else. Its
-/// share per cell of ~200 held-out samples (with the 8 around it, shrunk by its sampling error)
-/// scales the band's excess there; before, the band depended on the distance to the samples
-/// only and spread the bump over the whole map (tests/system/reconstruct2d_rough.rs's second
-/// surface: coverage 0.935 / 0.934, sharpness 3.11 / 3.07 at 2 %; now 0.955 / 0.947, 2.58 / 2.57).
-/// For the other methods (linear interpolation passes
-/// through its samples, basis pursuit within ε of them: no in-sample residual tells the noise)
-/// `noise[c]` is taken out of the quantile as the curves' band does.
+/// share per cell of ~200 held-out samples (with the 8 around it, shrunk by its sampling error,
+/// at least a tenth) scales the band's excess there; before, the band depended on the distance
+/// to the samples only and spread the bump over the whole map
+/// (tests/system/reconstruct2d_rough.rs's second surface: coverage 0.935 / 0.934, sharpness 3.11 / 3.07 at 2 %; now 0.957 / 0.954,
+/// 2.65 / 2.63). For the other methods (linear interpolation passes through its samples, basis
+/// pursuit within ε of them: no in-sample residual tells the noise) `noise[c]` is taken out of
+/// the quantile as the curves' band does.
 fn map_band(
     g: &Grid2,
     s: &MapSamples,
@@ -293,16 +293,18 @@ fn map_band(
     }
     let all = nearest_sample_distance(g, &s.ix, &s.iy);
     // Cells of ~200 held-out samples over the plane, square-ish in µm, for the excess over the
-    // noise floor varying over it (`band::u_at_distances_denoised_in`).
+    // noise floor varying over it (`band::u_at_distances_denoised`; the physics model's only).
     let (wx, wy) = (g.x.step_um * g.x.n as f64, g.y.step_um * g.y.n as f64);
     let want = (m / 200).max(1) as f64;
     let cx = ((want * wx / wy).sqrt().round() as usize).clamp(1, g.x.n);
     let cy = ((want / cx as f64).round() as usize).clamp(1, g.y.n);
     let cell_of = |i: usize, j: usize| (j * cy / g.y.n) * cx + i * cx / g.x.n;
-    let grid_cell: Vec<usize> = (0..g.y.n)
-        .flat_map(|j| (0..g.x.n).map(move |i| (i, j)))
-        .map(|(i, j)| cell_of(i, j))
-        .collect();
+    let grid_cell: Vec<usize> = match reference {
+        Some(_) => (0..g.y.n)
+            .flat_map(|j| (0..g.x.n).map(move |i| cell_of(i, j)))
+            .collect(),
+        None => Vec::new(),
+    };
     let cells = crate::recon::band::Cells {
         nx: cx,
         ny: cy,
@@ -322,7 +324,7 @@ fn map_band(
                         cell: cell_of(s.ix[k], s.iy[k]),
                     })
                     .collect();
-                crate::recon::band::u_at_distances_denoised_in(&all, &h, CV_FOLDS, Some(&cells))
+                crate::recon::band::u_at_distances_denoised(&all, &h, CV_FOLDS, Some(&cells))
             }
             None => {
                 let cv: Vec<(f64, f64)> = held.map(|k| (dist[k], pred[c][k] - value[k])).collect();
