@@ -50,6 +50,7 @@ mod recon_band;
 mod recon_bpdn;
 mod recon_periods;
 mod recon_real;
+mod reconstruct2d_band_variants;
 mod reconstruct2d_input;
 mod reconstruct2d_maps;
 mod reconstruct2d_rough;
