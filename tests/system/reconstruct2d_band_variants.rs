@@ -123,21 +123,15 @@ impl Third {
 
     fn draw(&self, g: &Grid2, frac: f64, seed: u64) -> MapSamples {
         let mut r = Xs::new(seed ^ 0x7419_0d00);
-        let n = g.len();
-        let m = (frac * n as f64).round() as usize;
-        let mut idx: Vec<usize> = (0..n).collect();
-        let mut s = MapSamples::default();
-        for i in 0..m {
-            let j = (i + (r.unit() * (n - i) as f64) as usize).min(n - 1);
-            idx.swap(i, j);
-            let (ix, iy) = (idx[i] % g.x.n, idx[i] / g.x.n);
-            let (ex, ey, _) = self.truth(g.x.position(ix), g.y.position(iy));
-            s.ix.push(ix);
-            s.iy.push(iy);
-            s.ex.push(ex + self.noise_um * r.normal());
-            s.ey.push(ey + self.noise_um * r.normal());
-        }
-        s
+        crate::reconstruct2d_rough::draw_map(
+            &mut r,
+            Xs::unit,
+            Xs::normal,
+            g,
+            frac,
+            self.noise_um,
+            |x, y| self.truth(x, y),
+        )
     }
 }
 

@@ -504,19 +504,42 @@ mod surface {
 /// the surface module's own RNG.
 fn draw_surface(f: &surface::Surface, g: &Grid2, frac: f64, seed: u64) -> MapSamples {
     let mut r = surface::Pcg::new(seed ^ 0xd1ce);
+    draw_map(
+        &mut r,
+        surface::Pcg::unit,
+        surface::Pcg::normal,
+        g,
+        frac,
+        0.01,
+        |x, y| f.truth(x, y),
+    )
+}
+
+/// m = frac · grid points, distinct, at random (partial Fisher–Yates), each component of
+/// `truth` with Gaussian noise `noise_um`: every draw from `unit` and `normal` of the one
+/// generator `r` (each test surface brings its own).
+pub(crate) fn draw_map<R>(
+    r: &mut R,
+    unit: fn(&mut R) -> f64,
+    normal: fn(&mut R) -> f64,
+    g: &Grid2,
+    frac: f64,
+    noise_um: f64,
+    truth: impl Fn(f64, f64) -> (f64, f64, f64),
+) -> MapSamples {
     let n = g.len();
     let m = (frac * n as f64).round() as usize;
     let mut idx: Vec<usize> = (0..n).collect();
     let mut s = MapSamples::default();
     for i in 0..m {
-        let j = (i + (r.unit() * (n - i) as f64) as usize).min(n - 1);
+        let j = (i + (unit(r) * (n - i) as f64) as usize).min(n - 1);
         idx.swap(i, j);
         let (ix, iy) = (idx[i] % g.x.n, idx[i] / g.x.n);
-        let (ex, ey, _) = f.truth(g.x.position(ix), g.y.position(iy));
+        let (ex, ey, _) = truth(g.x.position(ix), g.y.position(iy));
         s.ix.push(ix);
         s.iy.push(iy);
-        s.ex.push(ex + 0.01 * r.normal());
-        s.ey.push(ey + 0.01 * r.normal());
+        s.ex.push(ex + noise_um * normal(r));
+        s.ey.push(ey + noise_um * normal(r));
     }
     s
 }
