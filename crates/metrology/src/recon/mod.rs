@@ -291,7 +291,7 @@ pub fn reconstruct(
             let mut chosen = (Method::Physics, best_err);
             // Every method's held-out residuals (fold by fold, in the same order), for the
             // model-choice term of the band.
-            let mut residuals: Vec<(Method, f64, HeldOut)> = Vec::new();
+            let mut residuals: Vec<(Method, f64, FoldResiduals)> = Vec::new();
             if s.method == Method::Auto {
                 // bpdn is not a candidate yet: its solver takes ~0.5 s per solve at m = 100.
                 for base in [Method::Linear, Method::Pchip, Method::Bp] {
@@ -523,7 +523,7 @@ struct NormalEq {
 }
 
 /// Held-out residuals, fold by fold.
-type HeldOut = Vec<band::Residual>;
+type FoldResiduals = Vec<band::Residual>;
 
 /// Held-out residuals the band of `bp`/`bpdn` is calibrated on: folds are solved until this
 /// many are in (six bins of 100).
