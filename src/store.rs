@@ -519,6 +519,44 @@ impl Store {
         Ok(())
     }
 
+    /// [`Store::set_state`] only while the campaign is in `from` (one statement, so a state
+    /// another task sets in between is never overwritten): whether it was. The operator's pause
+    /// of a campaign whose session had just stored `done` turned it `paused` (the session leaves
+    /// the manager's table of running campaigns only after it stored its end).
+    pub fn set_state_from(
+        &self,
+        id: i64,
+        from: CampaignState,
+        state: CampaignState,
+        message: Option<&str>,
+    ) -> Result<bool, StoreError> {
+        let op = format!(
+            "set campaign {id} state from {} to {}",
+            from.as_str(),
+            state.as_str()
+        );
+        let n = self
+            .conn
+            .prepare_cached(
+                "UPDATE campaigns SET state = ?2, message = ?3, updated_unix_s = ?4 \
+                 WHERE id = ?1 AND state = ?5",
+            )
+            .and_then(|mut st| {
+                st.execute(params![
+                    id,
+                    state.as_str(),
+                    message,
+                    now_unix_s(),
+                    from.as_str()
+                ])
+            })
+            .map_err(|e| self.err(&op, e))?;
+        if n == 0 && self.campaign(id)?.is_none() {
+            return Err(self.unknown(&op, id));
+        }
+        Ok(n == 1)
+    }
+
     /// (stage, the other campaign running on it) for campaign `id`'s stage.
     fn running_on_stage_of(&self, id: i64) -> rusqlite::Result<Option<(String, i64)>> {
         self.conn

@@ -192,6 +192,30 @@ fn campaign_round_trip_and_states() {
         CampaignState::Queued
     );
 
+    // A conditional change leaves a campaign that has moved on as it is.
+    assert!(!store
+        .set_state_from(a, CampaignState::Running, CampaignState::Paused, Some("p"))
+        .unwrap());
+    assert_eq!(
+        store.campaign(a).unwrap().unwrap().state,
+        CampaignState::Done
+    );
+    store.set_state(a, CampaignState::Running, None).unwrap();
+    assert!(store
+        .set_state_from(a, CampaignState::Running, CampaignState::Paused, Some("p"))
+        .unwrap());
+    assert_eq!(
+        store.campaign(a).unwrap().unwrap().state,
+        CampaignState::Paused
+    );
+    assert!(matches!(
+        store
+            .set_state_from(999, CampaignState::Running, CampaignState::Paused, None)
+            .unwrap_err(),
+        StoreError::UnknownCampaign { .. }
+    ));
+    store.set_state(a, CampaignState::Done, None).unwrap();
+
     store.set_planned(a, 1234).unwrap();
     assert_eq!(store.campaign(a).unwrap().unwrap().planned, 1234);
 

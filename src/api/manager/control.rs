@@ -46,9 +46,20 @@ impl Manager {
                 drop(inner);
                 return Err(self.refuse(id, "pause"));
             }
+            // Its session may have stored its end already (it leaves `active` after that).
+            if !self.db(|s| {
+                s.set_state_from(
+                    id,
+                    CampaignState::Running,
+                    CampaignState::Paused,
+                    Some(&msg),
+                )
+            })? {
+                drop(inner);
+                return Err(self.refuse(id, "pause"));
+            }
             a.control.send_replace(Control::Pause);
             a.progress.pause(crate::store::now_unix_s());
-            self.db(|s| s.set_state(id, CampaignState::Paused, Some(&msg)))?;
         }
         self.emit_by_operator(id, "paused", origin);
         self.status(id)
@@ -80,13 +91,16 @@ impl Manager {
         let requeue_stage = {
             let mut inner = self.inner();
             if let Some(a) = inner.active(id) {
-                if *a.control.borrow() != Control::Pause {
+                if *a.control.borrow() != Control::Pause
+                    || !self.db(|s| {
+                        s.set_state_from(id, CampaignState::Paused, CampaignState::Running, None)
+                    })?
+                {
                     drop(inner);
                     return Err(self.refuse(id, "resume"));
                 }
                 a.control.send_replace(Control::Run);
                 a.progress.resume(crate::store::now_unix_s());
-                self.db(|s| s.set_state(id, CampaignState::Running, None))?;
                 drop(inner);
                 self.emit_by_operator(id, "resumed", origin);
                 return self.status(id);
