@@ -390,8 +390,14 @@ fn shrunk_mean(sum: f64, sum_sq: f64, k: usize) -> f64 {
     let kf = k as f64;
     let mean = sum / kf;
     let se2 = ((sum_sq / kf - mean * mean) * kf / (kf - 1.0)).max(0.0) / kf;
-    if mean > 0.0 {
-        mean * (1.0 - se2 / (mean * mean)).max(0.0)
+    shrunk(mean, se2)
+}
+
+/// A positive estimate with sampling variance `se2`, shrunk by its positive-part James–Stein
+/// factor (1 − se²/value²)₊; 0 when not positive.
+pub(crate) fn shrunk(value: f64, se2: f64) -> f64 {
+    if value > 0.0 {
+        value * (1.0 - se2 / (value * value)).max(0.0)
     } else {
         0.0
     }

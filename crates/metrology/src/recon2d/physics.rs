@@ -866,13 +866,8 @@ impl PhysicsFit {
                 // far below the noise: the rough stage at 0.5 % had a chance deficit of 0.20 on
                 // 89 pairs (1.3 se), and the 9 % of σ² a 1-se shrink kept took its e_x band from
                 // sharpness 2.72 to 3.77.
-                let deficit = 1.0 - pair / proxy;
-                let se2 = 2.25 * 2.0 / pairs.len() as f64;
-                let kept = if deficit > 0.0 {
-                    deficit * (1.0 - se2 / (deficit * deficit)).max(0.0)
-                } else {
-                    0.0
-                };
+                let kept =
+                    crate::recon::band::shrunk(1.0 - pair / proxy, 2.25 * 2.0 / pairs.len() as f64);
                 let f = (1.0 - kept).sqrt();
                 noise[c].iter_mut().for_each(|v| *v *= f);
             }
