@@ -490,30 +490,7 @@ impl Store {
         message: Option<&str>,
     ) -> Result<(), StoreError> {
         let op = format!("set campaign {id} state to {}", state.as_str());
-        let n = self
-            .conn
-            .prepare_cached(
-                "UPDATE campaigns SET state = ?2, message = ?3, updated_unix_s = ?4 WHERE id = ?1",
-            )
-            .and_then(|mut st| st.execute(params![id, state.as_str(), message, now_unix_s()]))
-            .map_err(|e| match &e {
-                rusqlite::Error::SqliteFailure(f, _)
-                    if f.code == ErrorCode::ConstraintViolation
-                        && state == CampaignState::Running =>
-                {
-                    match self.running_on_stage_of(id) {
-                        Ok(Some((stage, running))) => StoreError::StageBusy {
-                            path: self.shown(),
-                            op: op.clone(),
-                            stage,
-                            running,
-                        },
-                        _ => self.err(&op, e),
-                    }
-                }
-                _ => self.err(&op, e),
-            })?;
-        if n == 0 {
+        if self.update_state(&op, id, None, state, message)? == 0 {
             return Err(self.unknown(&op, id));
         }
         Ok(())
@@ -535,11 +512,27 @@ impl Store {
             from.as_str(),
             state.as_str()
         );
-        let n = self
-            .conn
+        let n = self.update_state(&op, id, Some(from), state, message)?;
+        if n == 0 && self.campaign(id)?.is_none() {
+            return Err(self.unknown(&op, id));
+        }
+        Ok(n == 1)
+    }
+
+    /// The UPDATE of [`Store::set_state`] and [`Store::set_state_from`] (`from`: only in that
+    /// state): the rows changed.
+    fn update_state(
+        &self,
+        op: &str,
+        id: i64,
+        from: Option<CampaignState>,
+        state: CampaignState,
+        message: Option<&str>,
+    ) -> Result<usize, StoreError> {
+        self.conn
             .prepare_cached(
                 "UPDATE campaigns SET state = ?2, message = ?3, updated_unix_s = ?4 \
-                 WHERE id = ?1 AND state = ?5",
+                 WHERE id = ?1 AND (?5 IS NULL OR state = ?5)",
             )
             .and_then(|mut st| {
                 st.execute(params![
@@ -547,14 +540,26 @@ impl Store {
                     state.as_str(),
                     message,
                     now_unix_s(),
-                    from.as_str()
+                    from.map(CampaignState::as_str)
                 ])
             })
-            .map_err(|e| self.err(&op, e))?;
-        if n == 0 && self.campaign(id)?.is_none() {
-            return Err(self.unknown(&op, id));
-        }
-        Ok(n == 1)
+            .map_err(|e| match &e {
+                rusqlite::Error::SqliteFailure(f, _)
+                    if f.code == ErrorCode::ConstraintViolation
+                        && state == CampaignState::Running =>
+                {
+                    match self.running_on_stage_of(id) {
+                        Ok(Some((stage, running))) => StoreError::StageBusy {
+                            path: self.shown(),
+                            op: op.to_string(),
+                            stage,
+                            running,
+                        },
+                        _ => self.err(op, e),
+                    }
+                }
+                _ => self.err(op, e),
+            })
     }
 
     /// (stage, the other campaign running on it) for campaign `id`'s stage.
