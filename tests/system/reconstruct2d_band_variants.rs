@@ -135,29 +135,6 @@ impl Third {
     }
 }
 
-/// Coverage (share with |map − truth| ≤ 2u), sharpness (mean 2u / mean |map − truth|) and mean
-/// |map − truth| of e_x and e_y.
-fn figures(f: &Third, g: &Grid2, map: [&[f64]; 4]) -> [(f64, f64, f64); 2] {
-    let [ex, ey, ux, uy] = map;
-    let mut out = [(0.0, 0.0, 0.0); 2];
-    for (c, (v, u)) in [(ex, ux), (ey, uy)].into_iter().enumerate() {
-        let (mut inside, mut err, mut band) = (0usize, 0.0, 0.0);
-        for j in 0..g.y.n {
-            for i in 0..g.x.n {
-                let t = f.truth(g.x.position(i), g.y.position(j));
-                let k = j * g.x.n + i;
-                let e = (v[k] - if c == 0 { t.0 } else { t.1 }).abs();
-                inside += usize::from(e <= 2.0 * u[k]);
-                err += e;
-                band += 2.0 * u[k];
-            }
-        }
-        let n = g.len() as f64;
-        out[c] = (inside as f64 / n, band / err, err / n);
-    }
-    out
-}
-
 #[test]
 fn maps_band_holds_on_a_third_surface_it_was_not_tuned_on() {
     let g = Grid2::new(
@@ -170,7 +147,11 @@ fn maps_band_holds_on_a_third_surface_it_was_not_tuned_on() {
         let f = Third::new(seed, 4000.0, 3000.0);
         let s = f.draw(&g, frac, seed);
         let (map, r) = recon2d::reconstruct(&g, &s, Method2::Auto).unwrap();
-        let figs = figures(&f, &g, [&map.ex, &map.ey, &map.u_ex, &map.u_ey]);
+        let figs = crate::reconstruct2d_rough::band_figures_of(
+            |x, y| f.truth(x, y),
+            &g,
+            [&map.ex, &map.ey, &map.u_ex, &map.u_ey],
+        );
         for (what, (cover, sharp, err)) in ["e_x", "e_y"].into_iter().zip(figs) {
             eprintln!(
                 "third surface {:.1} % seed {seed} ({}, m {}): {what} mean error {err:.4} µm, \
