@@ -393,7 +393,7 @@ pub fn reconstruct(
         .zip(&samples.values)
         .filter_map(|(&i, &y)| out.values.get(i).map(|g| g - y))
         .collect();
-    out.u_um = band::pointwise_u(&positions, &at, &misfit, &held, s.noise_um);
+    out.u_um = band::pointwise_u(&positions, &at, &samples.values, &misfit, &held, s.noise_um);
     if choice.len() == out.u_um.len() {
         for (u, v) in out.u_um.iter_mut().zip(&choice) {
             *u = (*u * *u + v).sqrt();
@@ -644,7 +644,31 @@ impl<'a> CrossValidation<'a> {
             d: self.held_distance(ti, r),
             r: e,
             x: self.grid.position(self.samples.idx[r]),
+            gap: self.held_gap(ti, r),
         }
+    }
+
+    /// [`band::gap_departure`] of the gap of the training grid indices `ti` (ascending) that
+    /// holds held-out sample `r`.
+    fn held_gap(&self, ti: &[usize], r: usize) -> f64 {
+        let n = ti.len();
+        if n < 3 {
+            return f64::NAN;
+        }
+        let i = ti
+            .partition_point(|&q| q < self.samples.idx[r])
+            .clamp(1, n - 1);
+        let at = |k: usize| {
+            let g = ti[k];
+            let row = self.samples.idx.partition_point(|&q| q < g);
+            (self.grid.position(g), self.samples.values[row])
+        };
+        band::gap_departure(
+            (i >= 2).then(|| at(i - 2)),
+            at(i - 1),
+            at(i),
+            (i + 1 < n).then(|| at(i + 1)),
+        )
     }
 
     fn score_interp(&self, method: Method, mut sink: Option<&mut Vec<band::Residual>>) -> f64 {
