@@ -68,9 +68,9 @@ def curve(family, r):
     raise ValueError(family)
 
 
-def run(binary, family, m, seed, noise, tmp):
-    r = np.random.Generator(np.random.PCG64(1000 * seed + 10 * FAMILIES.index(family) + m))
-    truth = curve(family, r)
+def score(binary, truth, r, m, noise, tmp):
+    """Sample `truth` at m random grid points with noise σ (from `r`), reconstruct with csmetro's
+    `auto`, and return (coverage, sharpness) of its band."""
     idx = np.sort(r.choice(N, m, replace=False))
     y = truth[idx] + noise * r.normal(size=m)
     src, out = os.path.join(tmp, "s.csv"), os.path.join(tmp, "o.csv")
@@ -85,13 +85,19 @@ def run(binary, family, m, seed, noise, tmp):
     return float(np.mean(err <= 2 * u)), float(2 * u.mean() / err.mean())
 
 
-def main():
-    a = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def run(binary, family, m, seed, noise, tmp):
+    r = np.random.Generator(np.random.PCG64(1000 * seed + 10 * FAMILIES.index(family) + m))
+    return score(binary, curve(family, r), r, m, noise, tmp)
+
+
+def main(families=FAMILIES, run=run, doc=__doc__):
+    """The table over `families`, each (family, m, seed) scored by `run`."""
+    a = argparse.ArgumentParser(description=doc.splitlines()[0])
     a.add_argument("--csmetro", default="target/release/csmetro")
     a.add_argument("--seeds", type=int, default=5)
     a.add_argument("--m", default="100,300,600")
     a.add_argument("--noise-um", type=float, default=0.01)
-    a.add_argument("--families", default=",".join(FAMILIES))
+    a.add_argument("--families", default=",".join(families))
     a.add_argument("--json", help="write the rows here as JSON")
     args = a.parse_args()
     rows = []
