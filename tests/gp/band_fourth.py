@@ -23,7 +23,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from band_variants import N, SPAN, X, main, score  # noqa: E402
+from band_variants import N, SPAN, X, bumps, main, score  # noqa: E402
 
 FAMILIES = ["stair", "triangle", "clipped", "stickslip", "spikes", "kinks", "reversal", "envelope"]
 
@@ -52,11 +52,7 @@ def curve(family, r):
             x0 += length
         return y
     if family == "spikes":
-        y = 0.4 * np.sin(2 * np.pi * X / r.uniform(400, 1200))
-        for _ in range(12):
-            c, w = r.uniform(0, SPAN), r.uniform(5, 10)
-            y += r.choice([-1, 1]) * r.uniform(0.1, 0.4) * np.exp(-(((X - c) / w) ** 2))
-        return y
+        return bumps(0.4 * np.sin(2 * np.pi * X / r.uniform(400, 1200)), r, 12, (5, 10), (0.1, 0.4))
     if family == "kinks":
         knots = np.sort(np.concatenate([[0, SPAN], r.uniform(0, SPAN, 15)]))
         return np.interp(X, knots, r.normal(0, 0.4, knots.size))

@@ -29,6 +29,14 @@ SPAN = X[-1]
 FAMILIES = ["sawtooth", "beat", "ends", "square", "walk", "defects", "harmonics", "quiet"]
 
 
+def bumps(y, r, count, width, height):
+    """`y` with `count` Gaussian bumps of random sign, width (µm) and height (µm) in the ranges."""
+    for _ in range(count):
+        c, w = r.uniform(0, SPAN), r.uniform(*width)
+        y = y + r.choice([-1, 1]) * r.uniform(*height) * np.exp(-(((X - c) / w) ** 2))
+    return y
+
+
 def curve(family, r):
     """A truth on the grid (µm)."""
     if family == "sawtooth":
@@ -53,11 +61,7 @@ def curve(family, r):
         w -= np.linspace(w[0], w[-1], N)
         return w + 0.5 * np.sin(2 * np.pi * X / r.uniform(200, 700))
     if family == "defects":
-        y = 0.8 * np.sin(2 * np.pi * X / r.uniform(250, 900))
-        for _ in range(4):
-            c, w = r.uniform(0, SPAN), r.uniform(10, 20)
-            y += r.choice([-1, 1]) * r.uniform(0.2, 0.5) * np.exp(-(((X - c) / w) ** 2))
-        return y
+        return bumps(0.8 * np.sin(2 * np.pi * X / r.uniform(250, 900)), r, 4, (10, 20), (0.2, 0.5))
     if family == "harmonics":
         p, y = r.uniform(300, 900), np.zeros(N)
         for k in range(1, 7):
