@@ -289,7 +289,13 @@ impl Manager {
         } else {
             (100.0 * stored as f64 / row.planned as f64).min(100.0)
         };
-        let progress = self.inner().active(row.id).map(|a| a.progress);
+        // Only a running or paused campaign has an elapsed time: the session stores its end
+        // before the manager takes it off its table, and a status read in between must not
+        // report a done campaign as still counting (seen once in CI).
+        let live = matches!(row.state, CampaignState::Running | CampaignState::Paused);
+        let progress = live
+            .then(|| self.inner().active(row.id).map(|a| a.progress))
+            .flatten();
         let (elapsed_s, eta_s) = match progress {
             Some(p) => {
                 let running = row.state == CampaignState::Running;
