@@ -116,15 +116,15 @@ pub fn pointwise_u(
     if sample_val.len() != sample_pos.len() || typical.len() < 2 * LOCAL_K_MIN {
         return all;
     }
-    let typical = quantile(&typical, 0.5);
-    if typical.is_nan() || typical <= 0.0 || sample_pos.len() < 3 {
-        return all;
-    }
-    let threshold = STEP_GAP * typical;
+    let threshold = STEP_GAP * quantile(&typical, 0.5);
     let gaps: Vec<f64> = grid_pos
         .iter()
         .map(|&p| gap_feature(sample_pos, sample_val, p))
         .collect();
+    // Without a step gap among the residuals or on the grid the step band is this one.
+    if threshold <= 0.0 || !typical.iter().chain(&gaps).any(|&g| g > threshold) {
+        return all;
+    }
     let ms = misfit.iter().map(|v| v * v).sum::<f64>() / misfit.len().max(1) as f64;
     let steps = Steps {
         through: misfit.is_empty() || ms.sqrt() <= THROUGH * noise_um,
@@ -163,13 +163,13 @@ const STEP_RESIDUALS: usize = 10;
 /// factor's complement.
 const GAP_GAIN: f64 = 0.95;
 
-/// [`pointwise_u`]'s band and its interval score on the
-/// held-out residuals (mean of 2·2u + (2/α)·miss, each residual against the band from the
-/// others about it). With `steps` (a departure threshold µm and the grid's departures), the
-/// residuals in gaps above it are left out of the calibration and the band in such a gap
-/// is at least half its departure: 2u covers a step anywhere in it, where the held-out
-/// residuals, at samples, read the interpolant's transition only part way (95 % of them
-/// within 0.70 of the departure against 1.0 for the grid's points, square wave m = 300).
+/// [`pointwise_u`]'s band and its interval score on the held-out residuals (mean of
+/// 2·2u + (2/α)·miss, each residual against the band from the others about it). With `steps`,
+/// the residuals in step gaps are left out of the calibration and 2u in a step gap of the grid
+/// is at least its departure for an interpolant — it covers a step anywhere in the gap, where
+/// the held-out residuals, at samples, read the transition only part way (95 % of them within
+/// 0.70 of the departure against 1.0 for the grid's points, square wave m = 300) — and the
+/// step residuals' conformal share of it for a model fit.
 fn band_with_gaps(
     dist: &[f64],
     grid_pos: &[f64],
@@ -284,12 +284,20 @@ pub fn gap_departure(
 /// [`gap_departure`] of the gap of the ascending `xs` (values `ys`) that holds `p` (the end gap
 /// beyond the ends; NaN with fewer than three samples).
 pub fn gap_feature(xs: &[f64], ys: &[f64], p: f64) -> f64 {
-    let n = xs.len();
-    if n < 3 || ys.len() != n {
+    if ys.len() != xs.len() {
         return f64::NAN;
     }
-    let i = xs.partition_point(|&q| q < p).clamp(1, n - 1);
-    let at = |k: usize| (xs[k], ys[k]);
+    gap_at(xs.len(), xs.partition_point(|&q| q < p), |k| (xs[k], ys[k]))
+}
+
+/// [`gap_departure`] of the gap before index `insert` (where a position would insert; the end
+/// gap beyond the ends) of `n` ascending samples, `at(k)` sample k's (position µm, value µm);
+/// NaN with fewer than three.
+pub fn gap_at(n: usize, insert: usize, at: impl Fn(usize) -> (f64, f64)) -> f64 {
+    if n < 3 {
+        return f64::NAN;
+    }
+    let i = insert.clamp(1, n - 1);
     gap_departure(
         (i >= 2).then(|| at(i - 2)),
         at(i - 1),

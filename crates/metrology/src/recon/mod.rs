@@ -651,24 +651,11 @@ impl<'a> CrossValidation<'a> {
     /// [`band::gap_departure`] of the gap of the training grid indices `ti` (ascending) that
     /// holds held-out sample `r`.
     fn held_gap(&self, ti: &[usize], r: usize) -> f64 {
-        let n = ti.len();
-        if n < 3 {
-            return f64::NAN;
-        }
-        let i = ti
-            .partition_point(|&q| q < self.samples.idx[r])
-            .clamp(1, n - 1);
-        let at = |k: usize| {
-            let g = ti[k];
-            let row = self.samples.idx.partition_point(|&q| q < g);
-            (self.grid.position(g), self.samples.values[row])
-        };
-        band::gap_departure(
-            (i >= 2).then(|| at(i - 2)),
-            at(i - 1),
-            at(i),
-            (i + 1 < n).then(|| at(i + 1)),
-        )
+        let insert = ti.partition_point(|&q| q < self.samples.idx[r]);
+        band::gap_at(ti.len(), insert, |k| {
+            let row = self.samples.idx.partition_point(|&q| q < ti[k]);
+            (self.grid.position(ti[k]), self.samples.values[row])
+        })
     }
 
     fn score_interp(&self, method: Method, mut sink: Option<&mut Vec<band::Residual>>) -> f64 {
