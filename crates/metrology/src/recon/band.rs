@@ -9,7 +9,9 @@
 //! |residual| (a ±2u band covers 95 % of them even when the errors are heavy-tailed, which a
 //! Gaussian σ does not), u is made non-decreasing in d (pool adjacent violators), the sensor
 //! noise each held-out residual carries is taken out, and every grid point gets u at its own
-//! distance to the nearest sample of the whole design.
+//! distance to the nearest sample of the whole design. Neighbouring bins that hold more noise
+//! than curve error are read as one: taking σ out of a bin's quantile amplifies its sampling
+//! error, and where the curve's error is about σ a bin of 33 reads below the noise by chance.
 //!
 //! Two regimes are told apart:
 //! - off the samples (d > 0), the calibrated u(d) above. The bin's quantile is split-conformal
@@ -800,27 +802,70 @@ impl DistanceCurve {
 
 fn distance_curve(mut cv: Vec<(f64, f64)>, noise_um: f64) -> DistanceCurve {
     cv.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let bins: Vec<&[(f64, f64)]> = equal_bins(&cv).collect();
+    let raw: Vec<(f64, usize)> = bins.iter().map(|b| half_quantile(b.iter())).collect();
+    // A bin whose raw u is below √2 σ holds more noise than curve error: taking σ out more than
+    // doubles its quantile's sampling error (a bin of 33 reading 0.0095 µm under σ = 0.01 µm
+    // where the curve's error was 0.008: the band was its floor, a third). Such neighbours are
+    // pooled, one quantile from all their residuals.
+    let noisy = |b: usize| raw[b].0 * raw[b].0 < 2.0 * noise_um * noise_um;
     let (mut d, mut u, mut w) = (Vec::new(), Vec::new(), Vec::new());
-    for part in equal_bins(&cv) {
-        let mut r: Vec<f64> = part.iter().map(|p| p.1.abs()).collect();
-        r.sort_by(f64::total_cmp);
+    let mut b = 0;
+    while b < bins.len() {
+        let mut end = b + 1;
+        if noisy(b) {
+            while end < bins.len() && noisy(end) {
+                end += 1;
+            }
+        }
+        let (q, k) = if end > b + 1 {
+            half_quantile(bins[b..end].iter().flat_map(|part| part.iter()))
+        } else {
+            raw[b]
+        };
         // The held-out residual is (curve error − sensor noise).
-        let clean = denoise(
-            quantile(&r, conformal_level(r.len() as f64)) / 2.0,
-            noise_um,
-        );
-        d.push(part.iter().map(|p| p.0).sum::<f64>() / part.len() as f64);
-        u.push(clean);
-        w.push(part.len() as f64);
+        let clean = denoise(q, noise_um, conformal_level(k as f64));
+        for part in &bins[b..end] {
+            d.push(part.iter().map(|p| p.0).sum::<f64>() / part.len() as f64);
+            u.push(clean);
+            w.push(part.len() as f64);
+        }
+        b = end;
     }
     let u = non_decreasing(&u, &w);
     DistanceCurve { d, u }
 }
 
-/// A held-out residual's u `q` (µm) with the sensor noise σ taken out in quadrature, at least a
-/// third of it (a noise σ set too high must not zero the band).
-fn denoise(q: f64, noise_um: f64) -> f64 {
-    (q * q - noise_um * noise_um).max(q * q / 9.0).sqrt()
+/// Half the split-conformal 95 % quantile of the residuals' magnitudes, and their count.
+fn half_quantile<'a>(part: impl Iterator<Item = &'a (f64, f64)>) -> (f64, usize) {
+    let mut r: Vec<f64> = part.map(|p| p.1.abs()).collect();
+    r.sort_by(f64::total_cmp);
+    (quantile(&r, conformal_level(r.len() as f64)) / 2.0, r.len())
+}
+
+/// A held-out residuals' u `q` (µm, half their quantile at `level`) with the sensor noise's
+/// share taken out in quadrature, at least a third of it (a noise σ set too high must not zero
+/// the band). The noise's share is half its own quantile at that level, not σ: for a Gaussian
+/// error and noise the halves add in quadrature (0.98 σ at 95 %, 1.05 σ at a bin of 33's
+/// 96.4 %). Taking σ instead took 4 % of σ² too much from a pooled bin, a quarter of the
+/// curve's share where its error is 0.4 σ (tests/gp/compare_gp.py's "two" at σ = 0.02 µm).
+fn denoise(q: f64, noise_um: f64, level: f64) -> f64 {
+    let n = noise_um * noise_quantile(level) / 2.0;
+    (q * q - n * n).max(q * q / 9.0).sqrt()
+}
+
+/// z with P(|N(0, 1)| ≤ z) = `level` (bisection on [`normal_cdf`]).
+fn noise_quantile(level: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0, 10.0);
+    for _ in 0..60 {
+        let z = 0.5 * (lo + hi);
+        if 2.0 * normal_cdf(z) - 1.0 < level {
+            lo = z;
+        } else {
+            hi = z;
+        }
+    }
+    0.5 * (lo + hi)
 }
 
 /// Equal-count bins of `v` (sorted by distance): about [`PER_BIN`] each, at most [`MAX_BINS`].
@@ -1039,9 +1084,46 @@ mod tests {
         );
         let cv: Vec<Residual> = (0..100).map(|i| res(i as f64, 0.2, i as f64)).collect();
         let u = pointwise_u(&[0.0], &[0.0], &[], &[], &cv, 0.06);
-        // q95 = 0.2 → 0.1, less 0.06 in quadrature: 0.08.
-        assert!((u[0] - 0.08).abs() < 1e-9, "{u:?}");
+        // Three bins of 33 (not noisy: 0.1 > √2 · 0.06): q95 = 0.2 → 0.1, less the noise's
+        // half quantile at a bin's level (96.4 %, z = 2.10: 1.05 σ) in quadrature: 0.0776.
+        let n = 0.06 * noise_quantile(conformal_level(33.0)) / 2.0;
+        assert!((n / 0.06 - 1.05).abs() < 0.01, "{n}");
+        assert!((u[0] - (0.01 - n * n).sqrt()).abs() < 1e-9, "{u:?}");
+        // At 95 % the noise's share is 0.98 σ.
+        assert!((noise_quantile(0.95) - 1.96).abs() < 1e-3);
         assert!(pointwise_u(&[0.0], &[0.0], &[], &[], &[], 0.0).is_empty());
+    }
+
+    #[test]
+    fn bins_with_more_noise_than_error_are_read_together() {
+        // Three bins of 33 under σ = 0.01 µm: the nearest reads 0.009 µm (below the noise, as a
+        // bin of a curve whose error is near σ can by chance), the next 0.013 (also below √2 σ),
+        // the farthest 0.03.
+        let bin = |d: f64, r: f64| (0..33).map(move |i| res(d, r, d + i as f64));
+        let cv: Vec<Residual> = bin(10.0, 0.018)
+            .chain(bin(50.0, 0.026))
+            .chain(bin(120.0, 0.06))
+            .collect();
+        let u = pointwise_u(&[10.0, 50.0, 120.0], &[0.0], &[], &[], &cv, 0.01);
+        // The first two are one quantile (0.013 µm of 66 residuals) less the noise's share at
+        // its level: 0.0082 µm, not the nearest bin's floor alone (a third of 0.009, 0.003 µm).
+        let less = |q: f64, k: f64| {
+            let n = 0.01 * noise_quantile(conformal_level(k)) / 2.0;
+            (q * q - n * n).sqrt()
+        };
+        let pooled = less(0.013, 66.0);
+        assert!((pooled - 0.0082).abs() < 1e-4, "{pooled}");
+        assert!(
+            (u[0] - pooled).abs() < 1e-9 && (u[1] - pooled).abs() < 1e-9,
+            "{u:?}"
+        );
+        assert!((u[2] - less(0.03, 33.0)).abs() < 1e-9, "{u:?}");
+        // Without noise to take out each bin is its own.
+        let u = pointwise_u(&[10.0, 50.0], &[0.0], &[], &[], &cv, 0.0);
+        assert!(
+            (u[0] - 0.009).abs() < 1e-9 && (u[1] - 0.013).abs() < 1e-9,
+            "{u:?}"
+        );
     }
 
     #[test]
