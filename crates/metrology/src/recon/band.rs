@@ -24,8 +24,9 @@
 //!   for: (k + 1) widened the band on step-and-defect curves to 3.4 times their mean error;
 //! - at the samples themselves (d = 0: half the grid at m = 900 of 1,901) the curve is not
 //!   predicted but fitted, and no held-out residual is that close. Its error there is the
-//!   noise the fit kept, σ − rms(g − y) (σ for a curve through its samples), at least the
-//!   nearest bin's u and at most √(σ² + (q₉₅|g − y|/2)²) (see `at_samples`). Before, the
+//!   noise the fit kept and its bias, √(rms(g − y)² − σ² + 2σ² df/m) (Stein's unbiased risk
+//!   estimate; σ for a curve through its samples), at least the nearest bin's u and at most
+//!   √(σ² + (q₉₅|g − y|/2)²) (see `at_samples`). Before, the
 //!   grid's sample points took the first bin's u (held-out residuals
 //!   1–2 steps away, noise and all): 2–300 times the curve's actual miss there, which made the
 //!   band 3–4.5 times the mean error at m = 900 and on rough curves.
@@ -229,7 +230,8 @@ fn band_with_gaps(
             .sum();
         total / cv.len().max(1) as f64
     });
-    let at_sample = at_samples(misfit, noise_um, curve.u[0]);
+    let rms_r = (kept.iter().map(|c| c.r * c.r).sum::<f64>() / kept.len().max(1) as f64).sqrt();
+    let at_sample = at_samples(misfit, noise_um, curve.u[0], rms_r);
     // The noise the curve kept at its samples is between them too: with the weights (1 − t, t)
     // of two samples at least half its variance (below it, 0.899 of the third generator's
     // 0.02 µm cycle under 0.01 µm noise was covered at m = 100, 0.949 with it).
@@ -644,16 +646,21 @@ fn local_excess(c: &Cells<'_>, per_sample: &[(usize, f64)]) -> Option<Vec<f64>> 
 }
 
 /// u at the samples themselves. The curve's error there is its miss plus the sample's noise,
-/// g − f = (g − y) + n. For a linear smoother g = Hy without bias, E (g − y)² = σ²(1 − λ)² and the
-/// error's E (g − f)² = σ²λ² for a smoother of one effective weight λ on its own sample (a
-/// kriging or ridge fit shrinks each sample's noise by λ): u₀ = σ − rms(g − y), σ for a curve
-/// through its samples, ~0 for a fit that leaves the whole noise in its residuals. (σ² − E (g − y)²,
-/// exact for a projection, read 0.0173 µm on physics fits whose error at the samples was
-/// ~0.012 µm.) Kept between `near`, the nearest distance bin's u (what the sample points had
-/// before: capped there they were covered 0.76–0.83 of the time on physics fits, whose error at a
-/// sample is up to twice its error one step away), and the miss and the noise in quadrature,
-/// √(σ² + (q₉₅|g − y|/2)²), which bounds it whatever the fit.
-fn at_samples(misfit: &[f64], noise_um: f64, near: f64) -> Option<f64> {
+/// g − f = (g − y) + n. For a linear smoother g = Hy of bias b = (H − I)f, E |g − y|²/m = b² +
+/// σ² tr((I − H)²)/m and E |g − f|²/m = b² + σ² tr(H²)/m, so E (g − f)² = E (g − y)² − σ² +
+/// 2σ² tr(H)/m whatever the bias (Stein's unbiased risk estimate, Mallows' Cp): σ for a curve
+/// through its samples (tr H = m), σ √(df/m) for a projection on df terms. The share h =
+/// tr(H)/m is read from the held-out residuals: a held-out residual is its in-sample miss over
+/// (1 − H_ii), so h ≈ 1 − rms(g − y)/rms(r) (`rms_r` of the held-out residuals; folds that
+/// leave out more than one sample read it a little high, which widens u). Before, u₀ was
+/// σ − rms(g − y), exact only without bias: a physics fit that misses a modulation keeps its
+/// miss at its samples too (the fourth generator's envelope at m = 300, seed 3: u₀ 0.0026 µm
+/// against an error of 0.0078 µm there, 0.70 of the samples covered; now 0.0079 µm, 0.97).
+/// Kept between `near`, the nearest distance bin's u (capped there the sample points were
+/// covered 0.76–0.83 of the time on physics fits, whose error at a sample is up to twice its
+/// error one step away), and the miss and the noise in quadrature, √(σ² + (q₉₅|g − y|/2)²),
+/// which bounds it whatever the fit.
+fn at_samples(misfit: &[f64], noise_um: f64, near: f64, rms_r: f64) -> Option<f64> {
     let mut r: Vec<f64> = misfit
         .iter()
         .map(|v| v.abs())
@@ -664,9 +671,15 @@ fn at_samples(misfit: &[f64], noise_um: f64, near: f64) -> Option<f64> {
     }
     let ms = r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64;
     r.sort_by(f64::total_cmp);
+    let s2 = noise_um.max(0.0).powi(2);
     let hi = (quantile(&r, QUANTILE) / 2.0).hypot(noise_um.max(0.0));
     let lo = near.min(hi);
-    Some((noise_um.max(0.0) - ms.sqrt()).max(0.0).clamp(lo, hi))
+    let h = if rms_r > 0.0 {
+        (1.0 - ms.sqrt() / rms_r).clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    Some((ms - s2 + 2.0 * s2 * h).max(0.0).sqrt().clamp(lo, hi))
 }
 
 /// Weight of an alternative of `auto` in the model-choice term: the probability that it predicts
@@ -1140,19 +1153,39 @@ mod tests {
 
     #[test]
     fn a_smoothing_fit_keeps_part_of_the_noise_at_its_samples() {
-        // Held-out residuals within the noise: the nearest bin's u is a third of its quantile.
+        // A smoother of weight ½ on its own sample under σ = 0.03 µm: it misses its samples by
+        // half the noise, and a held-out sample (its miss over 1 − ½) by the whole of it. Those
+        // residuals are within the noise: the nearest bin's u is a third of its quantile.
         let cv: Vec<Residual> = (0..100)
-            .map(|i| res(5.0 + i as f64, 0.01, i as f64))
+            .map(|i| res(5.0 + i as f64, 0.03, i as f64))
             .collect();
-        // The fit misses its samples by half the noise: the other half is in the curve.
         let misfit: Vec<f64> = (0..40)
             .map(|i| if i % 2 == 0 { 0.015 } else { -0.015 })
             .collect();
         let u = pointwise_u(&[0.0, 5.0], &[0.0, 100.0], &[], &misfit, &cv, 0.03);
+        // The other half of the noise is in the curve: √(0.015² − σ² + 2σ² · ½) = 0.015.
         assert!((u[0] - 0.015).abs() < 1e-12, "{u:?}");
-        // Off them the calibrated band (a third of 0.005) is below the noise the curve kept:
+        // Off them the calibrated band (a third of 0.015) is below the noise the curve kept:
         // that noise, at least half its variance, is the band.
         assert!((u[1] - 0.015 / 2f64.sqrt()).abs() < 1e-12, "{u:?}");
+    }
+
+    #[test]
+    fn a_fit_that_misses_its_samples_by_more_than_the_noise_keeps_its_bias_there() {
+        // A fit of few terms (held-out residuals hardly above its misses: df/m ≈ 0.06) misses
+        // its samples by 0.0125 µm under σ = 0.01: 0.0075 of that is its bias, which it carries
+        // at the samples too. σ − rms(miss) would have read 0.
+        let cv: Vec<Residual> = (0..100)
+            .map(|i| res(5.0 + i as f64, 0.0133, i as f64))
+            .collect();
+        let misfit: Vec<f64> = (0..40)
+            .map(|i| if i % 2 == 0 { 0.0125 } else { -0.0125 })
+            .collect();
+        let u = pointwise_u(&[0.0], &[0.0, 100.0], &[], &misfit, &cv, 0.01);
+        let h = 1.0 - 0.0125 / 0.0133;
+        let sure = (0.0125f64.powi(2) - 1e-4 + 2e-4 * h).sqrt();
+        assert!((sure - 0.0083).abs() < 1e-4, "{sure}");
+        assert!((u[0] - sure).abs() < 1e-12, "{u:?}");
     }
 
     #[test]
