@@ -24,7 +24,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from band_variants import N, SPAN, X, main, score  # noqa: E402
+from band_variants import N, SPAN, X, main, runner  # noqa: E402
 
 FAMILIES = ["twoperiod", "thermal", "pink", "rounded", "amfm", "bow", "faint", "sinc"]
 
@@ -74,10 +74,5 @@ def curve(family, r):
     raise ValueError(family)
 
 
-def run(binary, family, m, seed, noise, tmp):
-    r = np.random.Generator(np.random.PCG64(104729 * seed + 977 * FAMILIES.index(family) + m))
-    return score(binary, curve(family, r), r, m, noise, tmp)
-
-
 if __name__ == "__main__":
-    sys.exit(main(FAMILIES, run, __doc__))
+    sys.exit(main(FAMILIES, runner(curve, FAMILIES, 104729, 977), __doc__))

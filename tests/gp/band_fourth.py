@@ -23,7 +23,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from band_variants import N, SPAN, X, bumps, main, score  # noqa: E402
+from band_variants import N, SPAN, X, bumps, main, runner  # noqa: E402
 
 FAMILIES = ["stair", "triangle", "clipped", "stickslip", "spikes", "kinks", "reversal", "envelope"]
 
@@ -68,10 +68,5 @@ def curve(family, r):
     raise ValueError(family)
 
 
-def run(binary, family, m, seed, noise, tmp):
-    r = np.random.Generator(np.random.PCG64(7919 * seed + 101 * FAMILIES.index(family) + m))
-    return score(binary, curve(family, r), r, m, noise, tmp)
-
-
 if __name__ == "__main__":
-    sys.exit(main(FAMILIES, run, __doc__))
+    sys.exit(main(FAMILIES, runner(curve, FAMILIES, 7919, 101), __doc__))

@@ -89,9 +89,20 @@ def score(binary, truth, r, m, noise, tmp):
     return float(np.mean(err <= 2 * u)), float(2 * u.mean() / err.mean())
 
 
-def run(binary, family, m, seed, noise, tmp):
-    r = np.random.Generator(np.random.PCG64(1000 * seed + 10 * FAMILIES.index(family) + m))
-    return score(binary, curve(family, r), r, m, noise, tmp)
+def runner(curve, families, per_seed, per_family):
+    """`run(binary, family, m, seed, noise, tmp)` scoring `curve` on draws seeded per (family, m,
+    seed) with PCG64(per_seed · seed + per_family · family's index + m)."""
+
+    def run(binary, family, m, seed, noise, tmp):
+        r = np.random.Generator(
+            np.random.PCG64(per_seed * seed + per_family * families.index(family) + m)
+        )
+        return score(binary, curve(family, r), r, m, noise, tmp)
+
+    return run
+
+
+run = runner(curve, FAMILIES, 1000, 10)
 
 
 def main(families=FAMILIES, run=run, doc=__doc__):
