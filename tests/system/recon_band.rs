@@ -14,35 +14,43 @@ fn band(family: &str, m_ref: usize, seeds: u64, method: Method) -> (f64, f64) {
     let (mut cover, mut sharp) = (0.0, 0.0);
     for seed in 0..seeds {
         let c = curves::family(family, seed).unwrap();
-        let grid = Grid::new(0.0, c.step_um, c.step_um * (c.n - 1) as f64).unwrap();
-        let m = curves::scaled_m(m_ref, c.n);
-        let idx = curves::pick(grid.n, m, 7919 * seed + m as u64);
-        let samples = GridSamples {
-            values: curves::sample(&c, &idx, seed ^ m as u64),
-            idx,
-        };
-        let s = ReconSettings {
-            method,
-            noise_um: c.noise_um,
-            ..Default::default()
-        };
-        let r = reconstruct(&grid, &samples, &s).unwrap();
-        assert_eq!(r.u_um.len(), c.n, "{family}: no band");
-        let err: Vec<f64> = r
-            .values
-            .iter()
-            .zip(&c.truth)
-            .map(|(g, f)| (g - f).abs())
-            .collect();
-        let inside = err
-            .iter()
-            .zip(&r.u_um)
-            .filter(|(e, u)| **e <= 2.0 * **u)
-            .count();
-        cover += inside as f64 / c.n as f64;
-        sharp += 2.0 * r.u_um.iter().sum::<f64>() / err.iter().sum::<f64>();
+        let (cv, sh) = band_on(&c, curves::scaled_m(m_ref, c.n), seed, method);
+        cover += cv;
+        sharp += sh;
     }
     (cover / seeds as f64, sharp / seeds as f64)
+}
+
+/// Coverage and sharpness of the band of `method` on `c` sampled at m random points.
+fn band_on(c: &curves::Curve, m: usize, seed: u64, method: Method) -> (f64, f64) {
+    let grid = Grid::new(0.0, c.step_um, c.step_um * (c.n - 1) as f64).unwrap();
+    let idx = curves::pick(grid.n, m, 7919 * seed + m as u64);
+    let samples = GridSamples {
+        values: curves::sample(c, &idx, seed ^ m as u64),
+        idx,
+    };
+    let s = ReconSettings {
+        method,
+        noise_um: c.noise_um,
+        ..Default::default()
+    };
+    let r = reconstruct(&grid, &samples, &s).unwrap();
+    assert_eq!(r.u_um.len(), c.n, "no band");
+    let err: Vec<f64> = r
+        .values
+        .iter()
+        .zip(&c.truth)
+        .map(|(g, f)| (g - f).abs())
+        .collect();
+    let inside = err
+        .iter()
+        .zip(&r.u_um)
+        .filter(|(e, u)| **e <= 2.0 * **u)
+        .count();
+    (
+        inside as f64 / c.n as f64,
+        2.0 * r.u_um.iter().sum::<f64>() / err.iter().sum::<f64>(),
+    )
 }
 
 #[test]
@@ -79,4 +87,61 @@ fn basis_pursuit_s_band_on_part_of_its_folds_still_covers() {
     eprintln!("bp, three folds of ten: coverage {cover:.3} sharpness {sharp:.2}");
     assert!((0.88..=0.995).contains(&cover), "coverage {cover}");
     assert!(sharp <= 4.0, "sharpness {sharp}");
+}
+
+#[test]
+fn the_band_covers_where_the_curves_error_is_about_the_noise() {
+    // Shapes a period model misses by about σ = 0.01 µm: a sine clipped at 60 % of its
+    // amplitude (the model rings on the flat tops; m = 300) and a sine with a backlash-like
+    // offset that flips sign at six reversals (m = 600: the steps' gaps are banded apart, and
+    // elsewhere the error is below σ). There the held-out residuals are mostly noise and the
+    // band rests on taking σ out of them. On these three seeds session 40's band covered as
+    // much (0.952 against 0.956 now, lowest 0.908 / 0.917): the unit tests in band.rs pin what
+    // changed (noisy bins read together, u at the samples with the fit's bias).
+    let n = 1901;
+    let x = |i: usize| 5.0 * i as f64;
+    let tau = std::f64::consts::TAU;
+    let (mut cover, mut sharp, mut k) = (0.0, 0.0, 0.0);
+    for seed in 0..3u64 {
+        let mut r = curves::Rng(0xC11F + seed);
+        let (a, p, phi) = (
+            0.4 + 0.6 * r.next(),
+            300.0 + 700.0 * r.next(),
+            tau * r.next(),
+        );
+        let clipped = (0..n)
+            .map(|i| (a * (tau * x(i) / p + phi).sin()).clamp(-0.6 * a, 0.6 * a))
+            .collect();
+        let (p, off) = (500.0 + 1000.0 * r.next(), 0.05 + 0.25 * r.next());
+        let mut flips: Vec<f64> = (0..6).map(|_| 9500.0 * r.next()).collect();
+        flips.sort_by(f64::total_cmp);
+        let reversal = (0..n)
+            .map(|i| {
+                let sign = if flips.iter().filter(|&&c| x(i) > c).count() % 2 == 0 {
+                    1.0
+                } else {
+                    -1.0
+                };
+                0.5 * (tau * x(i) / p).sin() + sign * off
+            })
+            .collect();
+        for (truth, m) in [(clipped, 300), (reversal, 600)] {
+            let c = curves::Curve {
+                n,
+                step_um: 5.0,
+                truth,
+                periods: Vec::new(),
+                noise_um: 0.01,
+            };
+            let (cv, sh) = band_on(&c, m, seed, Method::Auto);
+            eprintln!("seed {seed} m = {m}: coverage {cv:.3} sharpness {sh:.2}");
+            cover += cv;
+            sharp += sh;
+            k += 1.0;
+        }
+    }
+    let (cover, sharp) = (cover / k, sharp / k);
+    eprintln!("coverage {cover:.3} sharpness {sharp:.2}");
+    assert!((0.93..=0.98).contains(&cover), "coverage {cover}");
+    assert!(sharp <= 3.5, "sharpness {sharp}");
 }
