@@ -543,10 +543,8 @@ pub fn u_at_distances_denoised(
                 part.len(),
             );
         per_sample.extend(part.iter().map(|p| p.cell).zip(excess));
-        let mut r: Vec<f64> = part.iter().map(|p| p.r.abs()).collect();
-        r.sort_by(f64::total_cmp);
         let shape = if ms > 0.0 {
-            quantile(&r, conformal_level(k)) / 2.0 / ms.sqrt()
+            half_quantile(part.iter().map(|p| p.r)).0 / ms.sqrt()
         } else {
             1.0
         };
@@ -671,8 +669,9 @@ fn at_samples(misfit: &[f64], noise_um: f64, near: f64, rms_r: f64) -> Option<f6
     }
     let ms = r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64;
     r.sort_by(f64::total_cmp);
-    let s2 = noise_um.max(0.0).powi(2);
-    let hi = (quantile(&r, QUANTILE) / 2.0).hypot(noise_um.max(0.0));
+    let sigma = noise_um.max(0.0);
+    let s2 = sigma * sigma;
+    let hi = (quantile(&r, QUANTILE) / 2.0).hypot(sigma);
     let lo = near.min(hi);
     let h = if rms_r > 0.0 {
         (1.0 - ms.sqrt() / rms_r).clamp(0.0, 1.0)
@@ -816,42 +815,37 @@ impl DistanceCurve {
 fn distance_curve(mut cv: Vec<(f64, f64)>, noise_um: f64) -> DistanceCurve {
     cv.sort_by(|a, b| a.0.total_cmp(&b.0));
     let bins: Vec<&[(f64, f64)]> = equal_bins(&cv).collect();
-    let raw: Vec<(f64, usize)> = bins.iter().map(|b| half_quantile(b.iter())).collect();
+    let raw: Vec<(f64, usize)> = bins
+        .iter()
+        .map(|b| half_quantile(b.iter().map(|p| p.1)))
+        .collect();
     // A bin whose raw u is below √2 σ holds more noise than curve error: taking σ out more than
     // doubles its quantile's sampling error (a bin of 33 reading 0.0095 µm under σ = 0.01 µm
     // where the curve's error was 0.008: the band was its floor, a third). Such neighbours are
     // pooled, one quantile from all their residuals.
     let noisy = |b: usize| raw[b].0 * raw[b].0 < 2.0 * noise_um * noise_um;
+    let order: Vec<usize> = (0..bins.len()).collect();
     let (mut d, mut u, mut w) = (Vec::new(), Vec::new(), Vec::new());
-    let mut b = 0;
-    while b < bins.len() {
-        let mut end = b + 1;
-        if noisy(b) {
-            while end < bins.len() && noisy(end) {
-                end += 1;
-            }
-        }
-        let (q, k) = if end > b + 1 {
-            half_quantile(bins[b..end].iter().flat_map(|part| part.iter()))
-        } else {
-            raw[b]
+    for group in order.chunk_by(|&a, &b| noisy(a) && noisy(b)) {
+        let (q, k) = match group {
+            [b] => raw[*b],
+            _ => half_quantile(group.iter().flat_map(|&b| bins[b].iter().map(|p| p.1))),
         };
         // The held-out residual is (curve error − sensor noise).
         let clean = denoise(q, noise_um, conformal_level(k as f64));
-        for part in &bins[b..end] {
+        for part in group.iter().map(|&b| bins[b]) {
             d.push(part.iter().map(|p| p.0).sum::<f64>() / part.len() as f64);
             u.push(clean);
             w.push(part.len() as f64);
         }
-        b = end;
     }
     let u = non_decreasing(&u, &w);
     DistanceCurve { d, u }
 }
 
 /// Half the split-conformal 95 % quantile of the residuals' magnitudes, and their count.
-fn half_quantile<'a>(part: impl Iterator<Item = &'a (f64, f64)>) -> (f64, usize) {
-    let mut r: Vec<f64> = part.map(|p| p.1.abs()).collect();
+fn half_quantile(residuals: impl Iterator<Item = f64>) -> (f64, usize) {
+    let mut r: Vec<f64> = residuals.map(f64::abs).collect();
     r.sort_by(f64::total_cmp);
     (quantile(&r, conformal_level(r.len() as f64)) / 2.0, r.len())
 }
@@ -1009,9 +1003,7 @@ mod tests {
     fn between_the_samples_of_a_curve_through_them_the_band_keeps_half_the_noise() {
         // Held-out residuals within the noise (σ = 0.03): the calibrated band is the floor of
         // a third; a curve through its samples carries σ/√2 of their noise mid-gap.
-        let cv: Vec<Residual> = (0..100)
-            .map(|i| res(5.0 + i as f64, 0.03, i as f64))
-            .collect();
+        let cv = flat_cv(0.03);
         let u = pointwise_u(&[0.0, 50.0], &[0.0, 100.0], &[], &[0.0; 20], &cv, 0.03);
         assert!((u[1] - 0.03 / 2f64.sqrt()).abs() < 1e-12, "{u:?}");
     }
@@ -1044,6 +1036,16 @@ mod tests {
             let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
             (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
         }
+    }
+
+    /// 100 held-out residuals `r` (µm) at 5–104 µm from their fold's training samples.
+    fn flat_cv(r: f64) -> Vec<Residual> {
+        (0..100).map(|i| res(5.0 + i as f64, r, i as f64)).collect()
+    }
+
+    /// 40 misses of a curve at its samples, ±`v` (µm) alternately.
+    fn alternating(v: f64) -> Vec<f64> {
+        (0..40).map(|i| if i % 2 == 0 { v } else { -v }).collect()
     }
 
     fn res(d: f64, r: f64, x: f64) -> Residual {
@@ -1141,9 +1143,7 @@ mod tests {
 
     #[test]
     fn sample_points_take_the_curves_miss_and_the_noise() {
-        let cv: Vec<Residual> = (0..100)
-            .map(|i| res(5.0 + i as f64, 0.5, i as f64))
-            .collect();
+        let cv = flat_cv(0.5);
         let misfit = vec![0.0; 20];
         let u = pointwise_u(&[0.0, 5.0], &[0.0, 100.0], &[], &misfit, &cv, 0.03);
         // At the sample: σ (a curve through its samples); 5 µm off it the calibrated band.
@@ -1156,12 +1156,8 @@ mod tests {
         // A smoother of weight ½ on its own sample under σ = 0.03 µm: it misses its samples by
         // half the noise, and a held-out sample (its miss over 1 − ½) by the whole of it. Those
         // residuals are within the noise: the nearest bin's u is a third of its quantile.
-        let cv: Vec<Residual> = (0..100)
-            .map(|i| res(5.0 + i as f64, 0.03, i as f64))
-            .collect();
-        let misfit: Vec<f64> = (0..40)
-            .map(|i| if i % 2 == 0 { 0.015 } else { -0.015 })
-            .collect();
+        let cv = flat_cv(0.03);
+        let misfit = alternating(0.015);
         let u = pointwise_u(&[0.0, 5.0], &[0.0, 100.0], &[], &misfit, &cv, 0.03);
         // The other half of the noise is in the curve: √(0.015² − σ² + 2σ² · ½) = 0.015.
         assert!((u[0] - 0.015).abs() < 1e-12, "{u:?}");
@@ -1175,12 +1171,8 @@ mod tests {
         // A fit of few terms (held-out residuals hardly above its misses: df/m ≈ 0.06) misses
         // its samples by 0.0125 µm under σ = 0.01: 0.0075 of that is its bias, which it carries
         // at the samples too. σ − rms(miss) would have read 0.
-        let cv: Vec<Residual> = (0..100)
-            .map(|i| res(5.0 + i as f64, 0.0133, i as f64))
-            .collect();
-        let misfit: Vec<f64> = (0..40)
-            .map(|i| if i % 2 == 0 { 0.0125 } else { -0.0125 })
-            .collect();
+        let cv = flat_cv(0.0133);
+        let misfit = alternating(0.0125);
         let u = pointwise_u(&[0.0], &[0.0, 100.0], &[], &misfit, &cv, 0.01);
         let h = 1.0 - 0.0125 / 0.0133;
         let sure = (0.0125f64.powi(2) - 1e-4 + 2e-4 * h).sqrt();
