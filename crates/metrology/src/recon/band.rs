@@ -56,6 +56,14 @@
 //! Off the samples u is also at least 1/√2 of u at the samples: a curve carries the noise it
 //! kept at its samples between them too.
 //!
+//! Where the curve is linear in its samples and that map is known (the physics model: ridge
+//! least squares and the OU smoother, g = S y), the sensor noise's part of its error is not
+//! estimated but computed, σ²‖S_x‖² at every grid point ([`crate::recon::physics::noise_variance`]),
+//! and the held-out residuals are read for the bias alone (see [`Floor`]): u² = σ²‖S_x‖² + b².
+//! The floors that guarded the ill-conditioned noise subtraction (a third of the quantile, 1/√2
+//! of u at the samples) then go: where the model fits they held the band at about twice its
+//! error.
+//!
 //! Which candidate `auto` picked is itself uncertain when the candidates' cross-validated errors
 //! are close: [`choice_weight`] and [`choice_variance`] add the spread between the chosen curve
 //! and the close candidates' curves, weighted by how likely each is the better predictor.
@@ -89,7 +97,9 @@ pub struct Residual {
 /// `grid_pos` the grid's, `sample_val` the samples' values (µm; empty: the step gaps below are
 /// not looked for), `misfit` the curve's |g − y| at the samples (empty: not known, the
 /// sample points then take the off-sample u at distance 0), `cv` the held-out residuals,
-/// `noise_um` the sensor noise σ the residuals carry. Empty without residuals.
+/// `noise_um` the sensor noise σ the residuals carry, `noise_var` the variance that noise alone
+/// gives the curve at each grid point (µm², a method linear in its samples; empty: not known,
+/// see [`Floor`]). Empty without residuals.
 pub fn pointwise_u(
     grid_pos: &[f64],
     sample_pos: &[f64],
@@ -97,6 +107,7 @@ pub fn pointwise_u(
     misfit: &[f64],
     cv: &[Residual],
     noise_um: f64,
+    noise_var: &[f64],
 ) -> Vec<f64> {
     if sample_pos.is_empty() {
         return Vec::new();
@@ -110,7 +121,8 @@ pub fn pointwise_u(
         .iter()
         .map(|&p| nearest_distance(sample_pos, p))
         .collect();
-    let band = |steps| band_with_gaps(&dist, grid_pos, misfit, &cv, noise_um, steps);
+    let floor = Floor::new(noise_var, &dist);
+    let band = |steps| band_with_gaps(&dist, grid_pos, misfit, &cv, noise_um, &floor, steps);
     let (all, all_score) = band(None);
     // A gap whose jump departs from its neighbours' slopes by more than STEP_GAP times the
     // held-out residuals' median departure holds a step or a flank the samples bracket.
@@ -141,6 +153,94 @@ pub fn pointwise_u(
         all
     }
 }
+
+/// The noise's own part of the curve's error, where it is known. The held-out residuals'
+/// quantile less the noise's share is an ill-conditioned difference where the curve's error is
+/// below the noise: without more, the band keeps at least a third of the quantile there
+/// ([`DENOISE_FLOOR`]; a σ set too high must not zero it), and off the samples at least 1/√2 of
+/// u at them. Where a model fits, that was up to twice its error (tests/gp/band_fifth.py's two
+/// periods at m = 300, seed 1, σ = 0.01 µm: u 0.0048 µm off the samples against an rms error of
+/// 0.0028, 0.998 covered; σ‖S_x‖ there 0.0024).
+/// A curve linear in its samples (g = S y, the physics model) carries the noise's variance
+/// σ²‖S_x‖² at x, and its mean square error is that plus its bias². There u² = σ²‖S_x‖² + b²,
+/// and the held-out residuals are read for the bias alone: their quantile less the sensor's
+/// share and less their folds' own noise variance (the grid's at the same distance to the
+/// nearest sample; a fold's, from fewer samples, is a little more, so b is if anything
+/// overstated), at least 0 — σ²‖S_x‖² scales with σ, so a σ set too high does not zero the band.
+/// A bias below the residuals' sampling error can read 0 (a sine of half σ the model misses:
+/// tests/gp/band_fifth.py's faint sine at m = 100, one seed of five 0.69 covered); reading it
+/// as its flat-prior posterior mean or as at least one standard error kept more such seeds
+/// (lowest 0.83) but widened the curves a model fits by as much as the old floors (13–18 of 72
+/// family-m cells of the third to fifth generators over 0.98, against 8 with the floors and 3
+/// with this).
+struct Floor {
+    /// σ²‖S_x‖² at each grid point (µm²); empty: not known.
+    var: Vec<f64>,
+    /// The grid's mean of it by distance to the nearest sample (None: not known).
+    by_distance: Option<DistanceCurve>,
+}
+
+/// Distance bins of the grid's noise variance (see [`Floor`]).
+const VAR_BINS: usize = 20;
+
+impl Floor {
+    fn new(noise_var: &[f64], dist: &[f64]) -> Self {
+        let known = !noise_var.is_empty()
+            && noise_var.len() == dist.len()
+            && noise_var.iter().all(|v| v.is_finite() && *v >= 0.0);
+        if !known {
+            return Self {
+                var: Vec::new(),
+                by_distance: None,
+            };
+        }
+        let mut off: Vec<(f64, f64)> = dist
+            .iter()
+            .zip(noise_var)
+            .filter(|(d, _)| **d > 0.0)
+            .map(|(&d, &v)| (d, v))
+            .collect();
+        off.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let bins = VAR_BINS.min(off.len());
+        let (mut d, mut u) = (Vec::new(), Vec::new());
+        for b in 0..bins {
+            let part = &off[b * off.len() / bins..(b + 1) * off.len() / bins];
+            d.push(part.iter().map(|p| p.0).sum::<f64>() / part.len() as f64);
+            u.push(part.iter().map(|p| p.1).sum::<f64>() / part.len() as f64);
+        }
+        Self {
+            var: noise_var.to_vec(),
+            by_distance: (!d.is_empty()).then_some(DistanceCurve { d, u }),
+        }
+    }
+
+    fn known(&self) -> bool {
+        !self.var.is_empty()
+    }
+
+    /// The share of a bin's quantile its denoised u keeps at least.
+    fn share(&self) -> f64 {
+        if self.known() {
+            0.0
+        } else {
+            DENOISE_FLOOR
+        }
+    }
+
+    /// A held-out residual's own noise variance from its fold's fit at distance `d` (µm²).
+    fn fold_var(&self, d: f64) -> f64 {
+        self.by_distance.as_ref().map_or(0.0, |c| c.at(d).max(0.0))
+    }
+
+    /// u at grid point `i` from its bias part `b` (µm).
+    fn at(&self, i: usize, b: f64) -> f64 {
+        self.var.get(i).map_or(b, |&v| (b * b + v).sqrt())
+    }
+}
+
+/// The least share of a bin's quantile its denoised u keeps when the noise's variance along the
+/// curve is not known (see [`Floor`]).
+const DENOISE_FLOOR: f64 = 1.0 / 3.0;
 
 /// Where the steps are (see [`band_with_gaps`]).
 struct Steps<'a> {
@@ -179,20 +279,28 @@ fn band_with_gaps(
     misfit: &[f64],
     cv: &[Residual],
     noise_um: f64,
+    floor: &Floor,
     steps: Option<&Steps<'_>>,
 ) -> (Vec<f64>, f64) {
     let is_step = |c: &Residual| steps.is_some_and(|s| c.gap > s.threshold);
     let kept: Vec<Residual> = cv.iter().filter(|c| !is_step(c)).copied().collect();
     let local = LocalScale::new(&kept);
-    let pairs: Vec<(f64, f64)> = match &local {
-        Some(l) => kept
-            .iter()
-            .enumerate()
-            .map(|(k, c)| (c.d, c.r / l.left_out(k)))
-            .collect(),
-        None => kept.iter().map(|c| (c.d, c.r)).collect(),
-    };
-    let Some(curve) = DistanceCurve::calibrate(&pairs, noise_um) else {
+    // Each residual over its local scale, with the noise it carries on the same scale: the
+    // sensor's and, where known, its fold's own (taking σ itself out of r/l left the noise's
+    // E[1/l²] share in: ~7 % of σ² with windows of 12 noise-dominated residuals, which read as
+    // a curve error of a quarter of σ where a model fits).
+    let scale = |k: usize| local.as_ref().map_or(1.0, |l| l.left_out(k));
+    let scaled: Vec<(f64, f64, f64)> = kept
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let l2 = scale(k).powi(2);
+            let noise = noise_um * noise_um + floor.fold_var(c.d);
+            (c.d, c.r / scale(k), noise / l2)
+        })
+        .collect();
+    let pairs: Vec<(f64, f64)> = scaled.iter().map(|&(d, r, _)| (d, r)).collect();
+    let Some(curve) = DistanceCurve::calibrate_with(scaled, floor.share()) else {
         return (Vec::new(), f64::INFINITY);
     };
     // A fit that is not an interpolant places a step where its model does (a period's
@@ -213,7 +321,7 @@ fn band_with_gaps(
         }
         _ => 1.0,
     };
-    let score = DistanceCurve::calibrate(&pairs, 0.0).map_or(f64::INFINITY, |raw| {
+    let score = DistanceCurve::calibrate(&pairs, 0.0, DENOISE_FLOOR).map_or(f64::INFINITY, |raw| {
         let mut k = 0;
         let total: f64 = cv
             .iter()
@@ -235,7 +343,12 @@ fn band_with_gaps(
     // The noise the curve kept at its samples is between them too: with the weights (1 − t, t)
     // of two samples at least half its variance (below it, 0.899 of the third generator's
     // 0.02 µm cycle under 0.01 µm noise was covered at m = 100, 0.949 with it).
-    let floor = at_sample.unwrap_or(0.0) * std::f64::consts::FRAC_1_SQRT_2;
+    // (Where the noise's variance along the curve is known, it is that part exactly.)
+    let between = if floor.known() {
+        0.0
+    } else {
+        at_sample.unwrap_or(0.0) * std::f64::consts::FRAC_1_SQRT_2
+    };
     // The scale multiplies the band with the noise taken out (taking σ out of the scaled raw
     // figure instead made the band where the scale is below 1 its floor, a third: the step and
     // defect curve of tests/gp/compare_gp.py, seed 0, fell to 0.872 off its samples).
@@ -245,11 +358,12 @@ fn band_with_gaps(
         .enumerate()
         .map(|(i, (&p, &d))| {
             let base = match (at_sample, &local) {
-                (Some(u0), _) if d == 0.0 => return u0,
+                (Some(u0), _) if d == 0.0 => return u0.max(floor.at(i, 0.0)),
                 (_, Some(l)) => curve.at(d) * l.at(p),
                 _ => curve.at(d),
             }
-            .max(floor);
+            .max(between);
+            let base = floor.at(i, base);
             match steps {
                 Some(s) if s.grid_gap[i] > s.threshold => {
                     base.hypot(step_ratio * s.grid_gap[i] / 2.0)
@@ -340,7 +454,7 @@ impl LocalScale {
             return None;
         }
         let pairs: Vec<(f64, f64)> = cv.iter().map(|c| (c.d, c.r)).collect();
-        let raw = DistanceCurve::calibrate(&pairs, 0.0)?;
+        let raw = DistanceCurve::calibrate(&pairs, 0.0, DENOISE_FLOOR)?;
         let mut order: Vec<usize> = (0..cv.len()).collect();
         order.sort_by(|&a, &b| cv[a].x.total_cmp(&cv[b].x));
         let mut rank = vec![0; cv.len()];
@@ -429,7 +543,7 @@ impl LocalScale {
 /// band: no sample regime apart, the map's miss at its samples is not kept). Empty without
 /// residuals.
 pub fn u_at_distances(dist: &[f64], cv: &[(f64, f64)], noise_um: f64) -> Vec<f64> {
-    match DistanceCurve::calibrate(cv, noise_um) {
+    match DistanceCurve::calibrate(cv, noise_um, DENOISE_FLOOR) {
         Some(curve) => dist.iter().map(|&d| curve.at(d)).collect(),
         None => Vec::new(),
     }
@@ -802,19 +916,24 @@ impl DistanceCurve {
 
 impl DistanceCurve {
     /// From the finite (distance, residual) pairs; None with fewer than 2.
-    fn calibrate(cv: &[(f64, f64)], noise_um: f64) -> Option<Self> {
-        let cv: Vec<(f64, f64)> = cv
-            .iter()
-            .copied()
-            .filter(|(d, r)| d.is_finite() && r.is_finite())
-            .collect();
-        (cv.len() >= 2).then(|| distance_curve(cv, noise_um.max(0.0)))
+    /// `floor`: the least share of a bin's quantile kept when the noise is taken out.
+    fn calibrate(cv: &[(f64, f64)], noise_um: f64, floor: f64) -> Option<Self> {
+        let noise2 = noise_um.max(0.0).powi(2);
+        Self::calibrate_with(cv.iter().map(|&(d, r)| (d, r, noise2)).collect(), floor)
+    }
+
+    /// [`Self::calibrate`] from (distance, residual, the noise variance it carries, µm²): the
+    /// sensor's, and its fold's own where known (the curve is then the bias part alone, at
+    /// least 0 with `floor` 0, see [`Floor`]).
+    fn calibrate_with(mut cv: Vec<(f64, f64, f64)>, floor: f64) -> Option<Self> {
+        cv.retain(|(d, r, v)| d.is_finite() && r.is_finite() && v.is_finite() && *v >= 0.0);
+        (cv.len() >= 2).then(|| distance_curve(cv, floor))
     }
 }
 
-fn distance_curve(mut cv: Vec<(f64, f64)>, noise_um: f64) -> DistanceCurve {
+fn distance_curve(mut cv: Vec<(f64, f64, f64)>, floor: f64) -> DistanceCurve {
     cv.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let bins: Vec<&[(f64, f64)]> = equal_bins(&cv).collect();
+    let bins: Vec<&[(f64, f64, f64)]> = equal_bins(&cv).collect();
     let raw: Vec<(f64, usize)> = bins
         .iter()
         .map(|b| half_quantile(b.iter().map(|p| p.1)))
@@ -823,7 +942,8 @@ fn distance_curve(mut cv: Vec<(f64, f64)>, noise_um: f64) -> DistanceCurve {
     // doubles its quantile's sampling error (a bin of 33 reading 0.0095 µm under σ = 0.01 µm
     // where the curve's error was 0.008: the band was its floor, a third). Such neighbours are
     // pooled, one quantile from all their residuals.
-    let noisy = |b: usize| raw[b].0 * raw[b].0 < 2.0 * noise_um * noise_um;
+    let noise = |b: &[(f64, f64, f64)]| b.iter().map(|p| p.2).sum::<f64>() / b.len().max(1) as f64;
+    let noisy = |b: usize| raw[b].0 * raw[b].0 < 2.0 * noise(bins[b]);
     let order: Vec<usize> = (0..bins.len()).collect();
     let (mut d, mut u, mut w) = (Vec::new(), Vec::new(), Vec::new());
     for group in order.chunk_by(|&a, &b| noisy(a) && noisy(b)) {
@@ -831,8 +951,14 @@ fn distance_curve(mut cv: Vec<(f64, f64)>, noise_um: f64) -> DistanceCurve {
             [b] => raw[*b],
             _ => half_quantile(group.iter().flat_map(|&b| bins[b].iter().map(|p| p.1))),
         };
-        // The held-out residual is (curve error − sensor noise).
-        let clean = denoise(q, noise_um, conformal_level(k as f64));
+        // The held-out residual is (curve error − the noise it carries); with its fold's own
+        // noise known, the curve error's bias part.
+        let v = group
+            .iter()
+            .map(|&b| noise(bins[b]) * bins[b].len() as f64)
+            .sum::<f64>();
+        let sd = (v / k.max(1) as f64).sqrt();
+        let clean = denoise(q, sd, conformal_level(k as f64), floor);
         for part in group.iter().map(|&b| bins[b]) {
             d.push(part.iter().map(|p| p.0).sum::<f64>() / part.len() as f64);
             u.push(clean);
@@ -851,14 +977,14 @@ fn half_quantile(residuals: impl Iterator<Item = f64>) -> (f64, usize) {
 }
 
 /// A held-out residuals' u `q` (µm, half their quantile at `level`) with the sensor noise's
-/// share taken out in quadrature, at least a third of it (a noise σ set too high must not zero
-/// the band). The noise's share is half its own quantile at that level, not σ: for a Gaussian
+/// share taken out in quadrature, at least `floor` of it (see [`Floor`]). The noise's share
+/// is half its own quantile at that level, not σ: for a Gaussian
 /// error and noise the halves add in quadrature (0.98 σ at 95 %, 1.05 σ at a bin of 33's
 /// 96.4 %). Taking σ instead took 4 % of σ² too much from a pooled bin, a quarter of the
 /// curve's share where its error is 0.4 σ (tests/gp/compare_gp.py's "two" at σ = 0.02 µm).
-fn denoise(q: f64, noise_um: f64, level: f64) -> f64 {
+fn denoise(q: f64, noise_um: f64, level: f64, floor: f64) -> f64 {
     let n = noise_um * noise_quantile(level) / 2.0;
-    (q * q - n * n).max(q * q / 9.0).sqrt()
+    (q * q - n * n).max((q * floor).powi(2)).sqrt()
 }
 
 /// z with P(|N(0, 1)| ≤ z) = `level` (bisection on [`normal_cdf`]).
@@ -958,13 +1084,13 @@ mod tests {
             .collect();
         let grid = [1000.0, 2010.0, 3000.0];
         let misfit = vec![0.0; sample_pos.len()];
-        let u = pointwise_u(&grid, &sample_pos, &sample_val, &misfit, &cv, 0.01);
+        let u = pointwise_u(&grid, &sample_pos, &sample_val, &misfit, &cv, 0.01, &[]);
         // 2u covers the step anywhere in its gap; away from it the band is the noise's.
         assert!(2.0 * u[1] >= 1.0 - 0.03, "{u:?}");
         assert!(u[0] < 0.02 && u[2] < 0.02, "{u:?}");
         // Without the samples' values (no departure known) the two residuals widen the band
         // about the step by the local window instead, and it does not cover the step.
-        let plain = pointwise_u(&grid, &sample_pos, &[], &misfit, &cv, 0.01);
+        let plain = pointwise_u(&grid, &sample_pos, &[], &misfit, &cv, 0.01, &[]);
         assert!(2.0 * plain[1] < 0.9, "{plain:?}");
     }
 
@@ -994,7 +1120,7 @@ mod tests {
             .collect();
         let misfit: Vec<f64> = (0..400).map(|_| 0.008 * normal()).collect();
         let grid = [1200.0, 1010.0];
-        let u = pointwise_u(&grid, &sample_pos, &sample_val, &misfit, &cv, 0.01);
+        let u = pointwise_u(&grid, &sample_pos, &sample_val, &misfit, &cv, 0.01, &[]);
         assert!((0.18..0.3).contains(&(2.0 * u[1])), "{u:?}");
         assert!(u[0] < 0.02, "{u:?}");
     }
@@ -1004,7 +1130,7 @@ mod tests {
         // Held-out residuals within the noise (σ = 0.03): the calibrated band is the floor of
         // a third; a curve through its samples carries σ/√2 of their noise mid-gap.
         let cv = flat_cv(0.03);
-        let u = pointwise_u(&[0.0, 50.0], &[0.0, 100.0], &[], &[0.0; 20], &cv, 0.03);
+        let u = pointwise_u(&[0.0, 50.0], &[0.0, 100.0], &[], &[0.0; 20], &cv, 0.03, &[]);
         assert!((u[1] - 0.03 / 2f64.sqrt()).abs() < 1e-12, "{u:?}");
     }
 
@@ -1021,7 +1147,7 @@ mod tests {
             .collect();
         let samples = [0.0, 200.0];
         let grid: Vec<f64> = (0..=20).map(|k| 10.0 * k as f64).collect();
-        let u = pointwise_u(&grid, &samples, &[], &[], &cv, 0.0);
+        let u = pointwise_u(&grid, &samples, &[], &[], &cv, 0.0, &[]);
         assert_eq!(u.len(), grid.len());
         // At a sample the smallest, mid-gap (100 µm away) the largest.
         assert!(u[0] < 0.1 && u[10] > 0.35 && u[10] < 0.6, "{u:?}");
@@ -1057,6 +1183,62 @@ mod tests {
         }
     }
 
+    /// 600 held-out residuals spread as N(0, s²) exactly (normal quantiles in a shuffled order
+    /// along the travel: a regular interleaving puts like magnitudes side by side, which the
+    /// local scale reads as structure), 1–10 µm from their folds' samples.
+    fn gaussian_cv(s: f64) -> Vec<Residual> {
+        let n = 600;
+        let mut order: Vec<usize> = (0..n).collect();
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        for i in (1..n).rev() {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            order.swap(i, (state >> 33) as usize % (i + 1));
+        }
+        order
+            .iter()
+            .enumerate()
+            .map(|(i, &o)| {
+                let z = noise_quantile(((o / 2) as f64 + 0.5) / (n / 2) as f64);
+                let r = if o % 2 == 0 { s * z } else { -s * z };
+                res(1.0 + (i % 10) as f64, r, 5.0 * i as f64)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_linear_fit_s_band_is_its_noise_variance_plus_the_bias_the_residuals_read() {
+        let (sigma, fit) = (0.01f64, 0.0015f64);
+        let samples: Vec<f64> = (0..300).map(|k| 10.0 * k as f64).collect();
+        let grid: Vec<f64> = samples.iter().map(|x| x + 2.5).collect();
+        let var = vec![fit * fit; grid.len()];
+        // Residuals of noise alone (their folds' noise variance included): the band is the
+        // fit's own noise, where the floors held it at a third of the quantile (~0.0033 µm).
+        let noise_only = gaussian_cv((sigma * sigma + fit * fit).sqrt());
+        let u = pointwise_u(&grid, &samples, &[], &[], &noise_only, sigma, &var);
+        for v in &u {
+            assert!((v - fit).abs() < 1e-4, "{v}");
+        }
+        let floored = pointwise_u(&grid, &samples, &[], &[], &noise_only, sigma, &[]);
+        let mean = floored.iter().sum::<f64>() / floored.len() as f64;
+        assert!(mean > 2.0 * fit, "{mean}");
+        // A bias of 0.005 µm beside it: u² = fit² + 0.005².
+        let biased = gaussian_cv((sigma * sigma + fit * fit + 0.005f64.powi(2)).sqrt());
+        let u = pointwise_u(&grid, &samples, &[], &[], &biased, sigma, &var);
+        let want = fit.hypot(0.005);
+        let mean = u.iter().sum::<f64>() / u.len() as f64;
+        assert!((mean / want - 1.0).abs() < 0.1, "{mean} against {want}");
+        // Pointwise the bias part follows the local scale (windows of 24 residuals).
+        for v in &u {
+            assert!((v / want - 1.0).abs() < 0.35, "{v} against {want}");
+        }
+        // The noise variance scales with σ: a σ told twice too high does not zero the band.
+        let var4 = vec![4.0 * fit * fit; grid.len()];
+        let u = pointwise_u(&grid, &samples, &[], &[], &noise_only, 2.0 * sigma, &var4);
+        assert!(u.iter().all(|v| *v >= 2.0 * fit - 1e-12), "{u:?}");
+    }
+
     #[test]
     fn the_band_widens_where_the_held_out_residuals_are_large() {
         // 400 held-out residuals 1–10 µm from their fold's samples, 10 µm apart: ±0.01 µm, but
@@ -1072,7 +1254,7 @@ mod tests {
                 res((1 + i * 37 % 10) as f64, if i % 2 == 0 { r } else { -r }, x)
             })
             .collect();
-        let u = pointwise_u(&[500.0, 2200.0], &[495.0, 2195.0], &[], &[], &cv, 0.0);
+        let u = pointwise_u(&[500.0, 2200.0], &[495.0, 2195.0], &[], &[], &cv, 0.0, &[]);
         // By the distance alone both would read the 96 % point of all of them, 0.05 / 2; the
         // scale (shrunk towards 1) reads 0.005 and 0.016.
         assert!(u[0] < 0.01 && u[1] > 3.0 * u[0], "{u:?}");
@@ -1084,7 +1266,7 @@ mod tests {
             .enumerate()
             .map(|(k, c)| (c.d, c.r / l.left_out(k)))
             .collect();
-        let curve = DistanceCurve::calibrate(&pairs, 0.0).expect("a curve");
+        let curve = DistanceCurve::calibrate(&pairs, 0.0, DENOISE_FLOOR).expect("a curve");
         let inside = (0..cv.len())
             .filter(|&k| cv[k].r.abs() <= 2.0 * curve.at(cv[k].d) * l.left_out(k))
             .count();
@@ -1098,7 +1280,7 @@ mod tests {
             vec![1.0, 2.5, 2.5, 4.0]
         );
         let cv: Vec<Residual> = (0..100).map(|i| res(i as f64, 0.2, i as f64)).collect();
-        let u = pointwise_u(&[0.0], &[0.0], &[], &[], &cv, 0.06);
+        let u = pointwise_u(&[0.0], &[0.0], &[], &[], &cv, 0.06, &[]);
         // Three bins of 33 (not noisy: 0.1 > √2 · 0.06): q95 = 0.2 → 0.1, less the noise's
         // half quantile at a bin's level (96.4 %, z = 2.10: 1.05 σ) in quadrature: 0.0776.
         let n = 0.06 * noise_quantile(conformal_level(33.0)) / 2.0;
@@ -1106,7 +1288,7 @@ mod tests {
         assert!((u[0] - (0.01 - n * n).sqrt()).abs() < 1e-9, "{u:?}");
         // At 95 % the noise's share is 0.98 σ.
         assert!((noise_quantile(0.95) - 1.96).abs() < 1e-3);
-        assert!(pointwise_u(&[0.0], &[0.0], &[], &[], &[], 0.0).is_empty());
+        assert!(pointwise_u(&[0.0], &[0.0], &[], &[], &[], 0.0, &[]).is_empty());
     }
 
     #[test]
@@ -1119,7 +1301,7 @@ mod tests {
             .chain(bin(50.0, 0.026))
             .chain(bin(120.0, 0.06))
             .collect();
-        let u = pointwise_u(&[10.0, 50.0, 120.0], &[0.0], &[], &[], &cv, 0.01);
+        let u = pointwise_u(&[10.0, 50.0, 120.0], &[0.0], &[], &[], &cv, 0.01, &[]);
         // The first two are one quantile (0.013 µm of 66 residuals) less the noise's share at
         // its level: 0.0082 µm, not the nearest bin's floor alone (a third of 0.009, 0.003 µm).
         let less = |q: f64, k: f64| {
@@ -1134,7 +1316,7 @@ mod tests {
         );
         assert!((u[2] - less(0.03, 33.0)).abs() < 1e-9, "{u:?}");
         // Without noise to take out each bin is its own.
-        let u = pointwise_u(&[10.0, 50.0], &[0.0], &[], &[], &cv, 0.0);
+        let u = pointwise_u(&[10.0, 50.0], &[0.0], &[], &[], &cv, 0.0, &[]);
         assert!(
             (u[0] - 0.009).abs() < 1e-9 && (u[1] - 0.013).abs() < 1e-9,
             "{u:?}"
@@ -1145,7 +1327,7 @@ mod tests {
     fn sample_points_take_the_curves_miss_and_the_noise() {
         let cv = flat_cv(0.5);
         let misfit = vec![0.0; 20];
-        let u = pointwise_u(&[0.0, 5.0], &[0.0, 100.0], &[], &misfit, &cv, 0.03);
+        let u = pointwise_u(&[0.0, 5.0], &[0.0, 100.0], &[], &misfit, &cv, 0.03, &[]);
         // At the sample: σ (a curve through its samples); 5 µm off it the calibrated band.
         assert!((u[0] - 0.03).abs() < 1e-12, "{u:?}");
         assert!(u[1] > 0.2, "{u:?}");
@@ -1158,7 +1340,7 @@ mod tests {
         // residuals are within the noise: the nearest bin's u is a third of its quantile.
         let cv = flat_cv(0.03);
         let misfit = alternating(0.015);
-        let u = pointwise_u(&[0.0, 5.0], &[0.0, 100.0], &[], &misfit, &cv, 0.03);
+        let u = pointwise_u(&[0.0, 5.0], &[0.0, 100.0], &[], &misfit, &cv, 0.03, &[]);
         // The other half of the noise is in the curve: √(0.015² − σ² + 2σ² · ½) = 0.015.
         assert!((u[0] - 0.015).abs() < 1e-12, "{u:?}");
         // Off them the calibrated band (a third of 0.015) is below the noise the curve kept:
@@ -1173,7 +1355,7 @@ mod tests {
         // at the samples too. σ − rms(miss) would have read 0.
         let cv = flat_cv(0.0133);
         let misfit = alternating(0.0125);
-        let u = pointwise_u(&[0.0], &[0.0, 100.0], &[], &misfit, &cv, 0.01);
+        let u = pointwise_u(&[0.0], &[0.0, 100.0], &[], &misfit, &cv, 0.01, &[]);
         let h = 1.0 - 0.0125 / 0.0133;
         let sure = (0.0125f64.powi(2) - 1e-4 + 2e-4 * h).sqrt();
         assert!((sure - 0.0083).abs() < 1e-4, "{sure}");

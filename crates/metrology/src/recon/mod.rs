@@ -229,6 +229,9 @@ pub fn reconstruct(
     let mut held: Vec<band::Residual> = Vec::new();
     // The model-choice variance at every grid point (`auto`; empty otherwise).
     let mut choice: Vec<f64> = Vec::new();
+    // The variance the sensor noise alone gives the curve at every grid point, where the method
+    // is linear in the samples (the physics model; empty otherwise): the band's floor.
+    let mut noise_var: Vec<f64> = Vec::new();
     match s.method {
         Method::Bp | Method::Bpdn => {
             solve_bp(s.method, samples, s, &mut out);
@@ -350,7 +353,7 @@ pub fn reconstruct(
                 });
             match chosen.0 {
                 Method::Physics => {
-                    out.values = physics_curve(grid, samples, s, &best_params)?;
+                    (out.values, noise_var) = physics_fit(grid, samples, s, &best_params, true)?;
                     out.params = Some(best_params.clone());
                 }
                 Method::Bp | Method::Bpdn => solve_bp(chosen.0, samples, s, &mut out),
@@ -393,7 +396,15 @@ pub fn reconstruct(
         .zip(&samples.values)
         .filter_map(|(&i, &y)| out.values.get(i).map(|g| g - y))
         .collect();
-    out.u_um = band::pointwise_u(&positions, &at, &samples.values, &misfit, &held, s.noise_um);
+    out.u_um = band::pointwise_u(
+        &positions,
+        &at,
+        &samples.values,
+        &misfit,
+        &held,
+        s.noise_um,
+        &noise_var,
+    );
     if choice.len() == out.u_um.len() {
         for (u, v) in out.u_um.iter_mut().zip(&choice) {
             *u = (*u * *u + v).sqrt();
@@ -438,12 +449,32 @@ fn physics_curve(
     s: &ReconSettings,
     p: &PhysicsParams,
 ) -> Result<Vec<f64>, ReconError> {
+    Ok(physics_fit(grid, samples, s, p, false)?.0)
+}
+
+/// [`physics_curve`] and, with `noise_var`, the variance the sensor noise gives it at every
+/// grid point ([`physics::noise_variance`]; empty without).
+fn physics_fit(
+    grid: &Grid,
+    samples: &GridSamples,
+    s: &ReconSettings,
+    p: &PhysicsParams,
+    noise_var: bool,
+) -> Result<(Vec<f64>, Vec<f64>), ReconError> {
     let (n, start, step) = (grid.n, grid.start_um, grid.step_um);
     let rows = physics::design(p, n, start, step, &samples.idx);
     let all: Vec<usize> = (0..n).collect();
     let fitted = physics::fit(p, &rows, n, step, &samples.idx, &samples.values, s.noise_um)
         .ok_or(ReconError::PhysicsSingular)?;
-    Ok(fitted.predict(&physics::design(p, n, start, step, &all), &all))
+    let grid_rows = physics::design(p, n, start, step, &all);
+    let var = noise_var
+        .then(|| {
+            let (idx, y) = (&samples.idx, &samples.values);
+            physics::noise_variance(p, &rows, &grid_rows, n, step, idx, y, s.noise_um)
+        })
+        .flatten()
+        .unwrap_or_default();
+    Ok((fitted.predict(&grid_rows, &all), var))
 }
 
 /// The bp or bpdn curve of all samples (fast solver), for the model-choice term.

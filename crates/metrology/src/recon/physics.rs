@@ -298,7 +298,7 @@ pub fn fit(
 #[allow(clippy::too_many_arguments)]
 pub fn fit_normal(
     p: &PhysicsParams,
-    mut ata: DMatrix<f64>,
+    ata: DMatrix<f64>,
     aty: DVector<f64>,
     fitted: impl Fn(&DVector<f64>) -> Vec<f64>,
     n: usize,
@@ -309,18 +309,10 @@ pub fn fit_normal(
     at: Option<&[usize]>,
 ) -> Option<Fitted> {
     let m = idx.len();
-    let cols = ata.ncols();
-    let lambda = p.ridge * m as f64;
-    for c in 1..cols {
-        ata[(c, c)] += lambda;
-    }
-    ata[(0, 0)] += 1e-12 * m as f64;
-    let beta = ata.cholesky()?.solve(&aty);
+    let beta = ridge_factor(p, ata, m)?.solve(&aty);
     let fitted = fitted(&beta);
     let resid: Vec<f64> = (0..m).map(|r| y[r] - fitted[r]).collect();
-    let var = resid.iter().map(|v| v * v).sum::<f64>() / m as f64;
-    let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
-    let sigma2 = (var - noise2).max(noise2);
+    let (sigma2, noise2) = ou_prior(&resid, noise_um);
     let (rough_at, rough) = match at {
         Some(at) => (
             at.to_vec(),
@@ -336,6 +328,101 @@ pub fn fit_normal(
         rough_at,
         rough,
     })
+}
+
+/// The Cholesky factor of the ridge-regularised normal matrix of m samples (the ridge on all but
+/// the constant column, which gets a token weight against an all-flat design).
+fn ridge_factor(
+    p: &PhysicsParams,
+    mut ata: DMatrix<f64>,
+    m: usize,
+) -> Option<nalgebra::Cholesky<f64, nalgebra::Dyn>> {
+    let lambda = p.ridge * m as f64;
+    for c in 1..ata.ncols() {
+        ata[(c, c)] += lambda;
+    }
+    ata[(0, 0)] += 1e-12 * m as f64;
+    ata.cholesky()
+}
+
+/// The OU prior variance and the noise variance the residual's smoother uses, from the
+/// parametric part's residuals at the samples (µm²).
+fn ou_prior(resid: &[f64], noise_um: f64) -> (f64, f64) {
+    let var = resid.iter().map(|v| v * v).sum::<f64>() / resid.len().max(1) as f64;
+    let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
+    ((var - noise2).max(noise2), noise2)
+}
+
+/// The variance the sensor noise alone gives the fitted curve at every grid point (µm²): the
+/// fit is linear in the samples, g = S y (ridge least squares, then the OU smoother of its
+/// residual, hyper-parameters held at the fit's), so white noise of σ = `noise_um` gives
+/// σ² ‖S_x‖² at grid point x. Whatever the model's bias, the curve's mean square error there is
+/// at least this: a floor for the band where the held-out residuals cannot tell the curve's
+/// error from the noise. `rows` are the samples' design rows, `grid_rows` every grid point's.
+/// S_x = K_x + C_x B with B = (AᵀA + Λ)⁻¹Aᵀ, K the smoother and C = A_grid − K A: the cross and
+/// quadratic terms come from 2·cols smoother runs; ‖K_x‖² from one short run per sample (a
+/// sample's weight decays within ten correlation lengths: e⁻¹⁰).
+#[allow(clippy::too_many_arguments)]
+pub fn noise_variance(
+    p: &PhysicsParams,
+    rows: &DMatrix<f64>,
+    grid_rows: &DMatrix<f64>,
+    n: usize,
+    step_um: f64,
+    idx: &[usize],
+    y: &[f64],
+    noise_um: f64,
+) -> Option<Vec<f64>> {
+    let m = idx.len();
+    let cols = rows.ncols().min(m.saturating_sub(1)).max(1);
+    if grid_rows.nrows() != n || grid_rows.ncols() < cols || y.len() != m || m == 0 {
+        return None;
+    }
+    let a = rows.columns(0, cols);
+    let chol = ridge_factor(p, a.transpose() * a, m)?;
+    let beta = chol.solve(&(a.transpose() * DVector::from_column_slice(y)));
+    let fitted = a * &beta;
+    let resid: Vec<f64> = (0..m).map(|r| y[r] - fitted[r]).collect();
+    let (sigma2, noise2) = ou_prior(&resid, noise_um);
+    let smooth = |v: Vec<f64>| ou_smooth(n, step_um, idx, &v, sigma2, p.corr_um, noise2);
+    let b = chol.solve(&a.transpose().into_owned());
+    let mut c = grid_rows.columns(0, cols).into_owned();
+    let mut d = DMatrix::zeros(n, cols);
+    for k in 0..cols {
+        let ka = smooth(a.column(k).iter().copied().collect());
+        let kb = smooth(b.row(k).iter().copied().collect());
+        for x in 0..n {
+            c[(x, k)] -= ka[x];
+            d[(x, k)] = kb[x];
+        }
+    }
+    let gram = &b * b.transpose();
+    let mut kk = vec![0.0; n];
+    let w = ((10.0 * p.corr_um / step_um).ceil() as usize).max(1);
+    for (j, &i) in idx.iter().enumerate() {
+        let (lo, hi) = (i.saturating_sub(w), (i + w).min(n - 1));
+        let (a0, a1) = (
+            idx.partition_point(|&q| q < lo),
+            idx.partition_point(|&q| q <= hi),
+        );
+        let mut unit = vec![0.0; a1 - a0];
+        unit[j - a0] = 1.0;
+        let at: Vec<usize> = (lo..=hi).collect();
+        let k = ou_smooth_at(step_um, &idx[a0..a1], &unit, &at, sigma2, p.corr_um, noise2);
+        for (&q, v) in at.iter().zip(k) {
+            kk[q] += v * v;
+        }
+    }
+    let s2 = noise_um.max(0.0).powi(2);
+    Some(
+        (0..n)
+            .map(|x| {
+                let cx = c.row(x);
+                let quad = (cx * &gram).dot(&cx);
+                s2 * (kk[x] + 2.0 * cx.dot(&d.row(x)) + quad).max(0.0)
+            })
+            .collect(),
+    )
 }
 
 #[cfg(test)]
@@ -414,5 +501,77 @@ mod tests {
             .sum::<f64>()
             / n as f64;
         assert!(mae < 0.01, "mean abs error {mae}");
+    }
+
+    /// The noise variance is the spread the fit itself shows over draws of the sensor noise
+    /// (a curve the model holds, so the OU prior stays at its floor and the fit is linear in the
+    /// samples): 400 draws, compared at the samples and off them.
+    #[test]
+    fn noise_variance_is_the_fits_own_spread_over_noise_draws() {
+        use rand::{Rng, SeedableRng};
+        let (n, step, sigma) = (401, 5.0, 0.05);
+        let truth: Vec<f64> = (0..n)
+            .map(|i| {
+                let x = i as f64 * step;
+                0.8 * (std::f64::consts::TAU * x / 400.0 + 0.4).sin() + 1e-4 * x
+            })
+            .collect();
+        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 90, 3)
+            .indices(n)
+            .unwrap();
+        let mut p = PhysicsParams::default_for(400.0);
+        assert!(p.shrink_to(idx.len()));
+        let all: Vec<usize> = (0..n).collect();
+        let (rows, grid_rows) = (
+            design(&p, n, 0.0, step, &idx),
+            design(&p, n, 0.0, step, &all),
+        );
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut gauss = || {
+            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        };
+        let draws = 400;
+        let (mut sum, mut sum2) = (vec![0.0; n], vec![0.0; n]);
+        let mut y0 = Vec::new();
+        for _ in 0..draws {
+            let y: Vec<f64> = idx.iter().map(|&i| truth[i] + sigma * gauss()).collect();
+            let g = fit(&p, &rows, n, step, &idx, &y, sigma)
+                .unwrap()
+                .predict(&grid_rows, &all);
+            for i in 0..n {
+                sum[i] += g[i];
+                sum2[i] += g[i] * g[i];
+            }
+            y0 = y;
+        }
+        let spread: Vec<f64> = (0..n)
+            .map(|i| (sum2[i] - sum[i] * sum[i] / draws as f64) / (draws - 1) as f64)
+            .collect();
+        let var = noise_variance(&p, &rows, &grid_rows, n, step, &idx, &y0, sigma).unwrap();
+        let mean_over = |v: &[f64], at: bool| {
+            let pick: Vec<f64> = (0..n)
+                .filter(|i| idx.binary_search(i).is_ok() == at)
+                .map(|i| v[i])
+                .collect();
+            pick.iter().sum::<f64>() / pick.len() as f64
+        };
+        for at in [true, false] {
+            let (model, seen) = (mean_over(&var, at), mean_over(&spread, at));
+            eprintln!("at the samples {at}: {model:.4e} against {seen:.4e}");
+            assert!(
+                (model / seen - 1.0).abs() < 0.08,
+                "at the samples {at}: σ²‖S_x‖² {model:.3e} against the draws' {seen:.3e}"
+            );
+        }
+        // Pointwise too, within the draws' own sampling error (√(2/400) ≈ 7 %, so 4.5 of them).
+        for i in 0..n {
+            assert!(
+                (var[i] / spread[i] - 1.0).abs() < 0.32,
+                "grid point {i}: {:.3e} against {:.3e}",
+                var[i],
+                spread[i]
+            );
+        }
     }
 }
