@@ -396,18 +396,21 @@ pub fn noise_variance(
             d[(x, k)] = kb[x];
         }
     }
-    let gram = &b * b.transpose();
+    let cg = &c * (&b * b.transpose());
     let mut kk = vec![0.0; n];
     let w = ((10.0 * p.corr_um / step_um).ceil() as usize).max(1);
+    let (mut unit, mut at) = (Vec::new(), Vec::new());
     for (j, &i) in idx.iter().enumerate() {
         let (lo, hi) = (i.saturating_sub(w), (i + w).min(n - 1));
         let (a0, a1) = (
             idx.partition_point(|&q| q < lo),
             idx.partition_point(|&q| q <= hi),
         );
-        let mut unit = vec![0.0; a1 - a0];
+        unit.clear();
+        unit.resize(a1 - a0, 0.0);
         unit[j - a0] = 1.0;
-        let at: Vec<usize> = (lo..=hi).collect();
+        at.clear();
+        at.extend(lo..=hi);
         let k = ou_smooth_at(step_um, &idx[a0..a1], &unit, &at, sigma2, p.corr_um, noise2);
         for (&q, v) in at.iter().zip(k) {
             kk[q] += v * v;
@@ -417,9 +420,10 @@ pub fn noise_variance(
     Some(
         (0..n)
             .map(|x| {
-                let cx = c.row(x);
-                let quad = (cx * &gram).dot(&cx);
-                s2 * (kk[x] + 2.0 * cx.dot(&d.row(x)) + quad).max(0.0)
+                let (cross, quad) = (0..cols).fold((0.0, 0.0), |(s, t), k| {
+                    (s + c[(x, k)] * d[(x, k)], t + c[(x, k)] * cg[(x, k)])
+                });
+                s2 * (kk[x] + 2.0 * cross + quad).max(0.0)
             })
             .collect(),
     )
