@@ -174,6 +174,55 @@ pub fn ou_smooth(
     ms
 }
 
+/// Σ_j K_xj² at every grid point x, K the linear map of [`ou_smooth`] (same arguments, without
+/// the observations' values): the variance its output gets from unit white noise on the
+/// observations. O(n), one pass each way: the filter's weight row at i is a·(its row at i − 1)
+/// plus new observations' weights, orthogonal to it (a = φ·Π(1 − g) over the observations at i),
+/// so ‖F_i‖² = a²‖F_{i−1}‖² + Σ g²·(…); the smoother's row is S_i = (1 − Gφ)F_i + G S_{i+1}, and
+/// ⟨F_i, S_{i+1}⟩ = ‖F_i‖²·T_{i+1} with T_i = a_i((1 − G_iφ) + G_i T_{i+1}).
+pub fn ou_weight_norms(
+    n: usize,
+    step: f64,
+    obs_idx: &[usize],
+    sigma2: f64,
+    ell: f64,
+    noise2: f64,
+) -> Vec<f64> {
+    let phi = (-step / ell).exp();
+    let q = sigma2 * (1.0 - phi * phi);
+    let (mut f2, mut pf, mut a) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    let (mut w2, mut p) = (0.0, sigma2);
+    let mut k = 0;
+    for i in 0..n {
+        let mut ai = phi;
+        if i > 0 {
+            w2 *= phi * phi;
+            p = phi * phi * p + q;
+        }
+        while k < obs_idx.len() && obs_idx[k] == i {
+            let g = p / (p + noise2);
+            w2 = (1.0 - g) * (1.0 - g) * w2 + g * g;
+            ai *= 1.0 - g;
+            p *= 1.0 - g;
+            k += 1;
+        }
+        f2[i] = w2;
+        pf[i] = p;
+        a[i] = ai;
+    }
+    let mut s2 = f2.clone();
+    // T_{i+1}, from T_{n−1} = a_{n−1} (the last smoothed row is the filtered one).
+    let mut t_next = a.last().copied().unwrap_or(0.0);
+    for i in (0..n.saturating_sub(1)).rev() {
+        let pp = phi * phi * pf[i] + q;
+        let g = pf[i] * phi / pp;
+        let c = 1.0 - g * phi;
+        s2[i] = c * c * f2[i] + 2.0 * c * g * f2[i] * t_next + g * g * s2[i + 1];
+        t_next = a[i] * (c + g * t_next);
+    }
+    s2
+}
+
 /// [`ou_smooth`] at the grid indices `at` only (ascending): the OU process is Markov, so the
 /// filter steps from one index of interest (observed or asked) to the next with that gap's
 /// transition, O(m + |at|) instead of O(n). Cross-validation asks for the held-out points alone.
@@ -397,25 +446,7 @@ pub fn noise_variance(
         }
     }
     let cg = &c * (&b * b.transpose());
-    let mut kk = vec![0.0; n];
-    let w = ((10.0 * p.corr_um / step_um).ceil() as usize).max(1);
-    let (mut unit, mut at) = (Vec::new(), Vec::new());
-    for (j, &i) in idx.iter().enumerate() {
-        let (lo, hi) = (i.saturating_sub(w), (i + w).min(n - 1));
-        let (a0, a1) = (
-            idx.partition_point(|&q| q < lo),
-            idx.partition_point(|&q| q <= hi),
-        );
-        unit.clear();
-        unit.resize(a1 - a0, 0.0);
-        unit[j - a0] = 1.0;
-        at.clear();
-        at.extend(lo..=hi);
-        let k = ou_smooth_at(step_um, &idx[a0..a1], &unit, &at, sigma2, p.corr_um, noise2);
-        for (&q, v) in at.iter().zip(k) {
-            kk[q] += v * v;
-        }
-    }
+    let kk = ou_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2);
     let s2 = noise_um.max(0.0).powi(2);
     Some(
         (0..n)
@@ -456,6 +487,35 @@ mod tests {
         assert!(v[51] > 1.0 && v[51] < 1.2);
         assert!(v[100].abs() < 1e-3);
         assert!(v[0].abs() < 1e-3);
+    }
+
+    /// The smoother's weight norms by their recursion are those of its unit responses.
+    #[test]
+    fn ou_weight_norms_are_the_sum_of_squared_unit_responses() {
+        let n = 300;
+        let idx = [0usize, 3, 4, 4, 40, 41, 90, 200, 201, 202, 299];
+        for (sigma2, ell, noise2) in [(1.0, 5.0, 1.0), (2.0, 40.0, 0.1), (0.5, 1.0, 3.0)] {
+            let mut brute = vec![0.0; n];
+            for j in 0..idx.len() {
+                let mut unit = vec![0.0; idx.len()];
+                unit[j] = 1.0;
+                for (b, v) in brute
+                    .iter_mut()
+                    .zip(ou_smooth(n, 2.0, &idx, &unit, sigma2, ell, noise2))
+                {
+                    *b += v * v;
+                }
+            }
+            let fast = ou_weight_norms(n, 2.0, &idx, sigma2, ell, noise2);
+            for i in 0..n {
+                assert!(
+                    (fast[i] - brute[i]).abs() < 1e-12 * brute[i].max(1.0),
+                    "{i}: {} vs {}",
+                    fast[i],
+                    brute[i]
+                );
+            }
+        }
     }
 
     /// The sparse smoother is the dense one at the indices asked (exact: the same recursion).
