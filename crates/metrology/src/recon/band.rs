@@ -171,7 +171,7 @@ pub fn pointwise_u(
 /// tests/gp/band_fifth.py's faint sine at m = 100, one seed of five 0.69 covered); reading it
 /// as its flat-prior posterior mean or as at least one standard error kept more such seeds
 /// (lowest 0.83) but widened the curves a model fits by as much as the old floors (13–18 of 72
-/// family-m cells of the third to fifth generators over 0.98, against 8 with the floors and 3
+/// family-m cells of the third to fifth generators over 0.98, against 8 with the floors and 1
 /// with this).
 struct Floor {
     /// σ²‖S_x‖² at each grid point (µm²); empty: not known.
