@@ -58,8 +58,9 @@
 //!
 //! Where the curve is linear in its samples and that map is known (the physics model: ridge
 //! least squares and the OU smoother, g = S y), the sensor noise's part of its error is not
-//! estimated but computed, σ²‖S_x‖² at every grid point ([`crate::recon::physics::noise_variance`]),
-//! and the held-out residuals are read for the bias alone (see [`Floor`]): u² = σ²‖S_x‖² + b².
+//! estimated but computed, σ²‖S_x‖² at every grid point
+//! ([`crate::recon::physics::Fitted::noise_variance`]), and the held-out residuals are read for
+//! the bias alone (see [`FitNoise`]): u² = σ²‖S_x‖² + b².
 //! The floors that guarded the ill-conditioned noise subtraction (a third of the quantile, 1/√2
 //! of u at the samples) then go: where the model fits they held the band at about twice its
 //! error.
@@ -99,7 +100,7 @@ pub struct Residual {
 /// sample points then take the off-sample u at distance 0), `cv` the held-out residuals,
 /// `noise_um` the sensor noise σ the residuals carry, `noise_var` the variance that noise alone
 /// gives the curve at each grid point (µm², a method linear in its samples; empty: not known,
-/// see [`Floor`]). Empty without residuals.
+/// see [`FitNoise`]). Empty without residuals.
 pub fn pointwise_u(
     grid_pos: &[f64],
     sample_pos: &[f64],
@@ -121,8 +122,8 @@ pub fn pointwise_u(
         .iter()
         .map(|&p| nearest_distance(sample_pos, p))
         .collect();
-    let floor = Floor::new(noise_var, &dist);
-    let band = |steps| band_with_gaps(&dist, grid_pos, misfit, &cv, noise_um, &floor, steps);
+    let fit_noise = FitNoise::new(noise_var, &dist);
+    let band = |steps| band_with_gaps(&dist, grid_pos, misfit, &cv, noise_um, &fit_noise, steps);
     let (all, all_score) = band(None);
     // A gap whose jump departs from its neighbours' slopes by more than STEP_GAP times the
     // held-out residuals' median departure holds a step or a flank the samples bracket.
@@ -173,17 +174,17 @@ pub fn pointwise_u(
 /// (lowest 0.83) but widened the curves a model fits by as much as the old floors (13–18 of 72
 /// family-m cells of the third to fifth generators over 0.98, against 8 with the floors and 1
 /// with this).
-struct Floor {
+struct FitNoise {
     /// σ²‖S_x‖² at each grid point (µm²); empty: not known.
     var: Vec<f64>,
     /// The grid's mean of it by distance to the nearest sample (None: not known).
     by_distance: Option<DistanceCurve>,
 }
 
-/// Distance bins of the grid's noise variance (see [`Floor`]).
+/// Distance bins of the grid's noise variance (see [`FitNoise`]).
 const VAR_BINS: usize = 20;
 
-impl Floor {
+impl FitNoise {
     fn new(noise_var: &[f64], dist: &[f64]) -> Self {
         let known = !noise_var.is_empty()
             && noise_var.len() == dist.len()
@@ -201,10 +202,8 @@ impl Floor {
             .map(|(&d, &v)| (d, v))
             .collect();
         off.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let bins = VAR_BINS.min(off.len());
         let (mut d, mut u) = (Vec::new(), Vec::new());
-        for b in 0..bins {
-            let part = &off[b * off.len() / bins..(b + 1) * off.len() / bins];
+        for part in equal_parts(&off, VAR_BINS.min(off.len())) {
             d.push(part.iter().map(|p| p.0).sum::<f64>() / part.len() as f64);
             u.push(part.iter().map(|p| p.1).sum::<f64>() / part.len() as f64);
         }
@@ -219,7 +218,7 @@ impl Floor {
     }
 
     /// The share of a bin's quantile its denoised u keeps at least.
-    fn share(&self) -> f64 {
+    fn floor_share(&self) -> f64 {
         if self.known() {
             0.0
         } else {
@@ -239,7 +238,7 @@ impl Floor {
 }
 
 /// The least share of a bin's quantile its denoised u keeps when the noise's variance along the
-/// curve is not known (see [`Floor`]).
+/// curve is not known (see [`FitNoise`]).
 const DENOISE_FLOOR: f64 = 1.0 / 3.0;
 
 /// Where the steps are (see [`band_with_gaps`]).
@@ -279,7 +278,7 @@ fn band_with_gaps(
     misfit: &[f64],
     cv: &[Residual],
     noise_um: f64,
-    floor: &Floor,
+    fit_noise: &FitNoise,
     steps: Option<&Steps<'_>>,
 ) -> (Vec<f64>, f64) {
     let is_step = |c: &Residual| steps.is_some_and(|s| c.gap > s.threshold);
@@ -295,12 +294,12 @@ fn band_with_gaps(
         .enumerate()
         .map(|(k, c)| {
             let l2 = scale(k).powi(2);
-            let noise = noise_um * noise_um + floor.fold_var(c.d);
+            let noise = noise_um * noise_um + fit_noise.fold_var(c.d);
             (c.d, c.r / scale(k), noise / l2)
         })
         .collect();
     let pairs: Vec<(f64, f64)> = scaled.iter().map(|&(d, r, _)| (d, r)).collect();
-    let Some(curve) = DistanceCurve::calibrate_with(scaled, floor.share()) else {
+    let Some(curve) = DistanceCurve::calibrate_with(scaled, fit_noise.floor_share()) else {
         return (Vec::new(), f64::INFINITY);
     };
     // A fit that is not an interpolant places a step where its model does (a period's
@@ -344,7 +343,7 @@ fn band_with_gaps(
     // of two samples at least half its variance (below it, 0.899 of the third generator's
     // 0.02 µm cycle under 0.01 µm noise was covered at m = 100, 0.949 with it).
     // (Where the noise's variance along the curve is known, it is that part exactly.)
-    let between = if floor.known() {
+    let between = if fit_noise.known() {
         0.0
     } else {
         at_sample.unwrap_or(0.0) * std::f64::consts::FRAC_1_SQRT_2
@@ -358,12 +357,12 @@ fn band_with_gaps(
         .enumerate()
         .map(|(i, (&p, &d))| {
             let base = match (at_sample, &local) {
-                (Some(u0), _) if d == 0.0 => return u0.max(floor.at(i, 0.0)),
+                (Some(u0), _) if d == 0.0 => return u0.max(fit_noise.at(i, 0.0)),
                 (_, Some(l)) => curve.at(d) * l.at(p),
                 _ => curve.at(d),
             }
             .max(between);
-            let base = floor.at(i, base);
+            let base = fit_noise.at(i, base);
             match steps {
                 Some(s) if s.grid_gap[i] > s.threshold => {
                     base.hypot(step_ratio * s.grid_gap[i] / 2.0)
@@ -924,7 +923,7 @@ impl DistanceCurve {
 
     /// [`Self::calibrate`] from (distance, residual, the noise variance it carries, µm²): the
     /// sensor's, and its fold's own where known (the curve is then the bias part alone, at
-    /// least 0 with `floor` 0, see [`Floor`]).
+    /// least 0 with `floor` 0, see [`FitNoise`]).
     fn calibrate_with(mut cv: Vec<(f64, f64, f64)>, floor: f64) -> Option<Self> {
         cv.retain(|(d, r, v)| d.is_finite() && r.is_finite() && v.is_finite() && *v >= 0.0);
         (cv.len() >= 2).then(|| distance_curve(cv, floor))
@@ -977,7 +976,7 @@ fn half_quantile(residuals: impl Iterator<Item = f64>) -> (f64, usize) {
 }
 
 /// A held-out residuals' u `q` (µm, half their quantile at `level`) with the sensor noise's
-/// share taken out in quadrature, at least `floor` of it (see [`Floor`]). The noise's share
+/// share taken out in quadrature, at least `floor` of it (see [`FitNoise`]). The noise's share
 /// is half its own quantile at that level, not σ: for a Gaussian
 /// error and noise the halves add in quadrature (0.98 σ at 95 %, 1.05 σ at a bin of 33's
 /// 96.4 %). Taking σ instead took 4 % of σ² too much from a pooled bin, a quarter of the
@@ -1003,7 +1002,11 @@ fn noise_quantile(level: f64) -> f64 {
 
 /// Equal-count bins of `v` (sorted by distance): about [`PER_BIN`] each, at most [`MAX_BINS`].
 fn equal_bins<T>(v: &[T]) -> impl Iterator<Item = &[T]> {
-    let bins = (v.len() / PER_BIN).clamp(1, MAX_BINS);
+    equal_parts(v, (v.len() / PER_BIN).clamp(1, MAX_BINS))
+}
+
+/// `v` in `bins` consecutive parts of equal count (±1).
+fn equal_parts<T>(v: &[T], bins: usize) -> impl Iterator<Item = &[T]> {
     (0..bins).map(move |b| &v[b * v.len() / bins..(b + 1) * v.len() / bins])
 }
 
@@ -1044,6 +1047,7 @@ fn non_decreasing(v: &[f64], w: &[f64]) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::recon::test_curve::normals;
 
     #[test]
     fn a_step_departs_in_its_own_gap_only() {
@@ -1152,16 +1156,6 @@ mod tests {
         // At a sample the smallest, mid-gap (100 µm away) the largest.
         assert!(u[0] < 0.1 && u[10] > 0.35 && u[10] < 0.6, "{u:?}");
         assert!(u.windows(2).take(10).all(|w| w[1] >= w[0] - 1e-12));
-    }
-
-    /// Standard normal draws (Box–Muller), seeded.
-    fn normals(seed: u64) -> impl FnMut() -> f64 {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        move || {
-            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
-            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-        }
     }
 
     /// 100 held-out residuals `r` (µm) at 5–104 µm from their fold's training samples.

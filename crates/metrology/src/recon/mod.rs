@@ -230,7 +230,7 @@ pub fn reconstruct(
     // The model-choice variance at every grid point (`auto`; empty otherwise).
     let mut choice: Vec<f64> = Vec::new();
     // The variance the sensor noise alone gives the curve at every grid point, where the method
-    // is linear in the samples (the physics model; empty otherwise): the band's floor.
+    // is linear in the samples (the physics model; empty otherwise): the band's noise part.
     let mut noise_var: Vec<f64> = Vec::new();
     match s.method {
         Method::Bp | Method::Bpdn => {
@@ -453,7 +453,7 @@ fn physics_curve(
 }
 
 /// [`physics_curve`] and, with `noise_var`, the variance the sensor noise gives it at every
-/// grid point ([`physics::noise_variance`]; empty without).
+/// grid point ([`physics::Fitted::noise_variance`]; empty without).
 fn physics_fit(
     grid: &Grid,
     samples: &GridSamples,
@@ -468,10 +468,7 @@ fn physics_fit(
         .ok_or(ReconError::PhysicsSingular)?;
     let grid_rows = physics::design(p, n, start, step, &all);
     let var = noise_var
-        .then(|| {
-            let (idx, y) = (&samples.idx, &samples.values);
-            physics::noise_variance(p, &rows, &grid_rows, n, step, idx, y, s.noise_um)
-        })
+        .then(|| fitted.noise_variance(p, &rows, &grid_rows, n, step, &samples.idx, s.noise_um))
         .flatten()
         .unwrap_or_default();
     Ok((fitted.predict(&grid_rows, &all), var))

@@ -297,6 +297,12 @@ pub struct Fitted {
     /// Ascending grid indices of `rough` (every index when empty).
     rough_at: Vec<usize>,
     rough: Vec<f64>,
+    /// The regularised normal matrix's factor, and the OU prior and noise variances the
+    /// residual's smoother used (µm²): with them the fit is a fixed linear map of the samples
+    /// ([`Fitted::noise_variance`]).
+    chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    sigma2: f64,
+    noise2: f64,
 }
 
 impl Fitted {
@@ -347,7 +353,7 @@ pub fn fit(
 #[allow(clippy::too_many_arguments)]
 pub fn fit_normal(
     p: &PhysicsParams,
-    ata: DMatrix<f64>,
+    mut ata: DMatrix<f64>,
     aty: DVector<f64>,
     fitted: impl Fn(&DVector<f64>) -> Vec<f64>,
     n: usize,
@@ -358,10 +364,19 @@ pub fn fit_normal(
     at: Option<&[usize]>,
 ) -> Option<Fitted> {
     let m = idx.len();
-    let beta = ridge_factor(p, ata, m)?.solve(&aty);
+    let cols = ata.ncols();
+    let lambda = p.ridge * m as f64;
+    for c in 1..cols {
+        ata[(c, c)] += lambda;
+    }
+    ata[(0, 0)] += 1e-12 * m as f64;
+    let chol = ata.cholesky()?;
+    let beta = chol.solve(&aty);
     let fitted = fitted(&beta);
     let resid: Vec<f64> = (0..m).map(|r| y[r] - fitted[r]).collect();
-    let (sigma2, noise2) = ou_prior(&resid, noise_um);
+    let var = resid.iter().map(|v| v * v).sum::<f64>() / m as f64;
+    let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
+    let sigma2 = (var - noise2).max(noise2);
     let (rough_at, rough) = match at {
         Some(at) => (
             at.to_vec(),
@@ -376,88 +391,67 @@ pub fn fit_normal(
         beta,
         rough_at,
         rough,
+        chol,
+        sigma2,
+        noise2,
     })
 }
 
-/// The Cholesky factor of the ridge-regularised normal matrix of m samples (the ridge on all but
-/// the constant column, which gets a token weight against an all-flat design).
-fn ridge_factor(
-    p: &PhysicsParams,
-    mut ata: DMatrix<f64>,
-    m: usize,
-) -> Option<nalgebra::Cholesky<f64, nalgebra::Dyn>> {
-    let lambda = p.ridge * m as f64;
-    for c in 1..ata.ncols() {
-        ata[(c, c)] += lambda;
-    }
-    ata[(0, 0)] += 1e-12 * m as f64;
-    ata.cholesky()
-}
-
-/// The OU prior variance and the noise variance the residual's smoother uses, from the
-/// parametric part's residuals at the samples (µm²).
-fn ou_prior(resid: &[f64], noise_um: f64) -> (f64, f64) {
-    let var = resid.iter().map(|v| v * v).sum::<f64>() / resid.len().max(1) as f64;
-    let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
-    ((var - noise2).max(noise2), noise2)
-}
-
-/// The variance the sensor noise alone gives the fitted curve at every grid point (µm²): the
-/// fit is linear in the samples, g = S y (ridge least squares, then the OU smoother of its
-/// residual, hyper-parameters held at the fit's), so white noise of σ = `noise_um` gives
-/// σ² ‖S_x‖² at grid point x. Whatever the model's bias, the curve's mean square error there is
-/// at least this: a floor for the band where the held-out residuals cannot tell the curve's
-/// error from the noise. `rows` are the samples' design rows, `grid_rows` every grid point's.
-/// S_x = K_x + C_x B with B = (AᵀA + Λ)⁻¹Aᵀ, K the smoother and C = A_grid − K A: the cross and
-/// quadratic terms come from 2·cols smoother runs, ‖K_x‖² from [`ou_weight_norms`]. The
-/// quadratic form is O(n·cols²): at n = 65,536 it made the physics fit 1.6 times slower.
-#[allow(clippy::too_many_arguments)]
-pub fn noise_variance(
-    p: &PhysicsParams,
-    rows: &DMatrix<f64>,
-    grid_rows: &DMatrix<f64>,
-    n: usize,
-    step_um: f64,
-    idx: &[usize],
-    y: &[f64],
-    noise_um: f64,
-) -> Option<Vec<f64>> {
-    let m = idx.len();
-    let cols = rows.ncols().min(m.saturating_sub(1)).max(1);
-    if grid_rows.nrows() != n || grid_rows.ncols() < cols || y.len() != m || m == 0 {
-        return None;
-    }
-    let a = rows.columns(0, cols);
-    let chol = ridge_factor(p, a.transpose() * a, m)?;
-    let beta = chol.solve(&(a.transpose() * DVector::from_column_slice(y)));
-    let fitted = a * &beta;
-    let resid: Vec<f64> = (0..m).map(|r| y[r] - fitted[r]).collect();
-    let (sigma2, noise2) = ou_prior(&resid, noise_um);
-    let smooth = |v: Vec<f64>| ou_smooth(n, step_um, idx, &v, sigma2, p.corr_um, noise2);
-    let b = chol.solve(&a.transpose().into_owned());
-    let mut c = grid_rows.columns(0, cols).into_owned();
-    let mut d = DMatrix::zeros(n, cols);
-    for k in 0..cols {
-        let ka = smooth(a.column(k).iter().copied().collect());
-        let kb = smooth(b.row(k).iter().copied().collect());
-        for x in 0..n {
-            c[(x, k)] -= ka[x];
-            d[(x, k)] = kb[x];
+impl Fitted {
+    /// The variance the sensor noise alone gives this fit at every grid point (µm²): with its
+    /// hyper-parameters held, the fit is linear in the samples, g = S y (ridge least squares,
+    /// then the OU smoother of its residual), so white noise of σ = `noise_um` gives σ² ‖S_x‖² at
+    /// grid point x. Whatever the model's bias, the curve's mean square error there is that plus
+    /// the bias² (the band's noise part, `band::pointwise_u`). `rows` are the samples' design rows
+    /// (those the fit was made on, at grid indices `idx`, `p` its structure), `grid_rows` every
+    /// grid point's. S_x = K_x + C_x B with B = (AᵀA + Λ)⁻¹Aᵀ, K the smoother and
+    /// C = A_grid − K A: the cross and quadratic terms come from 2·cols smoother runs, ‖K_x‖²
+    /// from [`ou_weight_norms`]. The quadratic form is O(n·cols²): at n = 65,536 it made the
+    /// physics fit 1.6 times slower. None when the rows do not match the fit.
+    #[allow(clippy::too_many_arguments)]
+    pub fn noise_variance(
+        &self,
+        p: &PhysicsParams,
+        rows: &DMatrix<f64>,
+        grid_rows: &DMatrix<f64>,
+        n: usize,
+        step_um: f64,
+        idx: &[usize],
+        noise_um: f64,
+    ) -> Option<Vec<f64>> {
+        let cols = self.beta.len();
+        let fits = |m: &DMatrix<f64>, r: usize| m.nrows() == r && m.ncols() >= cols;
+        if !fits(rows, idx.len()) || !fits(grid_rows, n) {
+            return None;
         }
+        let (sigma2, noise2) = (self.sigma2, self.noise2);
+        let a = rows.columns(0, cols);
+        let smooth = |v: Vec<f64>| ou_smooth(n, step_um, idx, &v, sigma2, p.corr_um, noise2);
+        let b = self.chol.solve(&a.transpose().into_owned());
+        let mut c = grid_rows.columns(0, cols).into_owned();
+        let mut d = DMatrix::zeros(n, cols);
+        for k in 0..cols {
+            let ka = smooth(a.column(k).iter().copied().collect());
+            let kb = smooth(b.row(k).iter().copied().collect());
+            for x in 0..n {
+                c[(x, k)] -= ka[x];
+                d[(x, k)] = kb[x];
+            }
+        }
+        let cg = &c * (&b * b.transpose());
+        let kk = ou_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2);
+        let s2 = noise_um.max(0.0).powi(2);
+        Some(
+            (0..n)
+                .map(|x| {
+                    let (cross, quad) = (0..cols).fold((0.0, 0.0), |(s, t), k| {
+                        (s + c[(x, k)] * d[(x, k)], t + c[(x, k)] * cg[(x, k)])
+                    });
+                    s2 * (kk[x] + 2.0 * cross + quad).max(0.0)
+                })
+                .collect(),
+        )
     }
-    let cg = &c * (&b * b.transpose());
-    let kk = ou_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2);
-    let s2 = noise_um.max(0.0).powi(2);
-    Some(
-        (0..n)
-            .map(|x| {
-                let (cross, quad) = (0..cols).fold((0.0, 0.0), |(s, t), k| {
-                    (s + c[(x, k)] * d[(x, k)], t + c[(x, k)] * cg[(x, k)])
-                });
-                s2 * (kk[x] + 2.0 * cross + quad).max(0.0)
-            })
-            .collect(),
-    )
 }
 
 #[cfg(test)]
@@ -572,7 +566,6 @@ mod tests {
     /// samples): 400 draws, compared at the samples and off them.
     #[test]
     fn noise_variance_is_the_fits_own_spread_over_noise_draws() {
-        use rand::{Rng, SeedableRng};
         let (n, step, sigma) = (401, 5.0, 0.05);
         let truth: Vec<f64> = (0..n)
             .map(|i| {
@@ -590,29 +583,28 @@ mod tests {
             design(&p, n, 0.0, step, &idx),
             design(&p, n, 0.0, step, &all),
         );
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let mut gauss = || {
-            let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
-            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-        };
+        let mut gauss = crate::recon::test_curve::normals(11);
         let draws = 400;
         let (mut sum, mut sum2) = (vec![0.0; n], vec![0.0; n]);
-        let mut y0 = Vec::new();
+        let mut last = None;
         for _ in 0..draws {
             let y: Vec<f64> = idx.iter().map(|&i| truth[i] + sigma * gauss()).collect();
-            let g = fit(&p, &rows, n, step, &idx, &y, sigma)
-                .unwrap()
-                .predict(&grid_rows, &all);
+            let fitted = fit(&p, &rows, n, step, &idx, &y, sigma).unwrap();
+            let g = fitted.predict(&grid_rows, &all);
             for i in 0..n {
                 sum[i] += g[i];
                 sum2[i] += g[i] * g[i];
             }
-            y0 = y;
+            last = Some(fitted);
         }
+        // The map of the last draw (the hyper-parameters stay at their floor for every draw).
+        let var = last
+            .unwrap()
+            .noise_variance(&p, &rows, &grid_rows, n, step, &idx, sigma)
+            .unwrap();
         let spread: Vec<f64> = (0..n)
             .map(|i| (sum2[i] - sum[i] * sum[i] / draws as f64) / (draws - 1) as f64)
             .collect();
-        let var = noise_variance(&p, &rows, &grid_rows, n, step, &idx, &y0, sigma).unwrap();
         let mean_over = |v: &[f64], at: bool| {
             let pick: Vec<f64> = (0..n)
                 .filter(|i| idx.binary_search(i).is_ok() == at)

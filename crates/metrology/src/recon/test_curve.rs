@@ -1,6 +1,7 @@
 //! Paper-like error curves for recon's own tests, so that recon does not depend on the simulator:
 //! a leadscrew error (harmonics of a 400 µm pitch with a linearly varying envelope), a secondary
-//! periodicity, scale and bow, two local defects and AR(1) roughness, all seeded.
+//! periodicity, scale and bow, two local defects and AR(1) roughness, all seeded; and seeded
+//! standard normal draws for the tests' noise.
 use rand::{Rng, SeedableRng};
 
 /// The curve at positions i·step_um, i < n, µm.
@@ -58,4 +59,13 @@ pub(crate) fn paper_like(n: usize, step_um: f64, seed: u64) -> Vec<f64> {
                 + rough
         })
         .collect()
+}
+
+/// Standard normal draws (Box–Muller), seeded.
+pub(crate) fn normals(seed: u64) -> impl FnMut() -> f64 {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    move || {
+        let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random());
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    }
 }
