@@ -1274,6 +1274,24 @@ mod tests {
     }
 
     #[test]
+    fn the_local_scale_weighs_its_windows_by_how_much_they_vary_beyond_chance() {
+        // Alike all along: no local scale at all.
+        assert!(prior_weight(&[1.0; 600], 24).is_infinite());
+        // Half the travel at 0.2, half at 1.8 (a defect region): the windows weigh as much as
+        // they ever do, the prior k/2 residuals.
+        let halves = |lo: f64, hi: f64| -> Vec<f64> {
+            (0..576).map(|i| if i < 288 { lo } else { hi }).collect()
+        };
+        assert_eq!(prior_weight(&halves(0.2, 1.8), 24), 12.0);
+        // A spread of 0.3² between chunk means: beyond windows of 48 (sampling variance
+        // 2/48) it is structure, with weight 2/τ²; within windows of 12 (2/12) it is chance.
+        let mild = prior_weight(&halves(0.7, 1.3), 48);
+        let tau2 = 0.09 * 12.0 / 11.0 - 2.0 / 48.0;
+        assert!((mild - 2.0 / tau2).abs() < 1e-9, "{mild}");
+        assert!(prior_weight(&halves(0.7, 1.3), 12).is_infinite());
+    }
+
+    #[test]
     fn the_band_widens_where_the_held_out_residuals_are_large() {
         // 400 held-out residuals 1–10 µm from their fold's samples, 10 µm apart: ±0.01 µm, but
         // ±0.05 µm over 2,000–2,400 µm (a defect the model cannot hold).
