@@ -62,7 +62,7 @@ def curve(family, r):
     if family == "smallsteps":
         y = np.zeros(N)
         for a in r.uniform(300, SPAN - 300, r.integers(4, 9)):
-            y += r.normal(0, 0.05) / (1 + np.exp(-(X - a) / r.uniform(5, 15)))
+            y += r.normal(0, 0.05) * 0.5 * (1 + np.tanh((X - a) / (2 * r.uniform(5, 15))))
         return y
     if family == "fifth":
         start = r.uniform(0, SPAN * 0.8)
