@@ -289,14 +289,17 @@ fn band_with_gaps(
     // sensor's and, where known, its fold's own (taking σ itself out of r/l left the noise's
     // E[1/l²] share in: ~7 % of σ² with windows of 12 noise-dominated residuals, which read as
     // a curve error of a quarter of σ where a model fits).
-    let scale = |k: usize| local.as_ref().map_or(1.0, |l| l.left_out(k));
+    // Each kept residual's scale from the others about it (a window walk each: once, for the
+    // calibration and the score below).
+    let scales: Vec<f64> = (0..kept.len())
+        .map(|k| local.as_ref().map_or(1.0, |l| l.left_out(k)))
+        .collect();
     let scaled: Vec<(f64, f64, f64)> = kept
         .iter()
-        .enumerate()
-        .map(|(k, c)| {
-            let l2 = scale(k).powi(2);
+        .zip(&scales)
+        .map(|(c, &l)| {
             let noise = noise_um * noise_um + fit_noise.fold_var(c.d);
-            (c.d, c.r / scale(k), noise / l2)
+            (c.d, c.r / l, noise / (l * l))
         })
         .collect();
     let pairs: Vec<(f64, f64)> = scaled.iter().map(|&(d, r, _)| (d, r)).collect();
@@ -331,7 +334,7 @@ fn band_with_gaps(
                     (2.0 * raw.at(c.d) * l).hypot(step_ratio * c.gap)
                 } else {
                     k += 1;
-                    2.0 * raw.at(c.d) * local.as_ref().map_or(1.0, |l| l.left_out(k - 1))
+                    2.0 * raw.at(c.d) * scales[k - 1]
                 };
                 2.0 * half + 2.0 / (1.0 - QUANTILE) * (c.r.abs() - half).max(0.0)
             })
@@ -974,8 +977,12 @@ fn distance_curve(mut cv: Vec<(f64, f64, f64)>, floor: f64) -> DistanceCurve {
     // doubles its quantile's sampling error (a bin of 33 reading 0.0095 µm under σ = 0.01 µm
     // where the curve's error was 0.008: the band was its floor, a third). Such neighbours are
     // pooled, one quantile from all their residuals.
-    let noise = |b: &[(f64, f64, f64)]| b.iter().map(|p| p.2).sum::<f64>() / b.len().max(1) as f64;
-    let noisy = |b: usize| raw[b].0 * raw[b].0 < 2.0 * noise(bins[b]);
+    // Each bin's summed noise variance (µm²).
+    let noise: Vec<f64> = bins
+        .iter()
+        .map(|b| b.iter().map(|p| p.2).sum::<f64>())
+        .collect();
+    let noisy = |b: usize| raw[b].0 * raw[b].0 < 2.0 * noise[b] / bins[b].len().max(1) as f64;
     let order: Vec<usize> = (0..bins.len()).collect();
     let (mut d, mut u, mut w) = (Vec::new(), Vec::new(), Vec::new());
     for group in order.chunk_by(|&a, &b| noisy(a) && noisy(b)) {
@@ -985,10 +992,7 @@ fn distance_curve(mut cv: Vec<(f64, f64, f64)>, floor: f64) -> DistanceCurve {
         };
         // The held-out residual is (curve error − the noise it carries); with its fold's own
         // noise known, the curve error's bias part.
-        let v = group
-            .iter()
-            .map(|&b| noise(bins[b]) * bins[b].len() as f64)
-            .sum::<f64>();
+        let v = group.iter().map(|&b| noise[b]).sum::<f64>();
         let sd = (v / k.max(1) as f64).sqrt();
         let clean = denoise(q, sd, conformal_level(k as f64), floor);
         for part in group.iter().map(|&b| bins[b]) {
