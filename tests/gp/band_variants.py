@@ -9,7 +9,8 @@ Each curve is sampled at m random grid points of 0:5:9500 µm with Gaussian nois
 reconstructed by `csmetro reconstruct --method auto --noise-um σ`.
 
 Figures per family and m, over the seeds: coverage = share of the grid with |curve − truth| ≤ 2u
-(mean and lowest), sharpness = mean(2u) / mean |curve − truth| (mean). Usage:
+(mean and lowest), sharpness = mean(2u) / mean |curve − truth| (mean), interval score in the
+JSON (see `score`). Usage:
 
     cargo build --release
     python3 tests/gp/band_variants.py --csmetro target/release/csmetro --seeds 5 [--json F]
@@ -74,7 +75,9 @@ def curve(family, r):
 
 def score(binary, truth, r, m, noise, tmp):
     """Sample `truth` at m random grid points with noise σ (from `r`), reconstruct with csmetro's
-    `auto`, and return (coverage, sharpness) of its band."""
+    `auto`, and return (coverage, sharpness, interval score) of its band: the score is the 95 %
+    interval's (width 4u, plus 2/α = 40 times each miss beyond 2u; lower is better) over the mean
+    |curve − truth|, so a band too wide and one too narrow both pay."""
     idx = np.sort(r.choice(N, m, replace=False))
     y = truth[idx] + noise * r.normal(size=m)
     src, out = os.path.join(tmp, "s.csv"), os.path.join(tmp, "o.csv")
@@ -86,7 +89,9 @@ def score(binary, truth, r, m, noise, tmp):
     subprocess.run(cmd + ["--noise-um", str(noise)], check=True, capture_output=True)
     o = np.loadtxt(out, delimiter=",", skiprows=1)
     err, u = np.abs(o[:, 1] - truth), o[:, 2]
-    return float(np.mean(err <= 2 * u)), float(2 * u.mean() / err.mean())
+    miss = np.maximum(err - 2 * u, 0.0)
+    interval = float(np.mean(4 * u + 40.0 * miss) / err.mean())
+    return float(np.mean(err <= 2 * u)), float(2 * u.mean() / err.mean()), interval
 
 
 def runner(curve, families, per_seed, per_family):
@@ -127,6 +132,7 @@ def main(families=FAMILIES, run=run, doc=__doc__):
                     "coverage": float(np.mean(cover)),
                     "coverage_min": float(np.min(cover)),
                     "sharpness": float(np.mean(sharp)),
+                    "interval_score": float(np.mean([g[2] for g in got])),
                 }
                 rows.append(row)
                 print(
