@@ -42,8 +42,9 @@
 //! from the others about them, so the whole still covers at its level. That curve: 0.880 → 0.939.
 //! The scale multiplies the residuals' size, noise included, and the noise, the same all along,
 //! is taken out after it: a bias on part of the travel under noise is then read there at its
-//! size, not as a share of the travel's rms (see [`DistanceCurve::local`]); each square counts
-//! at most χ²₁'s 99 % point there, so one impulse or step does not widen its whole window.
+//! size, not as a share of the travel's rms (see [`DistanceCurve::local`]); a window's largest
+//! square counts at most χ²₁'s 99 % point times the others' mean there, so one impulse or step
+//! does not widen its whole window.
 //!
 //! A step or a sharp flank between two samples is the extreme of this: the interpolant's error
 //! is up to the step's height in that one gap and small beside it, but a window of held-out
