@@ -57,7 +57,8 @@ def curve(family, r):
         return y - y.mean()
     if family == "scurve":
         at, width = r.uniform(0.2, 0.8) * SPAN, r.uniform(100, 600)
-        return r.uniform(0.05, 0.3) * np.tanh((X - at) / width) + cycle(r, r.uniform(200, 700), 0.03)
+        step = r.uniform(0.05, 0.3) * np.tanh((X - at) / width)
+        return step + cycle(r, r.uniform(200, 700), 0.03)
     if family == "burst":
         at, length = r.uniform(500, SPAN - 1000), r.uniform(200, 500)
         inside = (X >= at) & (X < at + length)

@@ -48,7 +48,8 @@ def curve(family, r):
     if family == "spikes2":
         y = cycle(r, r.uniform(300, 900), 0.1)
         for at in r.uniform(0, SPAN, r.integers(3, 8)):
-            y += r.choice([-1, 1]) * r.uniform(0.05, 0.2) * np.exp(-0.5 * ((X - at) / r.uniform(5, 15)) ** 2)
+            width = r.uniform(5, 15)
+            y += r.choice([-1, 1]) * r.uniform(0.05, 0.2) * np.exp(-0.5 * ((X - at) / width) ** 2)
         return y
     if family == "halflong":
         return cycle(r, r.uniform(2000, 4000), 0.005)
@@ -75,7 +76,8 @@ def curve(family, r):
     if family == "amwalk":
         walk = np.cumsum(r.normal(0, 1, N))
         walk = (walk - walk.min()) / (walk.max() - walk.min() + 1e-12)
-        return (0.05 + 0.25 * walk) * np.sin(2 * np.pi * X / r.uniform(300, 800) + r.uniform(0, 6.3))
+        phase = 2 * np.pi * X / r.uniform(300, 800) + r.uniform(0, 6.3)
+        return (0.05 + 0.25 * walk) * np.sin(phase)
     raise ValueError(family)
 
 
