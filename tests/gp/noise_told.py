@@ -1,0 +1,80 @@
+#!/usr/bin/env python3
+"""csmetro's band when the noise σ told is not the samples' own: coverage at the sample points
+and off them.
+
+The band at a sample point rests on the σ told (`--noise-um`): a curve through its samples is
+off by the sample's own noise there, and the band takes σ for it. This script samples the
+families of the third to fifth generators (tests/gp/band_variants.py, band_fourth.py,
+band_fifth.py; their own seeds) with Gaussian noise σ = 0.01 µm and reconstructs them telling
+σ × `--told` instead, then prints the share of grid points with |curve − truth| ≤ 2u at the
+sample points, off them, and over all. Usage:
+
+    cargo build --release
+    python3 tests/gp/noise_told.py --csmetro target/release/csmetro --m 300 --told 0.5
+"""
+import argparse
+import importlib
+import os
+import re
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import band_variants as bv  # noqa: E402
+
+GENERATORS = ["band_variants", "band_fourth", "band_fifth"]
+SIGMA = 0.01
+
+
+def main():
+    a = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    a.add_argument("--csmetro", default="target/release/csmetro")
+    a.add_argument("--m", type=int, default=300)
+    a.add_argument("--told", type=float, default=0.5, help="σ told over the samples' σ")
+    a.add_argument("--seeds", type=int, default=5)
+    args = a.parse_args()
+    hit_at, hit_off = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        src, out = os.path.join(tmp, "s.csv"), os.path.join(tmp, "o.csv")
+        for name in GENERATORS:
+            gen = importlib.import_module(name)
+            here = os.path.dirname(os.path.abspath(__file__))
+            text = open(os.path.join(here, name + ".py")).read()
+            seeds = re.search(r"runner\(curve, FAMILIES, (\d+), (\d+)\)", text)
+            per_seed, per_family = (int(seeds[1]), int(seeds[2])) if seeds else (1000, 10)
+            for family in gen.FAMILIES:
+                for seed in range(args.seeds):
+                    r = np.random.Generator(
+                        np.random.PCG64(
+                            per_seed * seed + per_family * gen.FAMILIES.index(family) + args.m
+                        )
+                    )
+                    truth = gen.curve(family, r)
+                    idx = np.sort(r.choice(bv.N, args.m, replace=False))
+                    y = truth[idx] + SIGMA * r.normal(size=args.m)
+                    with open(src, "w") as f:
+                        f.write("position_um,error_um\n")
+                        f.writelines(f"{bv.X[i]},{float(v)!r}\n" for i, v in zip(idx, y))
+                    cmd = [args.csmetro, "reconstruct", "--samples", src, "--out", out]
+                    cmd += ["--grid", f"0:{bv.STEP}:{bv.SPAN}"]
+                    cmd += ["--noise-um", str(SIGMA * args.told)]
+                    subprocess.run(cmd, check=True, capture_output=True)
+                    o = np.loadtxt(out, delimiter=",", skiprows=1)
+                    hit = np.abs(o[:, 1] - truth) <= 2 * o[:, 2]
+                    at = np.zeros(bv.N, bool)
+                    at[idx] = True
+                    hit_at.append(hit[at])
+                    hit_off.append(hit[~at])
+    at, off = np.concatenate(hit_at), np.concatenate(hit_off)
+    print(
+        f"m = {args.m}, σ told {args.told} × the samples': coverage at the samples "
+        f"{at.mean():.3f}, off them {off.mean():.3f}, all {np.concatenate([at, off]).mean():.3f}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
