@@ -215,12 +215,7 @@ impl FitNoise {
         }
         Self {
             var: noise_var.to_vec(),
-            by_distance: (!d.is_empty()).then_some(DistanceCurve {
-                d,
-                u,
-                scaled: Vec::new(),
-                plain: Vec::new(),
-            }),
+            by_distance: (!d.is_empty()).then(|| DistanceCurve::bare(d, u)),
         }
     }
 
@@ -525,6 +520,9 @@ impl LocalScale {
     /// [`Self::at`] and [`Self::capped`] from the residuals nearest to `p` (`i`: where `p`
     /// would insert in `x`), `skip` left out.
     fn window(&self, i: usize, p: f64, skip: Option<usize>) -> (f64, f64) {
+        if self.kappa.is_infinite() {
+            return (1.0, 1.0);
+        }
         let n = self.x.len();
         let (mut lo, mut hi) = (i, i); // the window is [lo, hi)
         let (mut sum, mut taken) = (0.0, 0usize);
@@ -560,9 +558,6 @@ impl LocalScale {
             sum += self.s2[j];
             largest = largest.max(self.s2[j]);
             taken += 1;
-        }
-        if self.kappa.is_infinite() {
-            return (1.0, 1.0);
         }
         let shrunk = |s: f64| ((s + self.kappa) / (taken as f64 + self.kappa)).sqrt();
         let others = (sum - largest) / (taken.max(2) - 1) as f64;
@@ -736,18 +731,8 @@ pub fn u_at_distances_denoised(
         u.push(shape * e2.sqrt());
         w.push(k);
     }
-    let floor_curve = DistanceCurve {
-        d: d.clone(),
-        u: non_decreasing(&u_floor, &w),
-        scaled: Vec::new(),
-        plain: Vec::new(),
-    };
-    let curve = DistanceCurve {
-        d,
-        u: non_decreasing(&u, &w),
-        scaled: Vec::new(),
-        plain: Vec::new(),
-    };
+    let floor_curve = DistanceCurve::bare(d.clone(), non_decreasing(&u_floor, &w));
+    let curve = DistanceCurve::bare(d, non_decreasing(&u, &w));
     let factor = cells.and_then(|c| local_excess(c, &per_sample));
     dist.iter()
         .enumerate()
@@ -968,26 +953,36 @@ struct DistanceCurve {
 }
 
 impl DistanceCurve {
+    /// A curve of u alone (no noise shares kept: [`Self::local`] then scales u).
+    fn bare(d: Vec<f64>, u: Vec<f64>) -> Self {
+        Self {
+            d,
+            u,
+            scaled: Vec::new(),
+            plain: Vec::new(),
+        }
+    }
+
     /// Linear between bin centres; the first bin's value below; beyond the last centre the
     /// last two bins' growth continues (a wide gap of a random design, where a local defect
     /// can hide, is where the curve is least known; held-out samples rarely sit that far).
     fn at(&self, d: f64) -> f64 {
         let (x, u) = (&self.d, &self.u);
+        let k = x.len() - 1;
+        // At the first centre its own value even where the next bin shares its centre
+        // (distances are whole grid steps).
         if d <= x[0] {
             return u[0];
         }
-        let i = x.partition_point(|&q| q <= d);
-        if i >= x.len() {
-            let k = x.len() - 1;
-            let slope = if k > 0 && x[k] > x[k - 1] {
-                ((u[k] - u[k - 1]) / (x[k] - x[k - 1])).max(0.0)
-            } else {
-                0.0
-            };
-            return u[k] + slope * (d - x[k]);
+        if d <= x[k] {
+            return interpolate(x, u, d);
         }
-        let t = (d - x[i - 1]) / (x[i] - x[i - 1]);
-        u[i - 1] + t * (u[i] - u[i - 1])
+        let slope = if k > 0 && x[k] > x[k - 1] {
+            ((u[k] - u[k - 1]) / (x[k] - x[k - 1])).max(0.0)
+        } else {
+            0.0
+        };
+        u[k] + slope * (d - x[k])
     }
 
     /// u at distance `d` where the held-out residuals are `scale` times their size over the

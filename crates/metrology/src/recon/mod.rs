@@ -616,9 +616,9 @@ struct CrossValidation<'a> {
     /// Per fold: (training positions in the sample list, held-out positions).
     folds: Vec<(Vec<usize>, Vec<usize>)>,
     normal_cache: std::cell::RefCell<Vec<(StructureKey, std::rc::Rc<NormalEq>)>>,
-    /// Every candidate scored on all folds: its mean |error| and each held-out sample's, fold by
-    /// fold (see [`Self::selection_bias`]).
-    scored: std::cell::RefCell<Vec<(f64, Vec<f64>)>>,
+    /// Every candidate scored on all folds: each held-out sample's |error|, fold by fold (see
+    /// [`Self::selection_bias`]).
+    scored: std::cell::RefCell<Vec<Vec<f64>>>,
 }
 
 impl<'a> CrossValidation<'a> {
@@ -699,7 +699,6 @@ impl<'a> CrossValidation<'a> {
     }
 
     fn score_interp(&self, method: Method, mut sink: Option<&mut Vec<band::Residual>>) -> f64 {
-        let (mut sum, mut cnt) = (0.0, 0usize);
         let mut errors = Vec::with_capacity(self.samples.len());
         for (train, test) in &self.folds {
             let (ti, ty) = self.subset(train);
@@ -714,22 +713,21 @@ impl<'a> CrossValidation<'a> {
             };
             for (p, &r) in pred.iter().zip(test) {
                 let e = p - self.samples.values[r];
-                sum += e.abs();
                 errors.push(e.abs());
                 if let Some(k) = sink.as_deref_mut() {
                     k.push(self.residual(&ti, r, e));
                 }
             }
-            cnt += test.len();
         }
-        self.record(sum / cnt as f64, errors)
+        self.record(errors)
     }
 
-    /// Keeps a candidate's |error| at every held-out sample (when every fold was scored) for
-    /// [`Self::selection_bias`], and returns `mean`, its cross-validated error.
-    fn record(&self, mean: f64, errors: Vec<f64>) -> f64 {
+    /// A candidate's cross-validated error, the mean of its |error| at the held-out samples;
+    /// those are kept for [`Self::selection_bias`] when every fold was scored.
+    fn record(&self, errors: Vec<f64>) -> f64 {
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
         if errors.len() == self.samples.len() && mean.is_finite() {
-            self.scored.borrow_mut().push((mean, errors));
+            self.scored.borrow_mut().push(errors);
         }
         mean
     }
@@ -759,7 +757,7 @@ impl<'a> CrossValidation<'a> {
             for _ in 0..m {
                 count[rng.random_range(0..m)] += 1;
             }
-            let score = |v: &Vec<f64>, inbag: bool| {
+            let score = |v: &[f64], inbag: bool| {
                 let (mut s, mut k) = (0.0, 0u32);
                 for (e, &c) in v.iter().zip(&count) {
                     if inbag && c > 0 {
@@ -774,7 +772,7 @@ impl<'a> CrossValidation<'a> {
             };
             let pick = all
                 .iter()
-                .filter_map(|(_, v)| score(v, true).map(|s| (s, v)))
+                .filter_map(|v| score(v, true).map(|s| (s, v)))
                 .min_by(|a, b| a.0.total_cmp(&b.0));
             if let Some(out) = pick.and_then(|(_, v)| score(v, false)) {
                 total += out;
@@ -829,7 +827,6 @@ impl<'a> CrossValidation<'a> {
         // the work of forming them from the training rows).
         let ne = self.normal_equations(p);
         let (rows, full_ata, full_aty) = (&ne.rows, &ne.ata, &ne.aty);
-        let (mut sum, mut cnt) = (0.0, 0usize);
         let mut errors = Vec::with_capacity(self.samples.len());
         for (train, test) in &self.folds {
             let (ti, ty) = self.subset(train);
@@ -865,15 +862,13 @@ impl<'a> CrossValidation<'a> {
             };
             for (pred, &r) in fit.predict(&test_rows, &held).iter().zip(test) {
                 let e = pred - self.samples.values[r];
-                sum += e.abs();
                 errors.push(e.abs());
                 if let Some(k) = sink.as_deref_mut() {
                     k.push(self.residual(&ti, r, e));
                 }
             }
-            cnt += test.len();
         }
-        self.record(sum / cnt as f64, errors)
+        self.record(errors)
     }
 
     /// Bp or bpdn scored on the folds (bpdn's radius from the training-set size). Its solves are
@@ -890,10 +885,9 @@ impl<'a> CrossValidation<'a> {
         mut sink: Option<(&mut Vec<band::Residual>, usize)>,
     ) -> f64 {
         let n = self.grid.n;
-        let (mut sum, mut cnt) = (0.0, 0usize);
-        let mut errors = Vec::with_capacity(self.samples.len());
+        let (mut sum, mut errors) = (0.0, Vec::with_capacity(self.samples.len()));
         for (f, (train, test)) in self.folds.iter().enumerate() {
-            if f >= 2 && cnt > 0 && sum / cnt as f64 > 1.3 * to_beat {
+            if f >= 2 && !errors.is_empty() && sum / errors.len() as f64 > 1.3 * to_beat {
                 break;
             }
             if sink.as_ref().is_some_and(|(k, enough)| k.len() >= *enough) {
@@ -923,9 +917,8 @@ impl<'a> CrossValidation<'a> {
                     k.push(self.residual(&ti, r, e));
                 }
             }
-            cnt += test.len();
         }
-        self.record(sum / cnt as f64, errors)
+        self.record(errors)
     }
 
     /// Coordinate search over the physics model's structure and hyper-parameters, starting from
@@ -1017,11 +1010,11 @@ impl<'a> CrossValidation<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
 
     /// A cross-validation on 200 samples of a 1,000-point grid with `candidates` scored on
     /// every sample: each candidate's |error| is |N(0, σ)| with its own σ.
     fn scored(sigmas: &[f64], seed: u64) -> (f64, f64) {
+        let mut normal = test_curve::normals(seed);
         let grid = Grid {
             start_um: 0.0,
             step_um: 5.0,
@@ -1033,18 +1026,10 @@ mod tests {
         };
         let s = ReconSettings::default();
         let cv = CrossValidation::new(&grid, &samples, &s);
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let mut best = f64::INFINITY;
         for &sigma in sigmas {
-            let e: Vec<f64> = (0..200)
-                .map(|_| {
-                    // Box–Muller: |N(0, σ)|.
-                    let (a, b): (f64, f64) = (rng.random(), rng.random());
-                    sigma * (-2.0 * (1.0 - a).ln()).sqrt() * (std::f64::consts::TAU * b).cos().abs()
-                })
-                .collect();
-            let mean = e.iter().sum::<f64>() / e.len() as f64;
-            best = best.min(cv.record(mean, e));
+            let e: Vec<f64> = (0..200).map(|_| sigma * normal().abs()).collect();
+            best = best.min(cv.record(e));
         }
         (best, cv.selection_bias(best))
     }
