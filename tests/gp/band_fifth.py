@@ -74,5 +74,7 @@ def curve(family, r):
     raise ValueError(family)
 
 
+SEEDS = (104729, 977)
+
 if __name__ == "__main__":
-    sys.exit(main(FAMILIES, runner(curve, FAMILIES, 104729, 977), __doc__))
+    sys.exit(main(FAMILIES, runner(curve, FAMILIES, *SEEDS), __doc__))

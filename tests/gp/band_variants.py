@@ -73,41 +73,61 @@ def curve(family, r):
     raise ValueError(family)
 
 
-def score(binary, truth, r, m, noise, tmp):
-    """Sample `truth` at m random grid points with noise σ (from `r`), reconstruct with csmetro's
-    `auto`, and return (coverage, sharpness, interval score) of its band: the score is the 95 %
-    interval's (width 4u, plus 2/α = 40 times each miss beyond 2u; lower is better) over the mean
-    |curve − truth|, so a band too wide and one too narrow both pay."""
+def sample(truth, r, m, noise):
+    """m random grid points of `truth` (indices, ascending) and their values with noise σ (both
+    drawn from `r`)."""
     idx = np.sort(r.choice(N, m, replace=False))
-    y = truth[idx] + noise * r.normal(size=m)
+    return idx, truth[idx] + noise * r.normal(size=m)
+
+
+def reconstruct(binary, idx, y, noise_um, tmp):
+    """csmetro's `auto` curve and its u on the grid from the samples (`idx`, `y`), told the noise
+    `noise_um`."""
     src, out = os.path.join(tmp, "s.csv"), os.path.join(tmp, "o.csv")
     with open(src, "w") as f:
         f.write("position_um,error_um\n")
         f.writelines(f"{X[i]},{float(v)!r}\n" for i, v in zip(idx, y))
     grid = f"0:{STEP}:{SPAN}"
     cmd = [binary, "reconstruct", "--samples", src, "--grid", grid, "--out", out]
-    subprocess.run(cmd + ["--noise-um", str(noise)], check=True, capture_output=True)
+    subprocess.run(cmd + ["--noise-um", str(noise_um)], check=True, capture_output=True)
     o = np.loadtxt(out, delimiter=",", skiprows=1)
-    err, u = np.abs(o[:, 1] - truth), o[:, 2]
+    return o[:, 1], o[:, 2]
+
+
+def score(binary, truth, r, m, noise, tmp):
+    """Sample `truth` at m random grid points with noise σ (from `r`), reconstruct with csmetro's
+    `auto`, and return (coverage, sharpness, interval score) of its band: the score is the 95 %
+    interval's (width 4u, plus 2/α = 40 times each miss beyond 2u; lower is better) over the mean
+    |curve − truth|, so a band too wide and one too narrow both pay."""
+    idx, y = sample(truth, r, m, noise)
+    g, u = reconstruct(binary, idx, y, noise, tmp)
+    err = np.abs(g - truth)
     miss = np.maximum(err - 2 * u, 0.0)
     interval = float(np.mean(4 * u + 40.0 * miss) / err.mean())
     return float(np.mean(err <= 2 * u)), float(2 * u.mean() / err.mean()), interval
 
 
+def seeded(families, per_seed, per_family, family, m, seed):
+    """The draws of (family, m, seed): PCG64(per_seed · seed + per_family · family's index + m)."""
+    return np.random.Generator(
+        np.random.PCG64(per_seed * seed + per_family * families.index(family) + m)
+    )
+
+
 def runner(curve, families, per_seed, per_family):
     """`run(binary, family, m, seed, noise, tmp)` scoring `curve` on draws seeded per (family, m,
-    seed) with PCG64(per_seed · seed + per_family · family's index + m)."""
+    seed) by `seeded`."""
 
     def run(binary, family, m, seed, noise, tmp):
-        r = np.random.Generator(
-            np.random.PCG64(per_seed * seed + per_family * families.index(family) + m)
-        )
+        r = seeded(families, per_seed, per_family, family, m, seed)
         return score(binary, curve(family, r), r, m, noise, tmp)
 
     return run
 
 
-run = runner(curve, FAMILIES, 1000, 10)
+# Each generator's seeds (per seed, per family), also for tests/gp/noise_told.py.
+SEEDS = (1000, 10)
+run = runner(curve, FAMILIES, *SEEDS)
 
 
 def main(families=FAMILIES, run=run, doc=__doc__):

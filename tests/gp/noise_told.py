@@ -15,8 +15,6 @@ sample points, off them, and over all. Usage:
 import argparse
 import importlib
 import os
-import re
-import subprocess
 import sys
 import tempfile
 
@@ -38,32 +36,15 @@ def main():
     args = a.parse_args()
     hit_at, hit_off = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        src, out = os.path.join(tmp, "s.csv"), os.path.join(tmp, "o.csv")
         for name in GENERATORS:
             gen = importlib.import_module(name)
-            here = os.path.dirname(os.path.abspath(__file__))
-            text = open(os.path.join(here, name + ".py")).read()
-            seeds = re.search(r"runner\(curve, FAMILIES, (\d+), (\d+)\)", text)
-            per_seed, per_family = (int(seeds[1]), int(seeds[2])) if seeds else (1000, 10)
             for family in gen.FAMILIES:
                 for seed in range(args.seeds):
-                    r = np.random.Generator(
-                        np.random.PCG64(
-                            per_seed * seed + per_family * gen.FAMILIES.index(family) + args.m
-                        )
-                    )
+                    r = bv.seeded(gen.FAMILIES, *gen.SEEDS, family, args.m, seed)
                     truth = gen.curve(family, r)
-                    idx = np.sort(r.choice(bv.N, args.m, replace=False))
-                    y = truth[idx] + SIGMA * r.normal(size=args.m)
-                    with open(src, "w") as f:
-                        f.write("position_um,error_um\n")
-                        f.writelines(f"{bv.X[i]},{float(v)!r}\n" for i, v in zip(idx, y))
-                    cmd = [args.csmetro, "reconstruct", "--samples", src, "--out", out]
-                    cmd += ["--grid", f"0:{bv.STEP}:{bv.SPAN}"]
-                    cmd += ["--noise-um", str(SIGMA * args.told)]
-                    subprocess.run(cmd, check=True, capture_output=True)
-                    o = np.loadtxt(out, delimiter=",", skiprows=1)
-                    hit = np.abs(o[:, 1] - truth) <= 2 * o[:, 2]
+                    idx, y = bv.sample(truth, r, args.m, SIGMA)
+                    g, u = bv.reconstruct(args.csmetro, idx, y, SIGMA * args.told, tmp)
+                    hit = np.abs(g - truth) <= 2 * u
                     at = np.zeros(bv.N, bool)
                     at[idx] = True
                     hit_at.append(hit[at])
