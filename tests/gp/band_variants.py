@@ -108,7 +108,7 @@ def score(binary, truth, r, m, noise, tmp):
 
 
 def seeded(families, per_seed, per_family, family, m, seed):
-    """The draws of (family, m, seed): PCG64(per_seed · seed + per_family · family's index + m)."""
+    """The draws of (family, m, seed): PCG64(per_seed · seed + per_family · family index + m)."""
     return np.random.Generator(
         np.random.PCG64(per_seed * seed + per_family * families.index(family) + m)
     )
