@@ -43,7 +43,7 @@ use rows::{
 use schema::MIGRATIONS;
 
 /// The schema this build writes. Bump it and append to `schema::MIGRATIONS` to change the schema.
-pub const SCHEMA_VERSION: i32 = 4;
+pub const SCHEMA_VERSION: i32 = 5;
 
 /// `PRAGMA application_id` of a csmetro store ("CSMT"), so `file(1)`-like tools and
 /// [`Store::open`] can tell a csmetro database from another SQLite file.
@@ -606,9 +606,9 @@ impl Store {
             .prepare_cached(
                 "INSERT INTO samples (campaign_id, seq, phase, axis, direction, cycle, grid_index, \
                  target_x_um, target_y_um, meas_x_um, meas_y_um, theta_mrad, encoder_um, time_s, \
-                 unix_s, quality, frames, rejected, point_s, raw_bits) VALUES \
-                 (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, \
-                 ?19, ?20) ON CONFLICT (campaign_id, seq) DO NOTHING",
+                 unix_s, quality, frames, rejected, point_s, raw_bits, frame_sd_x_um, \
+                 frame_sd_y_um) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, \
+                 ?14, ?15, ?16, ?17, ?18, ?19, ?20, ?21, ?22) ON CONFLICT (campaign_id, seq) DO NOTHING",
             )
             .and_then(|mut st| {
                 st.execute(params![
@@ -632,6 +632,8 @@ impl Store {
                     s.rejected,
                     v[9],
                     raw,
+                    s.frame_sd_um.map(|d| d[0]),
+                    s.frame_sd_um.map(|d| d[1]),
                 ])
             })
             .map_err(|e| self.write_err(OP, campaign, e))?;

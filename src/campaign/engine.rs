@@ -224,6 +224,8 @@ struct InFlight {
 
 struct Decoded {
     ok: Option<(f64, f64, f64, f64)>,
+    /// The frames' scatter (x, y) about their mean, µm; with two frames or more.
+    frame_sd_um: Option<[f64; 2]>,
     reason: Option<String>,
     frames: u32,
     wall_s: f64,
@@ -241,13 +243,14 @@ fn decode_all(decoder: &Decoder, jobs: Vec<PendingFrame>) -> Decoded {
     // Decoding only: a simulated camera's rendering is not processing.
     let mut wall = 0.0;
     let n = jobs.len() as u32;
-    let (mut sx, mut sy, mut st, mut q) = (0.0, 0.0, 0.0, f64::INFINITY);
+    let (mut xs, mut ys, mut st, mut q) = (Vec::new(), Vec::new(), 0.0, f64::INFINITY);
     for job in jobs {
         let frame: Frame = match job() {
             Ok(f) => f,
             Err(e) => {
                 return Decoded {
                     ok: None,
+                    frame_sd_um: None,
                     reason: Some(format!("camera: {e}")),
                     frames: n,
                     wall_s: wall,
@@ -260,21 +263,30 @@ fn decode_all(decoder: &Decoder, jobs: Vec<PendingFrame>) -> Decoded {
         if !r.ok {
             return Decoded {
                 ok: None,
+                frame_sd_um: None,
                 reason: r.reason.or(Some("rejected".into())),
                 frames: n,
                 wall_s: wall,
             };
         }
-        sx += r.x_um;
-        sy += r.y_um;
+        xs.push(r.x_um);
+        ys.push(r.y_um);
         st += r.theta_mrad;
         let bits = (r.quality.bits_x + r.quality.bits_y).max(1) as f64;
         let agree = 1.0 - (r.quality.bit_errors_x + r.quality.bit_errors_y) as f64 / bits;
         q = q.min(agree);
     }
     let k = n as f64;
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / k;
+    let sd = |v: &[f64]| {
+        let c = mean(v);
+        (v.iter().map(|x| (x - c).powi(2)).sum::<f64>() / (k - 1.0)).sqrt()
+    };
+    let frame_sd_um =
+        Some([sd(&xs), sd(&ys)]).filter(|s| n >= 2 && s.iter().all(|v| v.is_finite()));
     Decoded {
-        ok: Some((sx / k, sy / k, st / k, q)),
+        ok: Some((mean(&xs), mean(&ys), st / k, q)),
+        frame_sd_um,
         reason: None,
         frames: n,
         wall_s: wall,
@@ -795,6 +807,7 @@ impl<'a> Engine<'a> {
                     frames: d.frames,
                     rejected: rejected_before,
                     point_s: f.point_s + self.extra_s.get(&f.target.seq).copied().unwrap_or(0.0),
+                    frame_sd_um: d.frame_sd_um,
                 };
                 if let Some((x, y)) = f.truth {
                     self.recorder.truth(rec.target.seq, x, y);

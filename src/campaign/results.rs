@@ -383,7 +383,10 @@ pub fn build(
             let mut j = json!({"component": comp.name()});
             if let Some(k) = cs {
                 j["cs"] = json!({"method": k.method, "m": k.samples.len(), "cv_error_um": k.cv_error_um, "solve_ms": k.solve_ms,
-                                "pooled_with": k.pooled_with, "difference_degree": k.difference_degree});
+                                "pooled_with": k.pooled_with, "difference_degree": k.difference_degree,
+                                // σ used, told, and as the frames showed it (several per point).
+                                "noise_um": k.noise.used_um, "noise_told_um": k.noise.told_um,
+                                "frame_noise_um": k.noise.frames_um, "frame_noise_dof": k.noise.frames_dof});
                 if let Some(f) = full {
                     j["cs_vs_full"] = diff_stats(&k.values_um, &f.values_um);
                 }
@@ -608,6 +611,23 @@ pub fn build(
             hms(tot[1][1]),
             100.0 * (1.0 - tot[0][0] / tot[1][0].max(1.0))
         ));
+    }
+    // The σ each curve used, where the frames measured one (several frames a point).
+    for k in curves.iter().filter(|k| k.run.phase == Phase::Cs) {
+        if let Some(f) = k.noise.frames_um {
+            table.push_str(&format!(
+                "noise {} {}: told {} µm, frames show {f:.4} µm ({} degrees of freedom): {}\n",
+                k.component.name(),
+                k.run.label(),
+                k.noise.told_um,
+                k.noise.frames_dof,
+                if k.noise.raised() {
+                    format!("reconstructed with {f:.4} µm")
+                } else {
+                    "the told σ kept".into()
+                }
+            ));
+        }
     }
     // Plots, compensation tables and ISO 230-2 figures; a report failure leaves the rest intact.
     let mut iso = Value::Null;

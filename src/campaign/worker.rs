@@ -10,6 +10,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
+use super::noise::{noise_floor, NoiseFloor};
 use super::spec::Campaign;
 use crate::grid::Grid;
 use crate::recon::joint::{reconstruct_joint, reconstruct_joint_among};
@@ -37,6 +38,8 @@ pub struct Curve {
     pub solve_ms: f64,
     /// The measured samples (position, error), µm.
     pub samples: Vec<(f64, f64)>,
+    /// The noise σ the curve was reconstructed with: told, and measured from the frames.
+    pub noise: NoiseFloor,
 }
 
 impl Curve {
@@ -81,6 +84,22 @@ fn run_samples(samples: &[SampleRecord], run: RunKey, component: Component) -> G
     }
 }
 
+/// The noise σ of a run's samples of `component`: the σ told, raised to the frames' scatter
+/// ([`noise_floor`]). The run's own frames only: the opposite direction may not be measured yet
+/// when this one is reconstructed, and a curve must not depend on that timing.
+fn run_noise(
+    settings: &ReconSettings,
+    samples: &[SampleRecord],
+    run: RunKey,
+    component: Component,
+) -> NoiseFloor {
+    noise_floor(
+        settings.noise_um,
+        samples.iter().filter(|s| s.target.run == run),
+        component.measured,
+    )
+}
+
 /// A reconstruction of the worker that failed: which curve or map, and the reconstruction's
 /// reason (the recon crates report it in text).
 #[derive(Debug, Clone, thiserror::Error)]
@@ -121,6 +140,19 @@ pub fn reconstruct_run(
         .map(|component| {
             let gs = run_samples(samples, run, component);
             let mut st = settings.clone();
+            let noise = run_noise(settings, samples, run, component);
+            if noise.raised() {
+                tracing::warn!(
+                    "{} of {}: noise_um = {} µm told is below the frames' scatter ({:.4} µm, \
+                     {} degrees of freedom); the curve uses the frames'",
+                    component.name(),
+                    run.label(),
+                    noise.told_um,
+                    noise.used_um,
+                    noise.frames_dof
+                );
+            }
+            st.noise_um = noise.used_um;
             if run.phase == Phase::Full {
                 // The full scan is the curve; failed points (if any) are bridged linearly.
                 st.method = Method::Linear;
@@ -155,6 +187,7 @@ pub fn reconstruct_run(
                     .zip(&gs.values)
                     .map(|(&i, &v)| (grid.position(i), v))
                     .collect(),
+                noise,
             })
         })
         .collect()
@@ -231,6 +264,10 @@ pub fn stop_estimate(
     // The opposite direction's samples, when the curve pools them: the folds pool them too
     // (held out are only this run's), and they count as samples in every distance.
     let other = run_samples(samples, opposite(run), component);
+    // The σ the finished curve will use (told, or the frames' when above it).
+    let mut noisy = settings.clone();
+    noisy.noise_um = run_noise(settings, samples, run, component).used_um;
+    let settings = &noisy;
     let whole = reconstruct_joint(grid, &gs, &other, settings).map_err(StopError::Recon)?;
     let pooled = whole.pooled_with.is_some();
     let with_other = |idx: &[usize]| -> Vec<usize> {
@@ -554,6 +591,7 @@ mod tests {
             frames: 1,
             rejected: 0,
             point_s: 3.0,
+            frame_sd_um: None,
         }
     }
 

@@ -464,6 +464,7 @@ mod tests {
             frames: 1,
             rejected: 0,
             point_s: 0.0,
+            frame_sd_um: None,
         }
     }
 

@@ -11,7 +11,7 @@ pub(super) const CAMPAIGN_COLS: &str = "id, name, spec_toml, spec_path, stage, s
 pub(super) const SAMPLE_COLS: &str =
     "seq, phase, axis, direction, cycle, grid_index, target_x_um, \
      target_y_um, meas_x_um, meas_y_um, theta_mrad, encoder_um, time_s, unix_s, quality, frames, \
-     rejected, point_s, raw_bits";
+     rejected, point_s, raw_bits, frame_sd_x_um, frame_sd_y_um";
 
 /// The REAL columns of a sample, in [`SAMPLE_COLS`] order (indices 6..=14 and 17).
 const REAL_NAMES: [&str; 10] = [
@@ -94,6 +94,8 @@ pub(super) fn sample_from_row_at(
     let frames: i64 = row.get(o + 15)?;
     let rejected: i64 = row.get(o + 16)?;
     let raw: Option<String> = row.get(o + 18)?;
+    let sd_x: Option<f64> = row.get(o + 19)?;
+    let sd_y: Option<f64> = row.get(o + 20)?;
     Ok((|| {
         if let Some(raw) = raw {
             for part in raw.split(',').filter(|p| !p.is_empty()) {
@@ -148,6 +150,7 @@ pub(super) fn sample_from_row_at(
             frames: u32_from(frames, "frames")?,
             rejected: u32_from(rejected, "rejected")?,
             point_s,
+            frame_sd_um: sd_x.zip(sd_y).map(|(x, y)| [x, y]),
         })
     })())
 }

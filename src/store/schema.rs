@@ -135,4 +135,10 @@ CREATE INDEX stage_events_by_stage ON stage_events (stage, id);
 -- never read a file that may have been swapped since.
 ALTER TABLE campaigns ADD COLUMN model_toml TEXT;
 "#,
+    // 4 -> 5: the frames' scatter at each point (x, y; NULL with one frame): the camera's
+    // repeatability, from which the reconstruction's noise floor is measured.
+    r#"
+ALTER TABLE samples ADD COLUMN frame_sd_x_um REAL;
+ALTER TABLE samples ADD COLUMN frame_sd_y_um REAL;
+"#,
 ];

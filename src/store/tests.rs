@@ -66,6 +66,7 @@ fn sample(seq: u64) -> SampleRecord {
         frames: 1 + (seq % 5) as u32,
         rejected: (seq % 3) as u32,
         point_s: 0.3 + k * 1e-9,
+        frame_sd_um: (!seq.is_multiple_of(5)).then(|| [1e-3 * (k + 1.0).sqrt(), 0.02 / (k + 1.0)]),
     }
 }
 
@@ -804,6 +805,7 @@ fn a_schema_2_store_keeps_its_samples_and_takes_map_samples() {
         let conn = Connection::open(&path).unwrap();
         conn.execute_batch(
             "CREATE TABLE s2 AS SELECT * FROM samples; DROP TABLE samples; \
+             ALTER TABLE s2 DROP COLUMN frame_sd_x_um; ALTER TABLE s2 DROP COLUMN frame_sd_y_um; \
              DROP TABLE stage_events; ALTER TABLE campaigns DROP COLUMN model_toml;",
         )
         .unwrap();

@@ -146,6 +146,9 @@ fn a_campaign_runs_end_to_end_and_reports_against_the_truth() {
         assert!(comps.contains(&k), "{k} in {comps:?}");
     }
     for c in y["components"].as_array().unwrap() {
+        // One frame per point: the σ told is the σ used, and the frames measure nothing.
+        assert_eq!(c["cs"]["noise_um"], 0.01, "{c}");
+        assert!(c["cs"]["frame_noise_um"].is_null(), "{c}");
         // The camera measures the truth to ~10 nm; 20 random points recover 400 µm of curve.
         let full = c["full_vs_truth"]["max_abs_um"].as_f64().unwrap();
         let cs = c["cs_vs_truth"]["mean_abs_um"].as_f64().unwrap();
@@ -228,6 +231,41 @@ fn a_campaign_runs_end_to_end_and_reports_against_the_truth() {
     // The demo stage is far from ideal: the gap is there and located.
     assert!(g["heldout_rms_before_um"].as_f64().unwrap() > 0.2, "{g}");
     assert!(!g["where"].as_array().unwrap().is_empty());
+}
+
+#[test]
+fn frames_measure_the_cameras_noise_and_raise_a_sigma_told_too_low() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("c.db");
+    let c = campaign(dir.path(), 300.0, 30);
+    // Four frames a point, σ told a tenth of the simulated camera's (0.01 µm a frame).
+    let text = std::fs::read_to_string(&c)
+        .unwrap()
+        .replace("dwell_s = 0.5\n", "dwell_s = 0.5\nframes_per_point = 4\n")
+        .replace("noise_um = 0.01", "noise_um = 0.001")
+        .replace("full_scan = true", "full_scan = false");
+    std::fs::write(&c, text).unwrap();
+    let j = json_of(&run_json(&c, &db));
+    assert_eq!(j["state"], "done", "{j}");
+    let comps = j["axes"][0]["components"].as_array().unwrap();
+    assert_eq!(comps.len(), 4, "{j}");
+    for k in comps {
+        let cs = &k["cs"];
+        // A sample averages four frames: 0.01 / √4 = 0.005 µm, with the decoder's own scatter.
+        let frames = cs["frame_noise_um"].as_f64().unwrap();
+        assert!((0.004..0.008).contains(&frames), "{k}");
+        assert_eq!(cs["frame_noise_dof"], 90, "30 points of 4 frames: {k}");
+        assert_eq!(cs["noise_told_um"], 0.001, "{k}");
+        assert_eq!(cs["noise_um"], frames, "the curve uses the frames' σ: {k}");
+    }
+    // The store keeps each point's scatter: a resumed campaign measures the same σ.
+    let samples = store(&db).samples(1).unwrap();
+    assert_eq!(samples.len(), 60);
+    for s in &samples {
+        assert_eq!(s.frames, 4);
+        let [x, y] = s.frame_sd_um.expect("scatter of 4 frames");
+        assert!(x > 0.0 && y > 0.0 && x < 0.05 && y < 0.05, "{s:?}");
+    }
 }
 
 #[test]

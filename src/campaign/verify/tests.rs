@@ -74,6 +74,7 @@ fn targets_stay_inside_the_measured_span_and_the_ends_are_apart() {
             frames: 1,
             rejected: 0,
             point_s: 0.0,
+            frame_sd_um: None,
         }
     };
     let f = Direction::Forward;

@@ -1,0 +1,168 @@
+//! The noise σ a campaign's curves are reconstructed with: the σ told (`[reconstruction]
+//! noise_um`), raised to the camera's scatter measured from the frames when the points averaged
+//! several frames and the told σ is clearly below what they show.
+//!
+//! Why: the band at a sample point rests on σ, since a curve through its samples is off by the
+//! sample's own noise there. Told half the samples' σ, it covers 0.78 of the sample points
+//! (`tests/gp/noise_told.py`). Frames taken at a standing stage show the camera's scatter, not the
+//! stage's landing scatter, so they bound a sample's noise from below only: a told σ above them is
+//! kept.
+use serde::Serialize;
+
+use crate::types::{AxisId, SampleRecord};
+
+/// One-sided 95 % normal quantile: the told σ is raised only when it lies below the frames'
+/// 95 % lower confidence bound.
+const Z95: f64 = 1.645;
+
+/// The σ of one curve's samples: told, measured from the frames, and used.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NoiseFloor {
+    /// σ told by the campaign, µm.
+    pub told_um: f64,
+    /// A sample's noise as its frames show it (σ of one frame over √frames), µm; `None` when no
+    /// point averaged two frames or more.
+    pub frames_um: Option<f64>,
+    /// Degrees of freedom of `frames_um`: Σ (frames − 1) over the points.
+    pub frames_dof: u64,
+    /// σ the curve is reconstructed with, µm: `told_um`, or `frames_um` when the told σ is
+    /// below the frames' 95 % lower bound.
+    pub used_um: f64,
+}
+
+impl NoiseFloor {
+    /// True when the frames raised the told σ.
+    pub fn raised(&self) -> bool {
+        self.used_um != self.told_um
+    }
+}
+
+/// χ² quantile at the normal quantile `z` with `dof` degrees of freedom (Wilson–Hilferty; within
+/// 1 % of the exact value from 3 degrees of freedom up).
+fn chi2_quantile(dof: f64, z: f64) -> f64 {
+    let a = 2.0 / (9.0 * dof);
+    dof * (1.0 - a + z * a.sqrt()).max(0.0).powi(3)
+}
+
+/// The σ to reconstruct the coordinate `measured` of `samples` with, given the σ told.
+pub fn noise_floor<'a>(
+    told_um: f64,
+    samples: impl IntoIterator<Item = &'a SampleRecord>,
+    measured: AxisId,
+) -> NoiseFloor {
+    let axis = measured as usize;
+    let (mut ss, mut dof, mut inv_k, mut n) = (0.0, 0u64, 0.0, 0usize);
+    for s in samples {
+        let k = s.frames.max(1);
+        n += 1;
+        inv_k += 1.0 / f64::from(k);
+        if let Some(sd) = s.frame_sd_um.map(|d| d[axis]).filter(|v| v.is_finite()) {
+            if k >= 2 {
+                ss += f64::from(k - 1) * sd * sd;
+                dof += u64::from(k - 1);
+            }
+        }
+    }
+    let mut out = NoiseFloor {
+        told_um,
+        frames_um: None,
+        frames_dof: dof,
+        used_um: told_um,
+    };
+    if dof == 0 || n == 0 {
+        return out;
+    }
+    // Pooled variance of one frame; a sample averages its frames.
+    let var = ss / dof as f64 * inv_k / n as f64;
+    out.frames_um = Some(var.sqrt());
+    let lower = var * dof as f64 / chi2_quantile(dof as f64, Z95);
+    if told_um * told_um < lower {
+        out.used_um = var.sqrt();
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::types::{Direction, Phase, RunKey, Target};
+
+    /// A point of `k` frames whose single frames scatter by `sd` µm along x.
+    fn point(k: u32, sd: Option<f64>) -> SampleRecord {
+        let run = RunKey {
+            phase: Phase::Cs,
+            axis: AxisId::X,
+            direction: Direction::Forward,
+            cycle: 0,
+        };
+        SampleRecord {
+            target: Target {
+                seq: 0,
+                run,
+                grid_index: 0,
+                target_x_um: 0.0,
+                target_y_um: 0.0,
+            },
+            meas_x_um: 0.0,
+            meas_y_um: 0.0,
+            theta_mrad: 0.0,
+            encoder_um: 0.0,
+            time_s: 0.0,
+            unix_s: 0.0,
+            quality: 1.0,
+            frames: k,
+            rejected: 0,
+            point_s: 0.0,
+            frame_sd_um: sd.map(|s| [s, 10.0 * s]),
+        }
+    }
+
+    #[test]
+    fn a_sigma_told_below_the_frames_scatter_is_raised_to_it() {
+        // 200 points of 4 frames, each frame σ 0.01 µm: a sample's σ is 0.005 µm.
+        let pts: Vec<_> = (0..200).map(|_| point(4, Some(0.01))).collect();
+        let f = noise_floor(0.002, &pts, AxisId::X);
+        assert!((f.frames_um.unwrap() - 0.005).abs() < 1e-12, "{f:?}");
+        assert_eq!(f.frames_dof, 600);
+        assert!(f.raised() && f.used_um == f.frames_um.unwrap(), "{f:?}");
+        // The y coordinate reads its own scatter (ten times x's here).
+        let fy = noise_floor(0.002, &pts, AxisId::Y);
+        assert!((fy.used_um - 0.05).abs() < 1e-12, "{fy:?}");
+    }
+
+    #[test]
+    fn a_told_sigma_within_or_above_the_frames_reach_is_kept() {
+        let pts: Vec<_> = (0..200).map(|_| point(4, Some(0.01))).collect();
+        // Above the frames: the stage's landing scatter the frames do not see.
+        let above = noise_floor(0.02, &pts, AxisId::X);
+        assert!(!above.raised() && above.used_um == 0.02, "{above:?}");
+        // Just below the estimate but within its 95 % chance (600 dof: the bound is ~0.92 of it).
+        let near = noise_floor(0.0048, &pts, AxisId::X);
+        assert!(!near.raised(), "{near:?}");
+        // Few frames: 3 points of 2 frames cannot tell 0.004 from 0.005.
+        let few: Vec<_> = (0..3)
+            .map(|_| point(2, Some(0.005 * 2f64.sqrt())))
+            .collect();
+        assert!(!noise_floor(0.004, &few, AxisId::X).raised());
+    }
+
+    #[test]
+    fn single_frames_measure_nothing() {
+        let pts: Vec<_> = (0..50).map(|_| point(1, None)).collect();
+        let f = noise_floor(0.01, &pts, AxisId::X);
+        assert_eq!((f.frames_um, f.frames_dof, f.used_um), (None, 0, 0.01));
+        // Points of one frame count in how much a sample averages, not in the scatter.
+        let mut mixed: Vec<_> = (0..100).map(|_| point(4, Some(0.01))).collect();
+        mixed.extend((0..100).map(|_| point(1, None)));
+        let m = noise_floor(0.0, &mixed, AxisId::X).frames_um.unwrap();
+        let want = (1e-4 * (0.25 + 1.0) / 2.0f64).sqrt();
+        assert!((m - want).abs() < 1e-12, "{m} against {want}");
+    }
+
+    #[test]
+    fn the_chi2_quantile_is_near_the_tables() {
+        // χ²(0.95): 10 dof 18.307, 100 dof 124.342.
+        assert!((chi2_quantile(10.0, Z95) - 18.307).abs() < 0.05);
+        assert!((chi2_quantile(100.0, Z95) - 124.342).abs() < 0.1);
+    }
+}
