@@ -172,6 +172,26 @@ impl SampleRecord {
             AxisId::Y => self.meas_y_um - self.target.target_y_um,
         }
     }
+
+    /// Tests' sample: `target` measured exactly there (the encoder on the moving axis), one
+    /// frame, every time 0; a test sets the fields it is about.
+    #[cfg(test)]
+    pub(crate) fn at(target: Target) -> Self {
+        SampleRecord {
+            target,
+            meas_x_um: target.target_x_um,
+            meas_y_um: target.target_y_um,
+            theta_mrad: 0.0,
+            encoder_um: target.target_um(),
+            time_s: 0.0,
+            unix_s: 0.0,
+            quality: 1.0,
+            frames: 1,
+            rejected: 0,
+            point_s: 0.0,
+            frame_sd_um: None,
+        }
+    }
 }
 
 /// Campaign lifecycle as stored.

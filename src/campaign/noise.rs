@@ -96,24 +96,15 @@ mod tests {
             cycle: 0,
         };
         SampleRecord {
-            target: Target {
+            frames: k,
+            frame_sd_um: sd.map(|s| [s, 10.0 * s]),
+            ..SampleRecord::at(Target {
                 seq: 0,
                 run,
                 grid_index: 0,
                 target_x_um: 0.0,
                 target_y_um: 0.0,
-            },
-            meas_x_um: 0.0,
-            meas_y_um: 0.0,
-            theta_mrad: 0.0,
-            encoder_um: 0.0,
-            time_s: 0.0,
-            unix_s: 0.0,
-            quality: 1.0,
-            frames: k,
-            rejected: 0,
-            point_s: 0.0,
-            frame_sd_um: sd.map(|s| [s, 10.0 * s]),
+            })
         }
     }
 

@@ -574,24 +574,15 @@ mod tests {
     fn record(run: RunKey, grid: &Grid, i: usize, err: f64) -> SampleRecord {
         let p = grid.position(i);
         SampleRecord {
-            target: Target {
+            meas_x_um: p + err,
+            point_s: 3.0,
+            ..SampleRecord::at(Target {
                 seq: i as u64,
                 run,
                 grid_index: i,
                 target_x_um: p,
                 target_y_um: 100.0,
-            },
-            meas_x_um: p + err,
-            meas_y_um: 100.0,
-            theta_mrad: 0.0,
-            encoder_um: p,
-            time_s: 0.0,
-            unix_s: 0.0,
-            quality: 1.0,
-            frames: 1,
-            rejected: 0,
-            point_s: 3.0,
-            frame_sd_um: None,
+            })
         }
     }
 

@@ -453,18 +453,9 @@ mod tests {
             target_y_um: if axis == AxisId::Y { t } else { 0.0 },
         };
         SampleRecord {
-            target,
             meas_x_um: target.target_x_um + if axis == AxisId::X { e } else { 0.0 },
             meas_y_um: target.target_y_um + if axis == AxisId::Y { e } else { 0.0 },
-            theta_mrad: 0.0,
-            encoder_um: t,
-            time_s: 0.0,
-            unix_s: 0.0,
-            quality: 1.0,
-            frames: 1,
-            rejected: 0,
-            point_s: 0.0,
-            frame_sd_um: None,
+            ..SampleRecord::at(target)
         }
     }
 

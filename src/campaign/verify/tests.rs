@@ -56,26 +56,13 @@ fn targets_stay_inside_the_measured_span_and_the_ends_are_apart() {
             direction: d,
             cycle: 0,
         };
-        SampleRecord {
-            target: Target {
-                seq: 0,
-                run,
-                grid_index: 0,
-                target_x_um: p,
-                target_y_um: 100.0,
-            },
-            meas_x_um: p,
-            meas_y_um: 100.0,
-            theta_mrad: 0.0,
-            encoder_um: p,
-            time_s: 0.0,
-            unix_s: 0.0,
-            quality: 1.0,
-            frames: 1,
-            rejected: 0,
-            point_s: 0.0,
-            frame_sd_um: None,
-        }
+        SampleRecord::at(Target {
+            seq: 0,
+            run,
+            grid_index: 0,
+            target_x_um: p,
+            target_y_um: 100.0,
+        })
     };
     let f = Direction::Forward;
     let b = Direction::Backward;
