@@ -9,6 +9,7 @@ pub mod cli;
 pub mod compensation;
 pub mod export;
 pub mod gap;
+pub mod noise;
 pub mod recon2d;
 pub mod report;
 pub mod samples;

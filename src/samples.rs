@@ -2,6 +2,7 @@
 use std::path::Path;
 
 use crate::grid::Grid;
+use crate::noise::Scatter;
 
 // The reconstruction's input type lives with the mathematics; re-exported so the readers'
 // callers keep their paths.
@@ -52,10 +53,10 @@ pub fn read_samples_csv(
     path: &Path,
     grid: &Grid,
     sel: &Select,
-) -> Result<GridSamples, SamplesFileError> {
+) -> Result<(GridSamples, Scatter), SamplesFileError> {
     let text = crate::tomlpos::read_bounded(path, MAX_SAMPLES_BYTES)
         .map_err(SamplesFileError::read(path))?;
-    parse_samples_with(&text, grid, sel).map_err(SamplesFileError::line(path))
+    parse_samples_repeats(&text, grid, sel).map_err(SamplesFileError::line(path))
 }
 
 /// At most 40 characters of a field for an error message (a field may be megabytes long).
@@ -164,6 +165,16 @@ pub fn parse_samples_with(
     grid: &Grid,
     sel: &Select,
 ) -> Result<GridSamples, (usize, String)> {
+    parse_samples_repeats(text, grid, sel).map(|(s, _)| s)
+}
+
+/// [`parse_samples_with`], and the scatter of the positions' repeated cycles about their mean
+/// (a sample's noise as the repeats show it: [`crate::noise`]).
+pub fn parse_samples_repeats(
+    text: &str,
+    grid: &Grid,
+    sel: &Select,
+) -> Result<(GridSamples, Scatter), (usize, String)> {
     use crate::types::{AxisId, Direction, Phase};
     let mut lines = text
         .lines()
@@ -195,8 +206,8 @@ pub fn parse_samples_with(
         (Some(a), Some(d), Some(c)) => Some((a, d, c, col("phase"), col("pass"))),
         _ => None,
     };
-    // Per grid position: (error sum, count, first line, cycles seen).
-    type Slot = (f64, u32, usize, Vec<u64>);
+    // Per grid position: (errors, first line, cycles seen).
+    type Slot = (Vec<f64>, usize, Vec<u64>);
     let mut at: Vec<Option<Slot>> = vec![None; grid.n];
     let mut curves: Vec<(AxisId, Direction)> = Vec::new();
     for (i, line) in lines {
@@ -296,14 +307,13 @@ pub fn parse_samples_with(
             )
         })?;
         match (&mut at[k], cycle) {
-            (slot @ None, _) => *slot = Some((e, 1, lineno, cycle.into_iter().collect())),
+            (slot @ None, _) => *slot = Some((vec![e], lineno, cycle.into_iter().collect())),
             // Another cycle of the same target: a repeat, averaged.
-            (Some((sum, n, _, seen)), Some(c)) if !seen.contains(&c) => {
-                *sum += e;
-                *n += 1;
+            (Some((errors, _, seen)), Some(c)) if !seen.contains(&c) => {
+                errors.push(e);
                 seen.push(c);
             }
-            (Some((_, _, first, _)), _) => {
+            (Some((_, first, _)), _) => {
                 return Err((
                     lineno,
                     format!("duplicate position {p} µm (first at line {first})"),
@@ -311,10 +321,19 @@ pub fn parse_samples_with(
             }
         }
     }
+    let mut scatter = Scatter::default();
     let rows: Vec<(usize, f64)> = at
         .iter()
         .enumerate()
-        .filter_map(|(k, s)| s.as_ref().map(|(sum, n, _, _)| (k, sum / f64::from(*n))))
+        .filter_map(|(k, s)| {
+            let (errors, _, _) = s.as_ref()?;
+            let n = errors.len() as f64;
+            let mean = errors.iter().sum::<f64>() / n;
+            scatter.sum_sq += errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>();
+            scatter.dof += errors.len() as u64 - 1;
+            scatter.mean_inv_k += 1.0 / n;
+            Some((k, mean))
+        })
         .collect();
     let m = rows.len();
     if m < 2 {
@@ -323,10 +342,14 @@ pub fn parse_samples_with(
             format!("need at least 2 samples, found {m}"),
         ));
     }
-    Ok(GridSamples {
-        idx: rows.iter().map(|r| r.0).collect(),
-        values: rows.iter().map(|r| r.1).collect(),
-    })
+    scatter.mean_inv_k /= m as f64;
+    Ok((
+        GridSamples {
+            idx: rows.iter().map(|r| r.0).collect(),
+            values: rows.iter().map(|r| r.1).collect(),
+        },
+        scatter,
+    ))
 }
 
 /// Writes `position_um,error_um` at each position.
@@ -424,10 +447,14 @@ mod tests {
             direction: Some(Direction::Forward),
             phase: None,
         };
-        let s = parse_samples_with(&text, &g, &fwd).unwrap();
+        let (s, rep) = parse_samples_repeats(&text, &g, &fwd).unwrap();
         // 10 µm: cycles 0 and 1 averaged; the `after` row is left out.
         assert_eq!(s.idx, vec![2, 4]);
         assert_eq!(s.values, vec![1.5, 3.0]);
+        // Their scatter: (1 − 1.5)² + (2 − 1.5)² on one degree of freedom; the samples average
+        // 2 and 1 readings. A sample's σ: √(0.5 · (1/2 + 1)/2).
+        assert_eq!((rep.sum_sq, rep.dof, rep.mean_inv_k), (0.5, 1, 0.75));
+        assert!((rep.sample_sigma_um().unwrap() - 0.375f64.sqrt()).abs() < 1e-12);
         // The same cycle twice is a copied row.
         let dup = format!("{text}{}", row("cs", "forward", 1, "", 10.0, 2.0));
         let e = parse_samples_with(&dup, &g, &fwd).unwrap_err();

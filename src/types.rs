@@ -159,7 +159,7 @@ pub struct SampleRecord {
     pub point_s: f64,
     /// Scatter of the averaged frames (x, y): the sample standard deviation of single frames
     /// about their mean, µm; `None` with one frame. The camera's repeatability at a standing
-    /// stage, from which the reconstruction's noise floor is measured (`campaign::noise`).
+    /// stage, from which the reconstruction's noise floor is measured (`crate::noise`).
     #[serde(default)]
     pub frame_sd_um: Option<[f64; 2]>,
 }

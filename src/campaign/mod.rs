@@ -7,7 +7,6 @@ pub mod error;
 pub mod events;
 pub mod map;
 pub mod motion;
-pub mod noise;
 pub mod plan;
 pub mod preflight;
 pub mod results;

@@ -386,7 +386,7 @@ pub fn build(
                                 "pooled_with": k.pooled_with, "difference_degree": k.difference_degree,
                                 // σ used, told, and as the frames showed it (several per point).
                                 "noise_um": k.noise.used_um, "noise_told_um": k.noise.told_um,
-                                "frame_noise_um": k.noise.frames_um, "frame_noise_dof": k.noise.frames_dof});
+                                "frame_noise_um": k.noise.measured_um, "frame_noise_dof": k.noise.dof});
                 if let Some(f) = full {
                     j["cs_vs_full"] = diff_stats(&k.values_um, &f.values_um);
                 }
@@ -614,13 +614,13 @@ pub fn build(
     }
     // The σ each curve used, where the frames measured one (several frames a point).
     for k in curves.iter().filter(|k| k.run.phase == Phase::Cs) {
-        if let Some(f) = k.noise.frames_um {
+        if let Some(f) = k.noise.measured_um {
             table.push_str(&format!(
                 "noise {} {}: told {} µm, frames show {f:.4} µm ({} degrees of freedom): {}\n",
                 k.component.name(),
                 k.run.label(),
                 k.noise.told_um,
-                k.noise.frames_dof,
+                k.noise.dof,
                 if k.noise.raised() {
                     format!("reconstructed with {f:.4} µm")
                 } else {

@@ -10,9 +10,9 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::noise::{noise_floor, NoiseFloor};
 use super::spec::Campaign;
 use crate::grid::Grid;
+use crate::noise::{noise_floor, NoiseFloor};
 use crate::recon::joint::{reconstruct_joint, reconstruct_joint_among};
 use crate::recon::{reconstruct, Method, ReconSettings};
 use crate::samples::{nearest_steps, GridSamples};
@@ -149,7 +149,7 @@ pub fn reconstruct_run(
                     run.label(),
                     noise.told_um,
                     noise.used_um,
-                    noise.frames_dof
+                    noise.dof
                 );
             }
             st.noise_um = noise.used_um;

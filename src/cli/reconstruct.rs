@@ -4,6 +4,7 @@ use std::process::ExitCode;
 
 use super::{CliError, CliResult};
 use crate::grid::Grid;
+use crate::noise::NoiseFloor;
 use crate::recon::{self, Method, ReconSettings, Solver};
 use crate::samples;
 
@@ -81,7 +82,20 @@ pub fn run(a: Args) -> CliResult {
     crate::recon::limits::check_solve_size(method, solver, grid.n, 2)
         .map_err(|e| CliError::input(format!("--grid: {e}")))?;
     let sel = select(&a)?;
-    let s = samples::read_samples_csv(&a.samples, &grid, &sel).map_err(CliError::input)?;
+    let (s, repeats) =
+        samples::read_samples_csv(&a.samples, &grid, &sel).map_err(CliError::input)?;
+    // Repeated cycles of a position show a sample's own noise: a told σ below it is raised.
+    let noise = NoiseFloor::from_scatter(a.noise_um, &repeats);
+    if noise.raised() {
+        eprintln!(
+            "warning: {}: --noise-um {} µm is below the repeated cycles' scatter ({:.4} µm, {} degrees of \
+             freedom); the curve uses the repeats'",
+            a.samples.display(),
+            noise.told_um,
+            noise.used_um,
+            noise.dof
+        );
+    }
     crate::recon::limits::check_solve_size(method, solver, grid.n, s.len())
         .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
     if s.len() > grid.n {
@@ -95,7 +109,7 @@ pub fn run(a: Args) -> CliResult {
     let mut settings = ReconSettings {
         method,
         solver,
-        noise_um: a.noise_um,
+        noise_um: noise.used_um,
         pitch_um: a.pitch_um,
         ..Default::default()
     };
@@ -112,7 +126,11 @@ pub fn run(a: Args) -> CliResult {
         None => {}
     }
     if a.json {
-        let v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;
+        let mut v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;
+        v["noise_um"] = noise.used_um.into();
+        v["noise_told_um"] = noise.told_um.into();
+        v["repeat_noise_um"] = noise.measured_um.into();
+        v["repeat_noise_dof"] = noise.dof.into();
         outln!("{v}");
     }
     Ok(ExitCode::SUCCESS)

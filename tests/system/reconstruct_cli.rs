@@ -299,3 +299,89 @@ fn a_reader_that_closes_the_pipe_early_ends_the_output_not_in_a_panic() {
     assert!(!err.contains("panicked"), "{err}");
     assert!(o.status.success(), "{:?}: {err}", o.status);
 }
+
+/// Three cycles of each position, each reading with its own noise (σ = 0.02 µm), told a tenth
+/// of it: the repeats' scatter is the samples' σ, and the band at the samples rests on it.
+#[test]
+fn repeated_cycles_measure_the_noise_and_raise_a_sigma_told_too_low() {
+    let dir = tempfile::tempdir().unwrap();
+    // The test's own curve and noise (xorshift64*, Box–Muller), written apart from csmetro's.
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut unit = move || {
+        state ^= state >> 12;
+        state ^= state << 25;
+        state ^= state >> 27;
+        (state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let truth = |x: f64| {
+        (2.0 * std::f64::consts::PI * x / 400.0).sin()
+            + 0.2 * (2.0 * std::f64::consts::PI * x / 85.0).cos()
+    };
+    let n = 801; // 0:5:4000
+    let mut picked = vec![false; n];
+    let mut idx = Vec::new();
+    while idx.len() < 150 {
+        let i = (unit() * n as f64) as usize % n;
+        if !picked[i] {
+            picked[i] = true;
+            idx.push(i);
+        }
+    }
+    let mut text = csmetro::samples::layout_header();
+    for cycle in 0..3 {
+        for &i in &idx {
+            let p = 5.0 * i as f64;
+            let g = (-2.0 * unit().max(1e-300).ln()).sqrt()
+                * (2.0 * std::f64::consts::PI * unit()).cos();
+            let e = truth(p) + 0.02 * g;
+            text.push_str(&format!(
+                "0,cs,x,forward,{cycle},{p},0,{},0,0,{p},0,1,1,0,,{},{p},{p},{e}\n",
+                p + e,
+                2 * cycle
+            ));
+        }
+    }
+    let samples = dir.path().join("cycles.csv");
+    std::fs::write(&samples, text).unwrap();
+    let run = |told: &str, out: &Path| {
+        let o = bin()
+            .args([
+                "reconstruct",
+                "--grid",
+                "0:5:4000",
+                "--json",
+                "--noise-um",
+                told,
+            ])
+            .arg("--samples")
+            .arg(&samples)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        (j, String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let low = dir.path().join("low.csv");
+    let (j, err) = run("0.002", &low);
+    // A sample averages 3 readings: 0.02 / √3 = 0.0115 µm, on 150 × 2 degrees of freedom.
+    let rep = j["repeat_noise_um"].as_f64().unwrap();
+    assert!((0.0095..0.0140).contains(&rep), "{j}");
+    assert_eq!(j["repeat_noise_dof"], 300, "{j}");
+    assert_eq!(j["noise_told_um"], 0.002, "{j}");
+    assert_eq!(j["noise_um"], rep, "{j}");
+    assert!(err.contains("warning") && err.contains("repeat"), "{err}");
+    // The band at the samples covers their truth as a band should.
+    let (rows, u) = read_curve_u(&low);
+    let u = u.unwrap();
+    let inside = idx
+        .iter()
+        .filter(|&&i| (rows[i].1 - truth(rows[i].0)).abs() <= 2.0 * u[i])
+        .count();
+    assert!(inside as f64 / idx.len() as f64 >= 0.85, "{inside} of 150");
+    // A σ told above the repeats' is kept: they may not hold every source of noise.
+    let (j, err) = run("0.05", &dir.path().join("high.csv"));
+    assert_eq!(j["noise_um"], 0.05, "{j}");
+    assert!(!err.contains("warning"), "{err}");
+}

@@ -1,37 +1,75 @@
-//! The noise σ a campaign's curves are reconstructed with: the σ told (`[reconstruction]
-//! noise_um`), raised to the camera's scatter measured from the frames when the points averaged
-//! several frames and the told σ is clearly below what they show.
+//! The noise σ a curve is reconstructed with: the σ told (`noise_um`, `--noise-um`), raised to
+//! the samples' own scatter where they show one and the told σ is clearly below it.
 //!
 //! Why: the band at a sample point rests on σ, since a curve through its samples is off by the
 //! sample's own noise there. Told half the samples' σ, it covers 0.78 of the sample points
-//! (`tests/gp/noise_told.py`). Frames taken at a standing stage show the camera's scatter, not the
-//! stage's landing scatter, so they bound a sample's noise from below only: a told σ above them is
-//! kept.
+//! (`tests/gp/noise_told.py`). Two scatters are measured:
+//! - a campaign point's frames ([`frames_scatter`]): taken at a standing stage, they show the
+//!   camera's scatter, not the stage's landing scatter, so they bound a sample's noise from below
+//!   only, and a told σ above them is kept;
+//! - a position's repeated cycles in a samples file (`crate::samples`): each re-approaches the
+//!   target, so they include the landing scatter (and any drift between cycles).
 use serde::Serialize;
 
 use crate::types::{AxisId, SampleRecord};
 
-/// One-sided 95 % normal quantile: the told σ is raised only when it lies below the frames'
-/// 95 % lower confidence bound.
+/// One-sided 95 % normal quantile: the told σ is raised only when it lies below the measured
+/// scatter's 95 % lower confidence bound.
 const Z95: f64 = 1.645;
 
-/// The σ of one curve's samples: told, measured from the frames, and used.
+/// A pooled scatter of repeated readings: Σ (k − 1)·s² over the points that were repeated, its
+/// degrees of freedom Σ (k − 1), and the mean of 1/k over every sample (a sample averages its k
+/// readings).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Scatter {
+    pub sum_sq: f64,
+    pub dof: u64,
+    pub mean_inv_k: f64,
+}
+
+impl Scatter {
+    /// A sample's σ as the repeats show it, µm; `None` without a repeat.
+    pub fn sample_sigma_um(&self) -> Option<f64> {
+        (self.dof > 0 && self.sum_sq.is_finite())
+            .then(|| (self.sum_sq / self.dof as f64 * self.mean_inv_k).sqrt())
+    }
+}
+
+/// The σ of one curve's samples: told, measured from their repeats, and used.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct NoiseFloor {
-    /// σ told by the campaign, µm.
+    /// σ told, µm.
     pub told_um: f64,
-    /// A sample's noise as its frames show it (σ of one frame over √frames), µm; `None` when no
-    /// point averaged two frames or more.
-    pub frames_um: Option<f64>,
-    /// Degrees of freedom of `frames_um`: Σ (frames − 1) over the points.
-    pub frames_dof: u64,
-    /// σ the curve is reconstructed with, µm: `told_um`, or `frames_um` when the told σ is
-    /// below the frames' 95 % lower bound.
+    /// A sample's noise as its repeats show it (σ of one reading over √readings), µm; `None`
+    /// when no sample had two readings or more.
+    pub measured_um: Option<f64>,
+    /// Degrees of freedom of `measured_um`: Σ (readings − 1).
+    pub dof: u64,
+    /// σ the curve is reconstructed with, µm: `told_um`, or `measured_um` when the told σ is
+    /// below its 95 % lower bound.
     pub used_um: f64,
 }
 
 impl NoiseFloor {
-    /// True when the frames raised the told σ.
+    /// The told σ against a measured scatter.
+    pub fn from_scatter(told_um: f64, s: &Scatter) -> Self {
+        let measured_um = s.sample_sigma_um();
+        let mut used_um = told_um;
+        if let Some(m) = measured_um {
+            let lower = m * m * s.dof as f64 / chi2_quantile(s.dof as f64, Z95);
+            if told_um * told_um < lower {
+                used_um = m;
+            }
+        }
+        NoiseFloor {
+            told_um,
+            measured_um,
+            dof: s.dof,
+            used_um,
+        }
+    }
+
+    /// True when the measured scatter raised the told σ.
     pub fn raised(&self) -> bool {
         self.used_um != self.told_um
     }
@@ -44,42 +82,38 @@ fn chi2_quantile(dof: f64, z: f64) -> f64 {
     dof * (1.0 - a + z * a.sqrt()).max(0.0).powi(3)
 }
 
-/// The σ to reconstruct the coordinate `measured` of `samples` with, given the σ told.
-pub fn noise_floor<'a>(
-    told_um: f64,
+/// The frames' scatter of the coordinate `measured` over `samples` (campaign points).
+pub fn frames_scatter<'a>(
     samples: impl IntoIterator<Item = &'a SampleRecord>,
     measured: AxisId,
-) -> NoiseFloor {
+) -> Scatter {
     let axis = measured as usize;
-    let (mut ss, mut dof, mut inv_k, mut n) = (0.0, 0u64, 0.0, 0usize);
+    let (mut sum_sq, mut dof, mut inv_k, mut n) = (0.0, 0u64, 0.0, 0usize);
     for s in samples {
         let k = s.frames.max(1);
         n += 1;
         inv_k += 1.0 / f64::from(k);
         if let Some(sd) = s.frame_sd_um.map(|d| d[axis]).filter(|v| v.is_finite()) {
             if k >= 2 {
-                ss += f64::from(k - 1) * sd * sd;
+                sum_sq += f64::from(k - 1) * sd * sd;
                 dof += u64::from(k - 1);
             }
         }
     }
-    let mut out = NoiseFloor {
-        told_um,
-        frames_um: None,
-        frames_dof: dof,
-        used_um: told_um,
-    };
-    if dof == 0 || n == 0 {
-        return out;
+    Scatter {
+        sum_sq,
+        dof,
+        mean_inv_k: if n > 0 { inv_k / n as f64 } else { 1.0 },
     }
-    // Pooled variance of one frame; a sample averages its frames.
-    let var = ss / dof as f64 * inv_k / n as f64;
-    out.frames_um = Some(var.sqrt());
-    let lower = var * dof as f64 / chi2_quantile(dof as f64, Z95);
-    if told_um * told_um < lower {
-        out.used_um = var.sqrt();
-    }
-    out
+}
+
+/// The σ to reconstruct the coordinate `measured` of campaign `samples` with, given the σ told.
+pub fn noise_floor<'a>(
+    told_um: f64,
+    samples: impl IntoIterator<Item = &'a SampleRecord>,
+    measured: AxisId,
+) -> NoiseFloor {
+    NoiseFloor::from_scatter(told_um, &frames_scatter(samples, measured))
 }
 
 #[cfg(test)]
@@ -113,9 +147,9 @@ mod tests {
         // 200 points of 4 frames, each frame σ 0.01 µm: a sample's σ is 0.005 µm.
         let pts: Vec<_> = (0..200).map(|_| point(4, Some(0.01))).collect();
         let f = noise_floor(0.002, &pts, AxisId::X);
-        assert!((f.frames_um.unwrap() - 0.005).abs() < 1e-12, "{f:?}");
-        assert_eq!(f.frames_dof, 600);
-        assert!(f.raised() && f.used_um == f.frames_um.unwrap(), "{f:?}");
+        assert!((f.measured_um.unwrap() - 0.005).abs() < 1e-12, "{f:?}");
+        assert_eq!(f.dof, 600);
+        assert!(f.raised() && f.used_um == f.measured_um.unwrap(), "{f:?}");
         // The y coordinate reads its own scatter (ten times x's here).
         let fy = noise_floor(0.002, &pts, AxisId::Y);
         assert!((fy.used_um - 0.05).abs() < 1e-12, "{fy:?}");
@@ -141,11 +175,11 @@ mod tests {
     fn single_frames_measure_nothing() {
         let pts: Vec<_> = (0..50).map(|_| point(1, None)).collect();
         let f = noise_floor(0.01, &pts, AxisId::X);
-        assert_eq!((f.frames_um, f.frames_dof, f.used_um), (None, 0, 0.01));
+        assert_eq!((f.measured_um, f.dof, f.used_um), (None, 0, 0.01));
         // Points of one frame count in how much a sample averages, not in the scatter.
         let mut mixed: Vec<_> = (0..100).map(|_| point(4, Some(0.01))).collect();
         mixed.extend((0..100).map(|_| point(1, None)));
-        let m = noise_floor(0.0, &mixed, AxisId::X).frames_um.unwrap();
+        let m = noise_floor(0.0, &mixed, AxisId::X).measured_um.unwrap();
         let want = (1e-4 * (0.25 + 1.0) / 2.0f64).sqrt();
         assert!((m - want).abs() < 1e-12, "{m} against {want}");
     }
