@@ -9,8 +9,12 @@
 //!   only, and a told σ above them is kept;
 //! - a position's repeated cycles in a samples file (`crate::samples`): each re-approaches the
 //!   target, so they include the landing scatter (and any drift between cycles).
+//!
+//! The other way, a told σ above what the held-out residuals allow, is lowered by the
+//! reconstruction itself (`recon::noise_told_too_high`): every residual carries its sample's noise.
 use serde::Serialize;
 
+use crate::recon::band::chi2_quantile;
 use crate::types::{AxisId, SampleRecord};
 
 /// One-sided 95 % normal quantile: the told σ is raised only when it lies below the measured
@@ -69,17 +73,10 @@ impl NoiseFloor {
         }
     }
 
-    /// True when the measured scatter raised the told σ.
-    pub fn raised(&self) -> bool {
+    /// True when the σ used is not the σ told.
+    pub fn changed(&self) -> bool {
         self.used_um != self.told_um
     }
-}
-
-/// χ² quantile at the normal quantile `z` with `dof` degrees of freedom (Wilson–Hilferty; within
-/// 1 % of the exact value from 3 degrees of freedom up).
-fn chi2_quantile(dof: f64, z: f64) -> f64 {
-    let a = 2.0 / (9.0 * dof);
-    dof * (1.0 - a + z * a.sqrt()).max(0.0).powi(3)
 }
 
 /// The frames' scatter of the coordinate `measured` over `samples` (campaign points).
@@ -149,7 +146,7 @@ mod tests {
         let f = noise_floor(0.002, &pts, AxisId::X);
         assert!((f.measured_um.unwrap() - 0.005).abs() < 1e-12, "{f:?}");
         assert_eq!(f.dof, 600);
-        assert!(f.raised() && f.used_um == f.measured_um.unwrap(), "{f:?}");
+        assert!(f.changed() && f.used_um == f.measured_um.unwrap(), "{f:?}");
         // The y coordinate reads its own scatter (ten times x's here).
         let fy = noise_floor(0.002, &pts, AxisId::Y);
         assert!((fy.used_um - 0.05).abs() < 1e-12, "{fy:?}");
@@ -160,15 +157,15 @@ mod tests {
         let pts: Vec<_> = (0..200).map(|_| point(4, Some(0.01))).collect();
         // Above the frames: the stage's landing scatter the frames do not see.
         let above = noise_floor(0.02, &pts, AxisId::X);
-        assert!(!above.raised() && above.used_um == 0.02, "{above:?}");
+        assert!(!above.changed() && above.used_um == 0.02, "{above:?}");
         // Just below the estimate but within its 95 % chance (600 dof: the bound is ~0.92 of it).
         let near = noise_floor(0.0048, &pts, AxisId::X);
-        assert!(!near.raised(), "{near:?}");
+        assert!(!near.changed(), "{near:?}");
         // Few frames: 3 points of 2 frames cannot tell 0.004 from 0.005.
         let few: Vec<_> = (0..3)
             .map(|_| point(2, Some(0.005 * 2f64.sqrt())))
             .collect();
-        assert!(!noise_floor(0.004, &few, AxisId::X).raised());
+        assert!(!noise_floor(0.004, &few, AxisId::X).changed());
     }
 
     #[test]

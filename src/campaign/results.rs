@@ -612,22 +612,27 @@ pub fn build(
             100.0 * (1.0 - tot[0][0] / tot[1][0].max(1.0))
         ));
     }
-    // The σ each curve used, where the frames measured one (several frames a point).
+    // The σ each curve used, where the frames measured one (several frames a point) or the
+    // held-out residuals lowered the told one.
     for k in curves.iter().filter(|k| k.run.phase == Phase::Cs) {
-        if let Some(f) = k.noise.measured_um {
-            table.push_str(&format!(
-                "noise {} {}: told {} µm, frames show {f:.4} µm ({} degrees of freedom): {}\n",
-                k.component.name(),
-                k.run.label(),
-                k.noise.told_um,
-                k.noise.dof,
-                if k.noise.raised() {
-                    format!("reconstructed with {f:.4} µm")
-                } else {
-                    "the told σ kept".into()
-                }
-            ));
+        let n = &k.noise;
+        if n.measured_um.is_none() && !n.changed() {
+            continue;
         }
+        let frames = n.measured_um.map_or(String::new(), |f| {
+            format!(", frames show {f:.4} µm ({} degrees of freedom)", n.dof)
+        });
+        table.push_str(&format!(
+            "noise {} {}: told {} µm{frames}: {}\n",
+            k.component.name(),
+            k.run.label(),
+            n.told_um,
+            if n.changed() {
+                format!("reconstructed with {:.4} µm", n.used_um)
+            } else {
+                "the told σ kept".into()
+            }
+        ));
     }
     // Plots, compensation tables and ISO 230-2 figures; a report failure leaves the rest intact.
     let mut iso = Value::Null;

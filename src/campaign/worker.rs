@@ -38,7 +38,8 @@ pub struct Curve {
     pub solve_ms: f64,
     /// The measured samples (position, error), µm.
     pub samples: Vec<(f64, f64)>,
-    /// The noise σ the curve was reconstructed with: told, and measured from the frames.
+    /// The noise σ of the curve: told, measured from the frames, and used (`used_um`: the
+    /// frames' when the told σ is below them, the held-out residuals' when above what they allow).
     pub noise: NoiseFloor,
 }
 
@@ -141,7 +142,7 @@ pub fn reconstruct_run(
             let gs = run_samples(samples, run, component);
             let mut st = settings.clone();
             let noise = run_noise(settings, samples, run, component);
-            if noise.raised() {
+            if noise.changed() {
                 tracing::warn!(
                     "{} of {}: noise_um = {} µm told is below the frames' scatter ({:.4} µm, \
                      {} degrees of freedom); the curve uses the frames'",
@@ -187,7 +188,12 @@ pub fn reconstruct_run(
                     .zip(&gs.values)
                     .map(|(&i, &v)| (grid.position(i), v))
                     .collect(),
-                noise,
+                // The σ reconstruct used: the floor's, or lower where the held-out residuals
+                // showed it too high (`recon::noise_told_too_high`).
+                noise: NoiseFloor {
+                    used_um: r.noise_um,
+                    ..noise
+                },
             })
         })
         .collect()

@@ -86,7 +86,7 @@ pub fn run(a: Args) -> CliResult {
         samples::read_samples_csv(&a.samples, &grid, &sel).map_err(CliError::input)?;
     // Repeated cycles of a position show a sample's own noise: a told σ below it is raised.
     let noise = NoiseFloor::from_scatter(a.noise_um, &repeats);
-    if noise.raised() {
+    if noise.changed() {
         eprintln!(
             "warning: {}: --noise-um {} µm is below the repeated cycles' scatter ({:.4} µm, {} degrees of \
              freedom); the curve uses the repeats'",
@@ -116,6 +116,15 @@ pub fn run(a: Args) -> CliResult {
     settings.fast.gap_tol = a.gap_tol;
     let r = recon::reconstruct(&grid, &s, &settings)
         .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
+    if r.noise_um < settings.noise_um {
+        eprintln!(
+            "warning: {}: --noise-um {} µm is more than the held-out residuals allow; the curve \
+             uses {:.4} µm",
+            a.samples.display(),
+            settings.noise_um,
+            r.noise_um
+        );
+    }
     let positions = grid.positions();
     match &a.out {
         Some(path) => samples::write_curve_u_csv(path, &positions, &r.values, &r.u_um)
@@ -127,7 +136,6 @@ pub fn run(a: Args) -> CliResult {
     }
     if a.json {
         let mut v = serde_json::to_value(&r).map_err(|e| CliError::failure(e.to_string()))?;
-        v["noise_um"] = noise.used_um.into();
         v["noise_told_um"] = noise.told_um.into();
         v["repeat_noise_um"] = noise.measured_um.into();
         v["repeat_noise_dof"] = noise.dof.into();

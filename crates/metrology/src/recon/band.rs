@@ -100,6 +100,14 @@ pub struct Residual {
     pub gap: f64,
 }
 
+/// χ² quantile with `dof` degrees of freedom at the normal quantile `z` (Wilson–Hilferty: within
+/// 1 % of the exact value from 3 degrees of freedom up; `z` = 1.645 is the 95 % point, −1.645
+/// the 5 %).
+pub fn chi2_quantile(dof: f64, z: f64) -> f64 {
+    let a = 2.0 / (9.0 * dof);
+    dof * (1.0 - a + z * a.sqrt()).max(0.0).powi(3)
+}
+
 /// u (µm, k = 1) at every grid point: `sample_pos` the design's positions (µm, ascending),
 /// `grid_pos` the grid's, `sample_val` the samples' values (µm; empty: the step gaps below are
 /// not looked for), `misfit` the curve's |g − y| at the samples (empty: not known, the

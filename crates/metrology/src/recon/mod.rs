@@ -182,6 +182,9 @@ pub struct Reconstruction {
     /// nearest training sample and their position) that calibrated `u_um`.
     #[serde(skip)]
     pub cv_residuals: Vec<band::Residual>,
+    /// The sensor noise σ the curve was reconstructed with, µm: the σ told, or the held-out
+    /// residuals' rms when the told σ is more than they allow ([`noise_told_too_high`]).
+    pub noise_um: f64,
 }
 
 /// Reconstructs the curve at every grid point from the samples.
@@ -189,6 +192,54 @@ pub fn reconstruct(
     grid: &Grid,
     samples: &GridSamples,
     s: &ReconSettings,
+) -> Result<Reconstruction, ReconError> {
+    let first = reconstruct_told(grid, samples, s, s.noise_um)?;
+    let Some(sigma) = noise_told_too_high(&first.cv_residuals, s.noise_um) else {
+        return Ok(first);
+    };
+    // Told more noise than the held-out samples carry: the fit smoothed too much and the band
+    // took that σ at every sample. Once more, fitted with the residuals' rms. That rms holds the
+    // fits' error besides the noise, so the band, which takes the noise's share out of the
+    // residuals, takes half its square (all of it left the band too narrow off the samples,
+    // σ told twice the samples': 0.91 covered there; none, at the samples, σ told 5×: 0.84;
+    // tests/gp/noise_told.py). A third pass moved nothing.
+    let again = ReconSettings {
+        noise_um: sigma,
+        ..s.clone()
+    };
+    let mut r = reconstruct_told(grid, samples, &again, sigma / std::f64::consts::SQRT_2)?;
+    r.solve_ms += first.solve_ms;
+    Ok(r)
+}
+
+/// One-sided 99 % normal quantile of [`noise_told_too_high`]'s test.
+const TOO_HIGH_Z: f64 = 2.326;
+
+/// The least σ a second pass takes, µm (a picometre: samples an exact model fits to rounding).
+const MIN_NOISE_UM: f64 = 1e-6;
+
+/// A held-out residual carries its sample's noise whatever the fit: E r² ≥ σ². Their sum below
+/// the 1 % quantile of σ²·χ²(m) says the σ told is too high; then their rms, which still holds
+/// the fits' error, is the σ to fit with. (The residuals of a chosen candidate are already
+/// scaled for the selection's optimism.) `None`: the σ told stands.
+pub fn noise_told_too_high(held: &[band::Residual], noise_um: f64) -> Option<f64> {
+    let m = held.len();
+    if m < 10 || !(noise_um.is_finite() && noise_um > MIN_NOISE_UM) {
+        return None;
+    }
+    let ss: f64 = held.iter().map(|h| h.r * h.r).sum();
+    let q = band::chi2_quantile(m as f64, -TOO_HIGH_Z);
+    (ss.is_finite() && ss < q * noise_um * noise_um)
+        .then(|| (ss / m as f64).sqrt().max(MIN_NOISE_UM))
+}
+
+/// [`reconstruct`] with the σ told, whatever the residuals say; the band takes the sensor's
+/// share of the held-out residuals as `band_noise_um`.
+fn reconstruct_told(
+    grid: &Grid,
+    samples: &GridSamples,
+    s: &ReconSettings,
+    band_noise_um: f64,
 ) -> Result<Reconstruction, ReconError> {
     let (n, m) = (grid.n, samples.len());
     if m < 2 {
@@ -224,6 +275,7 @@ pub fn reconstruct(
         u_mean_um: None,
         u_max_um: None,
         cv_residuals: Vec::new(),
+        noise_um: s.noise_um,
     };
     // Held-out residuals (with their distance to the nearest training sample) of the method used.
     let mut held: Vec<band::Residual> = Vec::new();
@@ -410,7 +462,7 @@ pub fn reconstruct(
         &samples.values,
         &misfit,
         &held,
-        s.noise_um,
+        band_noise_um,
         &noise_var,
     );
     if choice.len() == out.u_um.len() {
@@ -1032,6 +1084,76 @@ mod tests {
             best = best.min(cv.record(e));
         }
         (best, cv.selection_bias(best))
+    }
+
+    /// Held-out residuals N(0, σ) at 300 samples.
+    fn residuals(sigma: f64, seed: u64) -> Vec<band::Residual> {
+        let mut normal = test_curve::normals(seed);
+        (0..300)
+            .map(|i| band::Residual {
+                d: 5.0,
+                r: sigma * normal(),
+                x: 10.0 * i as f64,
+                gap: f64::NAN,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_sigma_told_well_above_the_held_out_residuals_is_lowered_to_them() {
+        for seed in 0..6 {
+            // Ten times too high: their rms instead.
+            let s = noise_told_too_high(&residuals(0.001, seed), 0.01).unwrap();
+            assert!((s - 0.001).abs() < 0.0002, "seed {seed}: {s}");
+            // Right, or within chance of it: kept, but for a 1 % tail (300 squares below 0.82 σ²,
+            // seed 4 here), and then lowered by less than a tenth.
+            for told in [0.01, 0.0105] {
+                if let Some(s) = noise_told_too_high(&residuals(0.01, seed), told) {
+                    assert!(seed == 4 && s > 0.9 * 0.01, "seed {seed}, told {told}: {s}");
+                }
+            }
+            // Too low is not this test's (residuals hold the fit's error too).
+            assert!(noise_told_too_high(&residuals(0.01, seed), 0.002).is_none());
+        }
+        // Too few residuals to tell.
+        assert!(noise_told_too_high(&residuals(0.001, 0)[..9], 0.01).is_none());
+    }
+
+    #[test]
+    fn noise_free_samples_told_a_sigma_get_a_band_of_the_curve_s_own_error() {
+        // A smooth curve the physics model holds, sampled exactly, told σ = 0.01 µm.
+        let grid = Grid {
+            start_um: 0.0,
+            step_um: 5.0,
+            n: 1901,
+        };
+        let f = |i: usize| {
+            let x = 5.0 * i as f64;
+            (std::f64::consts::TAU * x / 400.0).sin() + 2e-4 * x
+        };
+        let idx: Vec<usize> = (0..300).map(|k| (k * 1901) / 300 + (k * 7) % 5).collect();
+        let samples = GridSamples {
+            values: idx.iter().map(|&i| f(i)).collect(),
+            idx,
+        };
+        let s = ReconSettings::default();
+        let r = reconstruct(&grid, &samples, &s).unwrap();
+        let told = reconstruct_told(&grid, &samples, &s, s.noise_um).unwrap();
+        assert!(r.noise_um < 0.002, "σ used {}", r.noise_um);
+        let err = |v: &[f64]| (0..grid.n).map(|i| (v[i] - f(i)).abs()).sum::<f64>() / 1901.0;
+        let sharp = |r: &Reconstruction| 2.0 * r.u_mean_um.unwrap() / err(&r.values);
+        // The band was the σ told, many times the curve's error; it is now within a few.
+        assert!(sharp(&told) > 10.0, "told: {}", sharp(&told));
+        assert!(
+            sharp(&r) < 0.5 * sharp(&told),
+            "{} against {}",
+            sharp(&r),
+            sharp(&told)
+        );
+        let inside = (0..grid.n)
+            .filter(|&i| (r.values[i] - f(i)).abs() <= 2.0 * r.u_um[i])
+            .count();
+        assert!(inside as f64 / 1901.0 > 0.9, "{inside}");
     }
 
     #[test]
