@@ -359,8 +359,7 @@ fn repeated_cycles_measure_the_noise_and_raise_a_sigma_told_too_low() {
             .arg(out)
             .output()
             .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let j = crate::common::json_of(&o);
         (j, String::from_utf8_lossy(&o.stderr).into_owned())
     };
     let low = dir.path().join("low.csv");
