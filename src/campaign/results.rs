@@ -637,9 +637,28 @@ pub fn build(
     // Plots, compensation tables and ISO 230-2 figures; a report failure leaves the rest intact.
     let mut iso = Value::Null;
     let mut report_error = None;
+    // Checked at validation; a stored campaign of an older csmetro has the defaults.
+    let mut budget = c.spec().uncertainty.inputs().unwrap_or_default();
+    // The sensor's repeatability (what a measured row's one approach is worth) told below what
+    // the measured runs' frames show is raised to it, as a curve's σ is (`crate::noise`).
+    let told_sensor = budget.sensor_u_um;
+    for k in curves
+        .iter()
+        .filter(|k| k.run.phase == Phase::Full && k.component.measured == k.run.axis)
+    {
+        let run = samples.iter().filter(|s| s.target.run == k.run);
+        let f = crate::noise::noise_floor(told_sensor, run, k.component.measured);
+        budget.sensor_u_um = budget.sensor_u_um.max(f.used_um);
+    }
+    if budget.sensor_u_um > told_sensor {
+        table.push_str(&format!(
+            "sensor repeatability (ISO 230-2 budget): told {told_sensor} µm, the full scan's frames \
+             show {:.4} µm: used\n",
+            budget.sensor_u_um
+        ));
+    }
     let opts = ReportOptions {
-        // Checked at validation; a stored campaign of an older csmetro has the defaults.
-        budget: c.spec().uncertainty.inputs().unwrap_or_default(),
+        budget,
         ..ReportOptions::default()
     };
     let mut iso_figures = Vec::new();

@@ -243,7 +243,10 @@ fn frames_measure_the_cameras_noise_and_raise_a_sigma_told_too_low() {
         .unwrap()
         .replace("dwell_s = 0.5\n", "dwell_s = 0.5\nframes_per_point = 4\n")
         .replace("noise_um = 0.01", "noise_um = 0.001")
-        .replace("full_scan = true", "full_scan = false");
+        .replace(
+            "[outputs]",
+            "[uncertainty]\nsensor_u_um = 0.001\n\n[outputs]",
+        );
     std::fs::write(&c, text).unwrap();
     let j = json_of(&run_json(&c, &db));
     assert_eq!(j["state"], "done", "{j}");
@@ -258,9 +261,19 @@ fn frames_measure_the_cameras_noise_and_raise_a_sigma_told_too_low() {
         assert_eq!(cs["noise_told_um"], 0.001, "{k}");
         assert_eq!(cs["noise_um"], frames, "the curve uses the frames' σ: {k}");
     }
+    // ISO 230-2 from the measured full scan (one approach a target): each mean is worth the
+    // sensor's repeatability, told 0.001 µm and raised to what the frames show.
+    let m = &j["iso230"]["y"]["uncertainty"]["m"]["contributions"][0];
+    assert_eq!(m["source"], "data", "{m}");
+    let data = m["u_um"].as_f64().unwrap();
+    assert!(
+        (0.004..0.008).contains(&data),
+        "{}",
+        j["iso230"]["y"]["uncertainty"]
+    );
     // The store keeps each point's scatter: a resumed campaign measures the same σ.
     let samples = store(&db).samples(1).unwrap();
-    assert_eq!(samples.len(), 60);
+    assert_eq!(samples.len(), 60 + 2 * 61);
     for s in &samples {
         assert_eq!(s.frames, 4);
         let [x, y] = s.frame_sd_um.expect("scatter of 4 frames");
