@@ -21,21 +21,42 @@ use crate::types::{AxisId, SampleRecord};
 /// scatter's 95 % lower confidence bound.
 const Z95: f64 = 1.645;
 
-/// A pooled scatter of repeated readings: Σ (k − 1)·s² over the points that were repeated, its
-/// degrees of freedom Σ (k − 1), and the mean of 1/k over every sample (a sample averages its k
-/// readings).
+/// A pooled scatter of repeated readings: Σ (k − 1)·s² over the samples that were repeated, its
+/// degrees of freedom Σ (k − 1), and how much the samples average (each its k readings).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Scatter {
     pub sum_sq: f64,
     pub dof: u64,
-    pub mean_inv_k: f64,
+    inv_k_sum: f64,
+    samples: u64,
 }
 
 impl Scatter {
+    /// One sample, the mean of `k` readings whose squares about their mean sum to `sum_sq`
+    /// (`None`: not measured, as for one reading).
+    pub fn add(&mut self, k: u32, sum_sq: Option<f64>) {
+        let k = k.max(1);
+        self.samples += 1;
+        self.inv_k_sum += 1.0 / f64::from(k);
+        if let Some(ss) = sum_sq.filter(|v| v.is_finite() && k >= 2) {
+            self.sum_sq += ss;
+            self.dof += u64::from(k - 1);
+        }
+    }
+
+    /// The mean of 1/k over the samples (1 without any).
+    pub fn mean_inv_k(&self) -> f64 {
+        if self.samples > 0 {
+            self.inv_k_sum / self.samples as f64
+        } else {
+            1.0
+        }
+    }
+
     /// A sample's σ as the repeats show it, µm; `None` without a repeat.
     pub fn sample_sigma_um(&self) -> Option<f64> {
         (self.dof > 0 && self.sum_sq.is_finite())
-            .then(|| (self.sum_sq / self.dof as f64 * self.mean_inv_k).sqrt())
+            .then(|| (self.sum_sq / self.dof as f64 * self.mean_inv_k()).sqrt())
     }
 }
 
@@ -85,23 +106,13 @@ pub fn frames_scatter<'a>(
     measured: AxisId,
 ) -> Scatter {
     let axis = measured as usize;
-    let (mut sum_sq, mut dof, mut inv_k, mut n) = (0.0, 0u64, 0.0, 0usize);
+    let mut scatter = Scatter::default();
     for s in samples {
         let k = s.frames.max(1);
-        n += 1;
-        inv_k += 1.0 / f64::from(k);
-        if let Some(sd) = s.frame_sd_um.map(|d| d[axis]).filter(|v| v.is_finite()) {
-            if k >= 2 {
-                sum_sq += f64::from(k - 1) * sd * sd;
-                dof += u64::from(k - 1);
-            }
-        }
+        let sd = s.frame_sd_um.map(|d| d[axis]);
+        scatter.add(k, sd.map(|sd| f64::from(k - 1) * sd * sd));
     }
-    Scatter {
-        sum_sq,
-        dof,
-        mean_inv_k: if n > 0 { inv_k / n as f64 } else { 1.0 },
-    }
+    scatter
 }
 
 /// The σ to reconstruct the coordinate `measured` of campaign `samples` with, given the σ told.

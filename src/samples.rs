@@ -327,11 +327,12 @@ pub fn parse_samples_repeats(
         .enumerate()
         .filter_map(|(k, s)| {
             let (errors, _, _) = s.as_ref()?;
-            let n = errors.len() as f64;
-            let mean = errors.iter().sum::<f64>() / n;
-            scatter.sum_sq += errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>();
-            scatter.dof += errors.len() as u64 - 1;
-            scatter.mean_inv_k += 1.0 / n;
+            let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+            let sum_sq = errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>();
+            scatter.add(
+                u32::try_from(errors.len()).unwrap_or(u32::MAX),
+                Some(sum_sq),
+            );
             Some((k, mean))
         })
         .collect();
@@ -342,7 +343,6 @@ pub fn parse_samples_repeats(
             format!("need at least 2 samples, found {m}"),
         ));
     }
-    scatter.mean_inv_k /= m as f64;
     Ok((
         GridSamples {
             idx: rows.iter().map(|r| r.0).collect(),
@@ -453,7 +453,7 @@ mod tests {
         assert_eq!(s.values, vec![1.5, 3.0]);
         // Their scatter: (1 − 1.5)² + (2 − 1.5)² on one degree of freedom; the samples average
         // 2 and 1 readings. A sample's σ: √(0.5 · (1/2 + 1)/2).
-        assert_eq!((rep.sum_sq, rep.dof, rep.mean_inv_k), (0.5, 1, 0.75));
+        assert_eq!((rep.sum_sq, rep.dof, rep.mean_inv_k()), (0.5, 1, 0.75));
         assert!((rep.sample_sigma_um().unwrap() - 0.375f64.sqrt()).abs() < 1e-12);
         // The same cycle twice is a copied row.
         let dup = format!("{text}{}", row("cs", "forward", 1, "", 10.0, 2.0));

@@ -305,14 +305,9 @@ fn a_reader_that_closes_the_pipe_early_ends_the_output_not_in_a_panic() {
 #[test]
 fn repeated_cycles_measure_the_noise_and_raise_a_sigma_told_too_low() {
     let dir = tempfile::tempdir().unwrap();
-    // The test's own curve and noise (xorshift64*, Box–Muller), written apart from csmetro's.
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut unit = move || {
-        state ^= state >> 12;
-        state ^= state << 25;
-        state ^= state >> 27;
-        (state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-    };
+    // The test's own curve, and noise from the tests' generator (SplitMix64, Box–Muller), written
+    // apart from csmetro's.
+    let mut rng = crate::gapgen::Rng::new(45);
     let truth = |x: f64| {
         (2.0 * std::f64::consts::PI * x / 400.0).sin()
             + 0.2 * (2.0 * std::f64::consts::PI * x / 85.0).cos()
@@ -321,7 +316,7 @@ fn repeated_cycles_measure_the_noise_and_raise_a_sigma_told_too_low() {
     let mut picked = vec![false; n];
     let mut idx = Vec::new();
     while idx.len() < 150 {
-        let i = (unit() * n as f64) as usize % n;
+        let i = rng.pick(n);
         if !picked[i] {
             picked[i] = true;
             idx.push(i);
@@ -331,9 +326,7 @@ fn repeated_cycles_measure_the_noise_and_raise_a_sigma_told_too_low() {
     for cycle in 0..3 {
         for &i in &idx {
             let p = 5.0 * i as f64;
-            let g = (-2.0 * unit().max(1e-300).ln()).sqrt()
-                * (2.0 * std::f64::consts::PI * unit()).cos();
-            let e = truth(p) + 0.02 * g;
+            let e = truth(p) + 0.02 * rng.normal();
             text.push_str(&format!(
                 "0,cs,x,forward,{cycle},{p},0,{},0,0,{p},0,1,1,0,,{},{p},{p},{e}\n",
                 p + e,

@@ -193,7 +193,7 @@ pub fn reconstruct(
     samples: &GridSamples,
     s: &ReconSettings,
 ) -> Result<Reconstruction, ReconError> {
-    let first = reconstruct_told(grid, samples, s, s.noise_um)?;
+    let first = reconstruct_pass(grid, samples, s, s.noise_um)?;
     let Some(sigma) = noise_told_too_high(&first.cv_residuals, s.noise_um) else {
         return Ok(first);
     };
@@ -207,7 +207,7 @@ pub fn reconstruct(
         noise_um: sigma,
         ..s.clone()
     };
-    let mut r = reconstruct_told(grid, samples, &again, sigma / std::f64::consts::SQRT_2)?;
+    let mut r = reconstruct_pass(grid, samples, &again, sigma / std::f64::consts::SQRT_2)?;
     r.solve_ms += first.solve_ms;
     Ok(r)
 }
@@ -233,9 +233,9 @@ pub fn noise_told_too_high(held: &[band::Residual], noise_um: f64) -> Option<f64
         .then(|| (ss / m as f64).sqrt().max(MIN_NOISE_UM))
 }
 
-/// [`reconstruct`] with the σ told, whatever the residuals say; the band takes the sensor's
-/// share of the held-out residuals as `band_noise_um`.
-fn reconstruct_told(
+/// One pass of [`reconstruct`]: fitted with the settings' σ, whatever the residuals say; the band
+/// takes the sensor's share of the held-out residuals as `band_noise_um`.
+fn reconstruct_pass(
     grid: &Grid,
     samples: &GridSamples,
     s: &ReconSettings,
@@ -1138,7 +1138,7 @@ mod tests {
         };
         let s = ReconSettings::default();
         let r = reconstruct(&grid, &samples, &s).unwrap();
-        let told = reconstruct_told(&grid, &samples, &s, s.noise_um).unwrap();
+        let told = reconstruct_pass(&grid, &samples, &s, s.noise_um).unwrap();
         assert!(r.noise_um < 0.002, "σ used {}", r.noise_um);
         let err = |v: &[f64]| (0..grid.n).map(|i| (v[i] - f(i)).abs()).sum::<f64>() / 1901.0;
         let sharp = |r: &Reconstruction| 2.0 * r.u_mean_um.unwrap() / err(&r.values);
