@@ -36,11 +36,28 @@ impl Scatter {
     /// (`None`: not measured, as for one reading).
     pub fn add(&mut self, k: u32, sum_sq: Option<f64>) {
         let k = k.max(1);
+        self.add_rows(&[(k, sum_sq)]);
+    }
+
+    /// One sample, the mean of several rows, row i the mean of `k_i` readings whose squares
+    /// about that row's mean sum to `sum_sq_i` (as [`Scatter::add`]). The sample's variance is
+    /// σ²·Σ(1/k_i)/r² for r rows.
+    pub fn add_rows(&mut self, rows: &[(u32, Option<f64>)]) {
+        if rows.is_empty() {
+            return;
+        }
+        let r = rows.len() as f64;
         self.samples += 1;
-        self.inv_k_sum += 1.0 / f64::from(k);
-        if let Some(ss) = sum_sq.filter(|v| v.is_finite() && k >= 2) {
-            self.sum_sq += ss;
-            self.dof += u64::from(k - 1);
+        self.inv_k_sum += rows
+            .iter()
+            .map(|(k, _)| 1.0 / f64::from((*k).max(1)))
+            .sum::<f64>()
+            / (r * r);
+        for &(k, sum_sq) in rows {
+            if let Some(ss) = sum_sq.filter(|v| v.is_finite() && k >= 2) {
+                self.sum_sq += ss;
+                self.dof += u64::from(k - 1);
+            }
         }
     }
 

@@ -53,7 +53,7 @@ pub fn read_samples_csv(
     path: &Path,
     grid: &Grid,
     sel: &Select,
-) -> Result<(GridSamples, Scatter), SamplesFileError> {
+) -> Result<(GridSamples, SampleScatter), SamplesFileError> {
     let text = crate::tomlpos::read_bounded(path, MAX_SAMPLES_BYTES)
         .map_err(SamplesFileError::read(path))?;
     parse_samples_repeats(&text, grid, sel).map_err(SamplesFileError::line(path))
@@ -78,8 +78,9 @@ fn clip(s: &str) -> String {
 /// `frames`, `rejected` the decode; `pass` before | after in a verification (moved without /
 /// with the compensation), empty elsewhere; `run` the sweep number (2·cycle, + 1 for the full
 /// scan or the `after` pass); `target_um` = `position_um` the moving axis' target; `error_um` =
-/// measured - target along the moving axis. Positions and errors in µm.
-pub const LAYOUT: [&str; 20] = [
+/// measured - target along the moving axis; `frame_sd_x_um`, `frame_sd_y_um` the standard
+/// deviation of the point's single frames (empty with one frame). Positions and errors in µm.
+pub const LAYOUT: [&str; 22] = [
     "seq",
     "phase",
     "axis",
@@ -100,6 +101,8 @@ pub const LAYOUT: [&str; 20] = [
     "target_um",
     "position_um",
     "error_um",
+    "frame_sd_x_um",
+    "frame_sd_y_um",
 ];
 
 /// The header line of [`LAYOUT`].
@@ -114,8 +117,13 @@ pub fn layout_row(r: &crate::types::SampleRecord, after: Option<bool>) -> String
     let t = &r.target;
     let k = t.run;
     let extra = after.unwrap_or(k.phase == crate::types::Phase::Full);
+    let sd = |i: usize| {
+        r.frame_sd_um
+            .map(|d| format!("{:.6}", d[i]))
+            .unwrap_or_default()
+    };
     format!(
-        "{},{},{},{},{},{},{},{:.6},{:.6},{:.5},{:.6},{:.3},{:.4},{},{},{},{},{},{},{:.6}\n",
+        "{},{},{},{},{},{},{},{:.6},{:.6},{:.5},{:.6},{:.3},{:.4},{},{},{},{},{},{},{:.6},{},{}\n",
         t.seq,
         k.phase.as_str(),
         k.axis.as_str(),
@@ -139,7 +147,9 @@ pub fn layout_row(r: &crate::types::SampleRecord, after: Option<bool>) -> String
         2 * u64::from(k.cycle) + u64::from(extra),
         t.target_um(),
         t.target_um(),
-        r.error_um(k.axis)
+        r.error_um(k.axis),
+        sd(0),
+        sd(1)
     )
 }
 
@@ -168,13 +178,22 @@ pub fn parse_samples_with(
     parse_samples_repeats(text, grid, sel).map(|(s, _)| s)
 }
 
-/// [`parse_samples_with`], and the scatter of the positions' repeated cycles about their mean
-/// (a sample's noise as the repeats show it: [`crate::noise`]).
+/// What a samples file shows of its samples' noise ([`crate::noise`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SampleScatter {
+    /// The positions' repeated cycles about their mean.
+    pub repeats: Scatter,
+    /// The rows' frames (`frames`, `frame_sd_<axis>_um` of the moving axis in [`LAYOUT`]).
+    pub frames: Scatter,
+}
+
+/// [`parse_samples_with`], and the scatter of the positions' repeated cycles and of their
+/// frames (a sample's noise as the file shows it: [`crate::noise`]).
 pub fn parse_samples_repeats(
     text: &str,
     grid: &Grid,
     sel: &Select,
-) -> Result<(GridSamples, Scatter), (usize, String)> {
+) -> Result<(GridSamples, SampleScatter), (usize, String)> {
     use crate::types::{AxisId, Direction, Phase};
     let mut lines = text
         .lines()
@@ -206,8 +225,11 @@ pub fn parse_samples_repeats(
         (Some(a), Some(d), Some(c)) => Some((a, d, c, col("phase"), col("pass"))),
         _ => None,
     };
-    // Per grid position: (errors, first line, cycles seen).
-    type Slot = (Vec<f64>, usize, Vec<u64>);
+    let frames_col = col("frames");
+    let sd_col = [col("frame_sd_x_um"), col("frame_sd_y_um")];
+    // Per grid position: (errors, first line, cycles seen, each row's frames and their sum of
+    // squares about the row's mean).
+    type Slot = (Vec<f64>, usize, Vec<u64>, Vec<(u32, Option<f64>)>);
     let mut at: Vec<Option<Slot>> = vec![None; grid.n];
     let mut curves: Vec<(AxisId, Direction)> = Vec::new();
     for (i, line) in lines {
@@ -232,6 +254,7 @@ pub fn parse_samples_repeats(
             Ok(v)
         };
         let mut cycle = None;
+        let mut frames = (1, None);
         if let Some((ac, dc, cc, phc, pac)) = layout {
             if pac.is_some_and(|c| fields[c] == "after") {
                 continue;
@@ -297,6 +320,25 @@ pub fn parse_samples_repeats(
             })?;
             // A full scan repeats the CS targets in the same cycle: its own sweep.
             cycle = Some(2 * c + u64::from(phase == Some(Phase::Full)));
+            if let (Some(fc), Some(sc)) = (frames_col, sd_col[axis as usize]) {
+                let k: u32 = fields[fc].parse().map_err(|_| {
+                    (
+                        lineno,
+                        format!("frames {:?} is not a whole number", clip(fields[fc])),
+                    )
+                })?;
+                let sd = match fields[sc] {
+                    "" => None,
+                    f => {
+                        let sd = num(f, cols[sc].as_str())?;
+                        if sd < 0.0 {
+                            return Err((lineno, format!("{} is negative", cols[sc])));
+                        }
+                        Some(f64::from(k.saturating_sub(1)) * sd * sd)
+                    }
+                };
+                frames = (k.max(1), sd);
+            }
         }
         let p = num(fields[pc], "position_um")?;
         let e = num(fields[ec], "error_um")?;
@@ -307,13 +349,16 @@ pub fn parse_samples_repeats(
             )
         })?;
         match (&mut at[k], cycle) {
-            (slot @ None, _) => *slot = Some((vec![e], lineno, cycle.into_iter().collect())),
+            (slot @ None, _) => {
+                *slot = Some((vec![e], lineno, cycle.into_iter().collect(), vec![frames]))
+            }
             // Another cycle of the same target: a repeat, averaged.
-            (Some((errors, _, seen)), Some(c)) if !seen.contains(&c) => {
+            (Some((errors, _, seen, rows)), Some(c)) if !seen.contains(&c) => {
                 errors.push(e);
                 seen.push(c);
+                rows.push(frames);
             }
-            (Some((_, first, _)), _) => {
+            (Some((_, first, _, _)), _) => {
                 return Err((
                     lineno,
                     format!("duplicate position {p} µm (first at line {first})"),
@@ -321,18 +366,19 @@ pub fn parse_samples_repeats(
             }
         }
     }
-    let mut scatter = Scatter::default();
+    let mut scatter = SampleScatter::default();
     let rows: Vec<(usize, f64)> = at
         .iter()
         .enumerate()
         .filter_map(|(k, s)| {
-            let (errors, _, _) = s.as_ref()?;
+            let (errors, _, _, frames) = s.as_ref()?;
             let mean = errors.iter().sum::<f64>() / errors.len() as f64;
             let sum_sq = errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>();
-            scatter.add(
+            scatter.repeats.add(
                 u32::try_from(errors.len()).unwrap_or(u32::MAX),
                 Some(sum_sq),
             );
+            scatter.frames.add_rows(frames);
             Some((k, mean))
         })
         .collect();
@@ -427,7 +473,7 @@ mod tests {
         let h = layout_header();
         let row = |phase: &str, dir: &str, cycle: u32, pass: &str, p: f64, e: f64| {
             format!(
-                "0,{phase},x,{dir},{cycle},{p},0,{},0,0,{p},0,1,1,0,{pass},0,{p},{p},{e}\n",
+                "0,{phase},x,{dir},{cycle},{p},0,{},0,0,{p},0,1,1,0,{pass},0,{p},{p},{e},,\n",
                 p + e
             )
         };
@@ -453,12 +499,39 @@ mod tests {
         assert_eq!(s.values, vec![1.5, 3.0]);
         // Their scatter: (1 − 1.5)² + (2 − 1.5)² on one degree of freedom; the samples average
         // 2 and 1 readings. A sample's σ: √(0.5 · (1/2 + 1)/2).
+        let rep = rep.repeats;
         assert_eq!((rep.sum_sq, rep.dof, rep.mean_inv_k()), (0.5, 1, 0.75));
         assert!((rep.sample_sigma_um().unwrap() - 0.375f64.sqrt()).abs() < 1e-12);
         // The same cycle twice is a copied row.
         let dup = format!("{text}{}", row("cs", "forward", 1, "", 10.0, 2.0));
         let e = parse_samples_with(&dup, &g, &fwd).unwrap_err();
         assert!(e.1.contains("duplicate") && e.0 == 7, "{e:?}");
+        // Each row's frames: `frames` and the moving axis's `frame_sd_x_um` (y's is another
+        // coordinate). 10 µm: 4 and 2 frames over two cycles, 20 µm: one frame (no scatter).
+        let framed = |cycle: u32, p: f64, k: u32, sd: &str| {
+            format!("0,cs,x,forward,{cycle},{p},0,{p},0,0,{p},0,1,{k},0,,0,{p},{p},0,{sd},9\n")
+        };
+        let text = format!(
+            "{h}{}{}{}",
+            framed(0, 10.0, 4, "0.1"),
+            framed(1, 10.0, 2, "0.2"),
+            framed(0, 20.0, 1, "")
+        );
+        let (_, sc) = parse_samples_repeats(&text, &g, &fwd).unwrap();
+        let f = sc.frames;
+        // Σ (k − 1)·s² = 3 · 0.01 + 1 · 0.04 on 4 degrees of freedom; a position's variance
+        // σ²·Σ(1/k)/r²: (1/4 + 1/2)/4 at 10 µm and 1 at 20 µm.
+        assert!((f.sum_sq - 0.07).abs() < 1e-12 && f.dof == 4, "{f:?}");
+        assert!(
+            (f.mean_inv_k() - (0.1875 + 1.0) / 2.0).abs() < 1e-12,
+            "{f:?}"
+        );
+        let neg = format!("{h}{}", framed(0, 10.0, 4, "-0.1"));
+        let e = parse_samples_with(&neg, &g, &fwd).unwrap_err();
+        assert!(
+            e.1.contains("frame_sd_x_um is negative") && e.0 == 2,
+            "{e:?}"
+        );
         let bad = format!("{h}{}", row("cs", "sideways", 0, "", 10.0, 1.0));
         assert!(parse_samples_with(&bad, &g, &fwd)
             .unwrap_err()

@@ -33,7 +33,9 @@ pub struct Args {
     /// fast | clarabel (bp and bpdn only).
     #[arg(long, default_value = "fast")]
     solver: String,
-    /// Sensor noise σ in µm (BPDN radius σ·√m; nugget of the physics model).
+    /// Sensor noise σ in µm (BPDN radius σ·√m; nugget of the physics model). Raised to what
+    /// the file's repeated cycles or frames (`frame_sd_*_um`) show when clearly below it,
+    /// lowered when the held-out residuals cannot hold it.
     #[arg(long, default_value_t = 0.01)]
     noise_um: f64,
     /// Leadscrew thread pitch in µm, if known: a hint for the physics model, which otherwise
@@ -82,10 +84,10 @@ pub fn run(a: Args) -> CliResult {
     crate::recon::limits::check_solve_size(method, solver, grid.n, 2)
         .map_err(|e| CliError::input(format!("--grid: {e}")))?;
     let sel = select(&a)?;
-    let (s, repeats) =
+    let (s, scatter) =
         samples::read_samples_csv(&a.samples, &grid, &sel).map_err(CliError::input)?;
     // Repeated cycles of a position show a sample's own noise: a told σ below it is raised.
-    let noise = NoiseFloor::from_scatter(a.noise_um, &repeats);
+    let noise = NoiseFloor::from_scatter(a.noise_um, &scatter.repeats);
     if noise.changed() {
         eprintln!(
             "warning: {}: --noise-um {} µm is below the repeated cycles' scatter ({:.4} µm, {} degrees of \
@@ -94,6 +96,18 @@ pub fn run(a: Args) -> CliResult {
             noise.told_um,
             noise.used_um,
             noise.dof
+        );
+    }
+    // A campaign's frames show the camera's share: a σ still below it is raised to it.
+    let frames = NoiseFloor::from_scatter(noise.used_um, &scatter.frames);
+    if frames.changed() {
+        eprintln!(
+            "warning: {}: --noise-um {} µm is below the frames' scatter ({:.4} µm, {} degrees of \
+             freedom); the curve uses the frames'",
+            a.samples.display(),
+            frames.told_um,
+            frames.used_um,
+            frames.dof
         );
     }
     crate::recon::limits::check_solve_size(method, solver, grid.n, s.len())
@@ -109,7 +123,7 @@ pub fn run(a: Args) -> CliResult {
     let mut settings = ReconSettings {
         method,
         solver,
-        noise_um: noise.used_um,
+        noise_um: frames.used_um,
         pitch_um: a.pitch_um,
         ..Default::default()
     };
@@ -139,6 +153,8 @@ pub fn run(a: Args) -> CliResult {
         v["noise_told_um"] = noise.told_um.into();
         v["repeat_noise_um"] = noise.measured_um.into();
         v["repeat_noise_dof"] = noise.dof.into();
+        v["frame_noise_um"] = frames.measured_um.into();
+        v["frame_noise_dof"] = frames.dof.into();
         outln!("{v}");
     }
     Ok(ExitCode::SUCCESS)

@@ -279,6 +279,35 @@ fn frames_measure_the_cameras_noise_and_raise_a_sigma_told_too_low() {
         let [x, y] = s.frame_sd_um.expect("scatter of 4 frames");
         assert!(x > 0.0 && y > 0.0 && x < 0.05 && y < 0.05, "{s:?}");
     }
+    // samples.csv keeps the scatter too: `reconstruct` on it measures the campaign's σ.
+    let csv = dir.path().join("it-1/samples.csv");
+    let o = bin()
+        .args(["reconstruct", "--grid", "1000:5:1300", "--json"])
+        .args([
+            "--noise-um",
+            "0.001",
+            "--axis",
+            "y",
+            "--direction",
+            "forward",
+        ])
+        .args(["--phase", "cs", "--samples"])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    let r = json_of(&o);
+    let ef_yy = comps
+        .iter()
+        .find(|k| k["component"] == "ef_yy")
+        .expect("ef_yy");
+    let campaign = ef_yy["cs"]["frame_noise_um"].as_f64().unwrap();
+    let read = r["frame_noise_um"].as_f64().unwrap();
+    // The file rounds each σ to 1e-6 µm.
+    assert!((read - campaign).abs() < 1e-5, "{read} vs {campaign}: {r}");
+    assert_eq!(r["frame_noise_dof"], 90, "{r}");
+    assert_eq!(r["noise_um"], r["frame_noise_um"], "{r}");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("frames' scatter"), "{err}");
 }
 
 #[test]

@@ -328,7 +328,7 @@ fn repeated_cycles_measure_the_noise_and_raise_a_sigma_told_too_low() {
             let p = 5.0 * i as f64;
             let e = truth(p) + 0.02 * rng.normal();
             text.push_str(&format!(
-                "0,cs,x,forward,{cycle},{p},0,{},0,0,{p},0,1,1,0,,{},{p},{p},{e}\n",
+                "0,cs,x,forward,{cycle},{p},0,{},0,0,{p},0,1,1,0,,{},{p},{p},{e},,\n",
                 p + e,
                 2 * cycle
             ));
