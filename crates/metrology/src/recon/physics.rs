@@ -104,6 +104,7 @@ pub fn design(
     let span = step_um * (n - 1) as f64;
     let mut a = DMatrix::zeros(rows.len(), cols);
     let nf = n as f64;
+    let mut legendres = vec![0.0; p.envelope_deg + 1];
     for (r, &i) in rows.iter().enumerate() {
         let x = start_um + i as f64 * step_um;
         let s = if span > 0.0 {
@@ -112,22 +113,37 @@ pub fn design(
             0.0
         };
         let mut c = 0;
+        // cos(kθ) by the Chebyshev recurrence and the harmonics' (cos hw, sin hw) by angle
+        // addition: one cosine and one sin_cos per row and period instead of one per column (at
+        // n = 65,536 the trigonometry was a fifth of the physics fit's time). Within ~1e-14 of
+        // the direct values for these orders.
+        let theta = std::f64::consts::PI * (i as f64 + 0.5) / nf;
+        let (c1, mut prev, mut cur) = (theta.cos(), theta.cos(), 1.0);
         for k in 0..=p.trend_k {
-            a[(r, c)] = (std::f64::consts::PI * k as f64 * (i as f64 + 0.5) / nf).cos();
+            a[(r, c)] = cur;
             c += 1;
+            if k == 0 {
+                (prev, cur) = (1.0, c1);
+            } else {
+                (prev, cur) = (cur, 2.0 * c1 * cur - prev);
+            }
+        }
+        for (d, l) in legendres.iter_mut().enumerate() {
+            *l = legendre(d, s);
         }
         let u = x - start_um - span / 2.0;
         for (k, &period) in p.periods_um.iter().enumerate() {
             let chirp = p.chirps.get(k).copied().unwrap_or(0.0);
             let w = 2.0 * std::f64::consts::PI * x / period + chirp * u * u;
-            for h in 1..=p.harmonics {
-                let (sn, cs) = (h as f64 * w).sin_cos();
-                for d in 0..=p.envelope_deg {
-                    let l = legendre(d, s);
+            let (s1, c1) = w.sin_cos();
+            let (mut sn, mut cs) = (s1, c1);
+            for _ in 1..=p.harmonics {
+                for &l in &legendres {
                     a[(r, c)] = cs * l;
                     a[(r, c + 1)] = sn * l;
                     c += 2;
                 }
+                (sn, cs) = (sn * c1 + cs * s1, cs * c1 - sn * s1);
             }
         }
     }
@@ -441,22 +457,56 @@ impl Fitted {
         let cg = &c * (&b * b.transpose());
         let kk = ou_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2);
         let s2 = noise_um.max(0.0).powi(2);
-        Some(
-            (0..n)
-                .map(|x| {
-                    let (cross, quad) = (0..cols).fold((0.0, 0.0), |(s, t), k| {
-                        (s + c[(x, k)] * d[(x, k)], t + c[(x, k)] * cg[(x, k)])
-                    });
-                    s2 * (kk[x] + 2.0 * cross + quad).max(0.0)
-                })
-                .collect(),
-        )
+        // Column by column: the matrices are column-major.
+        let mut sum: Vec<f64> = kk;
+        for k in 0..cols {
+            let (ck, dk, gk) = (c.column(k), d.column(k), cg.column(k));
+            for x in 0..n {
+                sum[x] += ck[x] * (2.0 * dk[x] + gk[x]);
+            }
+        }
+        Some(sum.into_iter().map(|v| s2 * v.max(0.0)).collect())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn design_rows_match_the_direct_cosines_and_sines() {
+        let mut p = PhysicsParams::with_periods(vec![400.0, 37.0]);
+        p.chirps = vec![1e-7];
+        p.harmonics = 8;
+        p.trend_k = 32;
+        let (n, start, step) = (20_001, -50.0, 0.5);
+        let rows = [0, 1, 777, 10_000, 20_000];
+        let a = design(&p, n, start, step, &rows);
+        let span = step * (n - 1) as f64;
+        for (r, &i) in rows.iter().enumerate() {
+            let x = start + i as f64 * step;
+            let s = 2.0 * (x - start) / span - 1.0;
+            let mut want = Vec::new();
+            for k in 0..=p.trend_k {
+                want.push((std::f64::consts::PI * k as f64 * (i as f64 + 0.5) / n as f64).cos());
+            }
+            let u = x - start - span / 2.0;
+            for (k, &period) in p.periods_um.iter().enumerate() {
+                let chirp = p.chirps.get(k).copied().unwrap_or(0.0);
+                let w = std::f64::consts::TAU * x / period + chirp * u * u;
+                for h in 1..=p.harmonics {
+                    let (sn, cs) = (h as f64 * w).sin_cos();
+                    for d in 0..=p.envelope_deg {
+                        want.extend([cs * legendre(d, s), sn * legendre(d, s)]);
+                    }
+                }
+            }
+            assert_eq!(want.len(), p.columns());
+            for (c, w) in want.iter().enumerate() {
+                assert!((a[(r, c)] - w).abs() < 1e-12, "row {i} column {c}");
+            }
+        }
+    }
 
     #[test]
     fn legendre_matches_closed_forms() {
