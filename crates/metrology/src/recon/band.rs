@@ -63,7 +63,7 @@
 //! kept at its samples between them too.
 //!
 //! Where the curve is linear in its samples and that map is known (the physics model: ridge
-//! least squares and the OU smoother, g = S y), the sensor noise's part of its error is not
+//! least squares and the residual's smoother, g = S y), the sensor noise's part of its error is not
 //! estimated but computed, σ²‖S_x‖² at every grid point
 //! ([`crate::recon::physics::Fitted::noise_variance`]), and the held-out residuals are read for
 //! the bias alone (see [`FitNoise`]): u² = σ²‖S_x‖² + b².

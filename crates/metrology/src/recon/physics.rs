@@ -5,10 +5,10 @@
 //!               thread pitch, each with a slowly varying envelope and phase: harmonic × Legendre
 //!               polynomials of the position)
 //!             + correlated roughness and local defects (an Ornstein–Uhlenbeck process, i.e. the
-//!               continuous AR(1)), seen through white sensor noise.
-//! The parametric part is a ridge least-squares fit; the residual is kriged with the OU prior by
+//!               continuous AR(1), or a smooth Matérn 3/2 one), seen through white sensor noise.
+//! The parametric part is a ridge least-squares fit; the residual is kriged with its prior by
 //! a Kalman (RTS) smoother along the grid, which is O(n) instead of an m x m solve.
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Matrix2, Vector2};
 use serde::Serialize;
 
 /// Legendre polynomial P_k(s) by the three-term recurrence (the envelope's basis on [-1, 1]).
@@ -24,6 +24,24 @@ pub fn legendre(k: usize, s: f64) -> f64 {
         p1 = p2;
     }
     p1
+}
+
+/// The prior of the physics model's residual (the part its terms do not hold).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Kernel {
+    /// Ornstein–Uhlenbeck (Matérn 1/2): a rough residual, kriged piecewise-exponentially.
+    #[default]
+    Ou,
+    /// Matérn 3/2: a smooth residual (a chirp, smooth roughness), whose samples the prior
+    /// joins with a continuous slope and whose noise it averages over the correlation length.
+    Matern32,
+}
+
+impl Kernel {
+    fn is_ou(&self) -> bool {
+        *self == Kernel::Ou
+    }
 }
 
 /// Model structure and hyper-parameters.
@@ -43,8 +61,11 @@ pub struct PhysicsParams {
     /// drifts along the travel); missing entries are 0.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub chirps: Vec<f64>,
-    /// OU correlation length of the residual, µm.
+    /// Correlation length of the residual's prior, µm.
     pub corr_um: f64,
+    /// The residual's prior: OU (rough) or Matérn 3/2 (once differentiable).
+    #[serde(skip_serializing_if = "Kernel::is_ou")]
+    pub kernel: Kernel,
     /// Ridge weight (relative to the sample count) on all but the constant column.
     pub ridge: f64,
 }
@@ -64,6 +85,7 @@ impl PhysicsParams {
             periods_um,
             chirps: Vec::new(),
             corr_um: 12.0,
+            kernel: Kernel::Ou,
             ridge: 1e-4,
         }
     }
@@ -307,13 +329,203 @@ pub fn ou_smooth_at(
     out
 }
 
+/// The Matérn 3/2 state (value, slope): transition over `dt` µm and its process noise, for
+/// prior variance `sigma2` and correlation length `ell` (Hartikainen and Särkkä, 2010).
+fn m32_step(dt: f64, sigma2: f64, ell: f64) -> (Matrix2<f64>, Matrix2<f64>) {
+    let l = 3f64.sqrt() / ell;
+    let e = (-l * dt).exp();
+    let a = Matrix2::new(1.0 + l * dt, dt, -l * l * dt, 1.0 - l * dt) * e;
+    let p_inf = Matrix2::new(sigma2, 0.0, 0.0, l * l * sigma2);
+    (a, p_inf - a * p_inf * a.transpose())
+}
+
+/// The union of the ascending `obs_idx` and `at`, ascending.
+fn union_sorted(obs_idx: &[usize], at: &[usize]) -> Vec<usize> {
+    let mut pts: Vec<usize> = obs_idx.iter().chain(at).copied().collect();
+    pts.sort_unstable();
+    pts.dedup();
+    pts
+}
+
+/// The Matérn 3/2 Kalman filter over `pts` (ascending grid indices, step µm): per point the
+/// transition into it, the predicted and the filtered covariance, the filtered mean (of `obs`
+/// at `obs_idx`; zeros without), and U, the product of (I − k h) over its observations.
+struct M32Filter {
+    a: Vec<Matrix2<f64>>,
+    p_pred: Vec<Matrix2<f64>>,
+    p_filt: Vec<Matrix2<f64>>,
+    m_filt: Vec<Vector2<f64>>,
+    /// Per point, its observations' gains k (in order).
+    gains: Vec<Vec<Vector2<f64>>>,
+}
+
+impl M32Filter {
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        step: f64,
+        pts: &[usize],
+        obs_idx: &[usize],
+        obs: Option<&[f64]>,
+        sigma2: f64,
+        ell: f64,
+        noise2: f64,
+    ) -> Self {
+        let np = pts.len();
+        let l = 3f64.sqrt() / ell;
+        let p_inf = Matrix2::new(sigma2, 0.0, 0.0, l * l * sigma2);
+        let mut f = M32Filter {
+            a: Vec::with_capacity(np),
+            p_pred: Vec::with_capacity(np),
+            p_filt: Vec::with_capacity(np),
+            m_filt: Vec::with_capacity(np),
+            gains: Vec::with_capacity(np),
+        };
+        let (mut m, mut p) = (Vector2::zeros(), p_inf);
+        let mut k = 0;
+        for j in 0..np {
+            let a = if j > 0 {
+                let (a, q) = m32_step((pts[j] - pts[j - 1]) as f64 * step, sigma2, ell);
+                m = a * m;
+                p = a * p * a.transpose() + q;
+                a
+            } else {
+                Matrix2::identity()
+            };
+            f.a.push(a);
+            f.p_pred.push(p);
+            let mut gains = Vec::new();
+            while k < obs_idx.len() && obs_idx[k] == pts[j] {
+                let s = p[(0, 0)] + noise2;
+                let g = p.column(0) / s;
+                if let Some(y) = obs {
+                    m += g * (y[k] - m[0]);
+                }
+                p -= g * g.transpose() * s;
+                // Symmetric against rounding.
+                p = (p + p.transpose()) * 0.5;
+                gains.push(g);
+                k += 1;
+            }
+            f.gains.push(gains);
+            f.p_filt.push(p);
+            f.m_filt.push(m);
+        }
+        f
+    }
+
+    /// The RTS smoother's gain at point j < last: P_f,j A_{j+1}ᵀ P_pred,j+1⁻¹.
+    fn smoother_gain(&self, j: usize) -> Matrix2<f64> {
+        let inv = self.p_pred[j + 1]
+            .try_inverse()
+            .unwrap_or_else(Matrix2::zeros);
+        self.p_filt[j] * self.a[j + 1].transpose() * inv
+    }
+}
+
+/// Posterior mean of a Matérn 3/2 process (variance `sigma2`, correlation length `ell`) at the
+/// ascending grid indices `at` (grid spacing `step`), from noisy observations `obs` at the
+/// ascending `obs_idx`: a Kalman filter and RTS smoother over the union of both, O(m + |at|).
+pub fn m32_smooth_at(
+    step: f64,
+    obs_idx: &[usize],
+    obs: &[f64],
+    at: &[usize],
+    sigma2: f64,
+    ell: f64,
+    noise2: f64,
+) -> Vec<f64> {
+    let pts = union_sorted(obs_idx, at);
+    if pts.is_empty() {
+        return Vec::new();
+    }
+    let f = M32Filter::run(step, &pts, obs_idx, Some(obs), sigma2, ell, noise2);
+    let np = pts.len();
+    let mut ms = f.m_filt.clone();
+    for j in (0..np - 1).rev() {
+        let g = f.smoother_gain(j);
+        ms[j] = f.m_filt[j] + g * (ms[j + 1] - f.a[j + 1] * f.m_filt[j]);
+    }
+    let mut out = Vec::with_capacity(at.len());
+    let mut j = 0;
+    for &q in at {
+        while pts[j] < q {
+            j += 1;
+        }
+        out.push(ms[j][0]);
+    }
+    out
+}
+
+/// [`m32_smooth_at`] at every index of an n-point grid.
+pub fn m32_smooth(
+    n: usize,
+    step: f64,
+    obs_idx: &[usize],
+    obs: &[f64],
+    sigma2: f64,
+    ell: f64,
+    noise2: f64,
+) -> Vec<f64> {
+    let all: Vec<usize> = (0..n).collect();
+    m32_smooth_at(step, obs_idx, obs, &all, sigma2, ell, noise2)
+}
+
+/// Σ_j K_xj² at every grid point x for [`m32_smooth`] (K its linear map of the observations),
+/// O(n) as [`ou_weight_norms`] with 2 × 2 matrices: the filter's weight rows F_i (2 × m) have
+/// the Gram matrix G_i = A G Aᵀ, then (I − kh) G (I − kh)ᵀ + kkᵀ per observation; the smoother's
+/// S_i = C F_i + J S_{i+1} (C = I − J A), and S_{i+1}'s part along F_i is T_{i+1} F_i with
+/// T_i = (C_i + J_i T_{i+1}) U_i A_i, U_i the product of (I − kh) at i, so
+/// S_i S_iᵀ = C G Cᵀ + C G Tᵀ Jᵀ + J T G Cᵀ + J (S_{i+1} S_{i+1}ᵀ) Jᵀ.
+pub fn m32_weight_norms(
+    n: usize,
+    step: f64,
+    obs_idx: &[usize],
+    sigma2: f64,
+    ell: f64,
+    noise2: f64,
+) -> Vec<f64> {
+    if n == 0 {
+        return Vec::new();
+    }
+    let pts: Vec<usize> = (0..n).collect();
+    let f = M32Filter::run(step, &pts, obs_idx, None, sigma2, ell, noise2);
+    let mut g = Vec::with_capacity(n);
+    let mut u = Vec::with_capacity(n);
+    let mut gram = Matrix2::zeros();
+    for j in 0..n {
+        gram = f.a[j] * gram * f.a[j].transpose();
+        let mut uj = Matrix2::identity();
+        for k in &f.gains[j] {
+            // I − k h with h = (1, 0).
+            let mk = Matrix2::identity() - Matrix2::from_columns(&[*k, Vector2::zeros()]);
+            gram = mk * gram * mk.transpose() + k * k.transpose();
+            uj = mk * uj;
+        }
+        g.push(gram);
+        u.push(uj);
+    }
+    let mut out = vec![0.0; n];
+    let mut gs = g[n - 1];
+    out[n - 1] = gs[(0, 0)];
+    let mut t_next = u[n - 1] * f.a[n - 1];
+    for j in (0..n - 1).rev() {
+        let jg = f.smoother_gain(j);
+        let c = Matrix2::identity() - jg * f.a[j + 1];
+        let cross = c * g[j] * t_next.transpose() * jg.transpose();
+        gs = c * g[j] * c.transpose() + cross + cross.transpose() + jg * gs * jg.transpose();
+        out[j] = gs[(0, 0)].max(0.0);
+        t_next = (c + jg * t_next) * u[j] * f.a[j];
+    }
+    out
+}
+
 /// A fitted model: trend coefficients and the kriged residual at the grid indices asked for.
 pub struct Fitted {
     beta: DVector<f64>,
     /// Ascending grid indices of `rough` (every index when empty).
     rough_at: Vec<usize>,
     rough: Vec<f64>,
-    /// The regularised normal matrix's factor, and the OU prior and noise variances the
+    /// The regularised normal matrix's factor, and the prior and noise variances the
     /// residual's smoother used (µm²): with them the fit is a fixed linear map of the samples
     /// ([`Fitted::noise_variance`]).
     chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
@@ -393,14 +605,22 @@ pub fn fit_normal(
     let var = resid.iter().map(|v| v * v).sum::<f64>() / m as f64;
     let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
     let sigma2 = (var - noise2).max(noise2);
-    let (rough_at, rough) = match at {
-        Some(at) => (
+    let (rough_at, rough) = match (at, p.kernel) {
+        (Some(at), Kernel::Ou) => (
             at.to_vec(),
             ou_smooth_at(step_um, idx, &resid, at, sigma2, p.corr_um, noise2),
         ),
-        None => (
+        (None, Kernel::Ou) => (
             Vec::new(),
             ou_smooth(n, step_um, idx, &resid, sigma2, p.corr_um, noise2),
+        ),
+        (Some(at), Kernel::Matern32) => (
+            at.to_vec(),
+            m32_smooth_at(step_um, idx, &resid, at, sigma2, p.corr_um, noise2),
+        ),
+        (None, Kernel::Matern32) => (
+            Vec::new(),
+            m32_smooth(n, step_um, idx, &resid, sigma2, p.corr_um, noise2),
         ),
     };
     Some(Fitted {
@@ -416,13 +636,13 @@ pub fn fit_normal(
 impl Fitted {
     /// The variance the sensor noise alone gives this fit at every grid point (µm²): with its
     /// hyper-parameters held, the fit is linear in the samples, g = S y (ridge least squares,
-    /// then the OU smoother of its residual), so white noise of σ = `noise_um` gives σ² ‖S_x‖² at
+    /// then the smoother of its residual), so white noise of σ = `noise_um` gives σ² ‖S_x‖² at
     /// grid point x. Whatever the model's bias, the curve's mean square error there is that plus
     /// the bias² (the band's noise part, `band::pointwise_u`). `rows` are the samples' design rows
     /// (those the fit was made on, at grid indices `idx`, `p` its structure), `grid_rows` every
     /// grid point's. S_x = K_x + C_x B with B = (AᵀA + Λ)⁻¹Aᵀ, K the smoother and
     /// C = A_grid − K A: the cross and quadratic terms come from 2·cols smoother runs, ‖K_x‖²
-    /// from [`ou_weight_norms`]. The quadratic form is O(n·cols²): at n = 65,536 it made the
+    /// from [`ou_weight_norms`] or [`m32_weight_norms`]. The quadratic form is O(n·cols²): at n = 65,536 it made the
     /// physics fit 1.6 times slower. None when the rows do not match the fit.
     #[allow(clippy::too_many_arguments)]
     pub fn noise_variance(
@@ -442,7 +662,10 @@ impl Fitted {
         }
         let (sigma2, noise2) = (self.sigma2, self.noise2);
         let a = rows.columns(0, cols);
-        let smooth = |v: Vec<f64>| ou_smooth(n, step_um, idx, &v, sigma2, p.corr_um, noise2);
+        let smooth = |v: Vec<f64>| match p.kernel {
+            Kernel::Ou => ou_smooth(n, step_um, idx, &v, sigma2, p.corr_um, noise2),
+            Kernel::Matern32 => m32_smooth(n, step_um, idx, &v, sigma2, p.corr_um, noise2),
+        };
         let b = self.chol.solve(&a.transpose().into_owned());
         let mut c = grid_rows.columns(0, cols).into_owned();
         let mut d = DMatrix::zeros(n, cols);
@@ -455,7 +678,10 @@ impl Fitted {
             }
         }
         let cg = &c * (&b * b.transpose());
-        let kk = ou_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2);
+        let kk = match p.kernel {
+            Kernel::Ou => ou_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2),
+            Kernel::Matern32 => m32_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2),
+        };
         let s2 = noise_um.max(0.0).powi(2);
         // Column by column: the matrices are column-major.
         let mut sum: Vec<f64> = kk;
@@ -504,6 +730,90 @@ mod tests {
             assert_eq!(want.len(), p.columns());
             for (c, w) in want.iter().enumerate() {
                 assert!((a[(r, c)] - w).abs() < 1e-12, "row {i} column {c}");
+            }
+        }
+    }
+
+    /// The Matérn 3/2 posterior mean at `at` by a dense GP solve.
+    fn m32_dense(
+        step: f64,
+        idx: &[usize],
+        obs: &[f64],
+        at: &[usize],
+        s2: f64,
+        ell: f64,
+        n2: f64,
+    ) -> Vec<f64> {
+        let k = |a: usize, b: usize| {
+            let d = 3f64.sqrt() * (a as f64 - b as f64).abs() * step / ell;
+            s2 * (1.0 + d) * (-d).exp()
+        };
+        let m = idx.len();
+        let c = DMatrix::from_fn(m, m, |i, j| {
+            k(idx[i], idx[j]) + if i == j { n2 } else { 0.0 }
+        });
+        let w = c
+            .cholesky()
+            .unwrap()
+            .solve(&DVector::from_column_slice(obs));
+        at.iter()
+            .map(|&x| (0..m).map(|j| k(x, idx[j]) * w[j]).sum())
+            .collect()
+    }
+
+    #[test]
+    fn the_matern_smoother_is_the_gp_posterior_mean() {
+        let n = 300;
+        let idx: Vec<usize> = (0..n).filter(|i| (i * 7 + 3) % 11 < 3).collect();
+        let obs: Vec<f64> = idx
+            .iter()
+            .map(|&i| (i as f64 / 17.0).sin() + 0.1 * (i % 3) as f64)
+            .collect();
+        let all: Vec<usize> = (0..n).collect();
+        for (s2, ell, n2) in [(1.0, 30.0, 0.01), (0.3, 5.0, 0.2), (2.0, 200.0, 1e-6)] {
+            let fast = m32_smooth(n, 2.0, &idx, &obs, s2, ell, n2);
+            let dense = m32_dense(2.0, &idx, &obs, &all, s2, ell, n2);
+            for (a, b) in fast.iter().zip(&dense) {
+                assert!(
+                    (a - b).abs() < 1e-6 * (1.0 + b.abs()),
+                    "{a} vs {b} ({s2}, {ell}, {n2})"
+                );
+            }
+            let at = [0, 5, 150, 151, 299];
+            let sparse = m32_smooth_at(2.0, &idx, &obs, &at, s2, ell, n2);
+            for (a, &q) in sparse.iter().zip(&at) {
+                assert!((a - fast[q]).abs() < 1e-9 * (1.0 + a.abs()));
+            }
+        }
+    }
+
+    #[test]
+    fn matern_weight_norms_are_the_sum_of_squared_unit_responses() {
+        let n = 120;
+        let idx = vec![3, 10, 11, 40, 41, 42, 80, 119];
+        for (s2, ell, n2) in [
+            (1.0, 5.0, 1.0),
+            (2.0, 40.0, 0.1),
+            (0.5, 3.0, 3.0),
+            (1.0, 300.0, 1e-4),
+        ] {
+            let mut brute = vec![0.0; n];
+            for j in 0..idx.len() {
+                let mut unit = vec![0.0; idx.len()];
+                unit[j] = 1.0;
+                for (b, v) in brute
+                    .iter_mut()
+                    .zip(m32_smooth(n, 2.0, &idx, &unit, s2, ell, n2))
+                {
+                    *b += v * v;
+                }
+            }
+            let fast = m32_weight_norms(n, 2.0, &idx, s2, ell, n2);
+            for (x, (a, b)) in fast.iter().zip(&brute).enumerate() {
+                assert!(
+                    (a - b).abs() < 1e-9 * (1.0 + b),
+                    "x = {x}: {a} vs {b} ({s2}, {ell}, {n2})"
+                );
             }
         }
     }
@@ -626,58 +936,62 @@ mod tests {
         let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 90, 3)
             .indices(n)
             .unwrap();
-        let mut p = PhysicsParams::default_for(400.0);
-        assert!(p.shrink_to(idx.len()));
-        let all: Vec<usize> = (0..n).collect();
-        let (rows, grid_rows) = (
-            design(&p, n, 0.0, step, &idx),
-            design(&p, n, 0.0, step, &all),
-        );
-        let mut gauss = crate::recon::test_curve::normals(11);
-        let draws = 400;
-        let (mut sum, mut sum2) = (vec![0.0; n], vec![0.0; n]);
-        let mut last = None;
-        for _ in 0..draws {
-            let y: Vec<f64> = idx.iter().map(|&i| truth[i] + sigma * gauss()).collect();
-            let fitted = fit(&p, &rows, n, step, &idx, &y, sigma).unwrap();
-            let g = fitted.predict(&grid_rows, &all);
-            for i in 0..n {
-                sum[i] += g[i];
-                sum2[i] += g[i] * g[i];
+        // Both residual priors: the map is linear in the samples either way.
+        for (kernel, corr) in [(Kernel::Ou, 12.0), (Kernel::Matern32, 60.0)] {
+            let mut p = PhysicsParams::default_for(400.0);
+            (p.kernel, p.corr_um) = (kernel, corr);
+            assert!(p.shrink_to(idx.len()));
+            let all: Vec<usize> = (0..n).collect();
+            let (rows, grid_rows) = (
+                design(&p, n, 0.0, step, &idx),
+                design(&p, n, 0.0, step, &all),
+            );
+            let mut gauss = crate::recon::test_curve::normals(11);
+            let draws = 400;
+            let (mut sum, mut sum2) = (vec![0.0; n], vec![0.0; n]);
+            let mut last = None;
+            for _ in 0..draws {
+                let y: Vec<f64> = idx.iter().map(|&i| truth[i] + sigma * gauss()).collect();
+                let fitted = fit(&p, &rows, n, step, &idx, &y, sigma).unwrap();
+                let g = fitted.predict(&grid_rows, &all);
+                for i in 0..n {
+                    sum[i] += g[i];
+                    sum2[i] += g[i] * g[i];
+                }
+                last = Some(fitted);
             }
-            last = Some(fitted);
-        }
-        // The map of the last draw (the hyper-parameters stay at their floor for every draw).
-        let var = last
-            .unwrap()
-            .noise_variance(&p, &rows, &grid_rows, n, step, &idx, sigma)
-            .unwrap();
-        let spread: Vec<f64> = (0..n)
-            .map(|i| (sum2[i] - sum[i] * sum[i] / draws as f64) / (draws - 1) as f64)
-            .collect();
-        let mean_over = |v: &[f64], at: bool| {
-            let pick: Vec<f64> = (0..n)
-                .filter(|i| idx.binary_search(i).is_ok() == at)
-                .map(|i| v[i])
+            // The map of the last draw (the hyper-parameters stay at their floor for every draw).
+            let var = last
+                .unwrap()
+                .noise_variance(&p, &rows, &grid_rows, n, step, &idx, sigma)
+                .unwrap();
+            let spread: Vec<f64> = (0..n)
+                .map(|i| (sum2[i] - sum[i] * sum[i] / draws as f64) / (draws - 1) as f64)
                 .collect();
-            pick.iter().sum::<f64>() / pick.len() as f64
-        };
-        for at in [true, false] {
-            let (model, seen) = (mean_over(&var, at), mean_over(&spread, at));
-            eprintln!("at the samples {at}: {model:.4e} against {seen:.4e}");
-            assert!(
-                (model / seen - 1.0).abs() < 0.08,
-                "at the samples {at}: σ²‖S_x‖² {model:.3e} against the draws' {seen:.3e}"
-            );
-        }
-        // Pointwise too, within the draws' own sampling error (√(2/400) ≈ 7 %, so 4.5 of them).
-        for i in 0..n {
-            assert!(
-                (var[i] / spread[i] - 1.0).abs() < 0.32,
-                "grid point {i}: {:.3e} against {:.3e}",
-                var[i],
-                spread[i]
-            );
+            let mean_over = |v: &[f64], at: bool| {
+                let pick: Vec<f64> = (0..n)
+                    .filter(|i| idx.binary_search(i).is_ok() == at)
+                    .map(|i| v[i])
+                    .collect();
+                pick.iter().sum::<f64>() / pick.len() as f64
+            };
+            for at in [true, false] {
+                let (model, seen) = (mean_over(&var, at), mean_over(&spread, at));
+                eprintln!("at the samples {at}: {model:.4e} against {seen:.4e}");
+                assert!(
+                    (model / seen - 1.0).abs() < 0.08,
+                    "{kernel:?} at the samples {at}: σ²‖S_x‖² {model:.3e} against the draws' {seen:.3e}"
+                );
+            }
+            // Pointwise too, within the draws' own sampling error (√(2/400) ≈ 7 %, so 4.5 of them).
+            for i in 0..n {
+                assert!(
+                    (var[i] / spread[i] - 1.0).abs() < 0.32,
+                    "{kernel:?} grid point {i}: {:.3e} against {:.3e}",
+                    var[i],
+                    spread[i]
+                );
+            }
         }
     }
 }
