@@ -497,6 +497,10 @@ pub fn calibrate(raw_um: f64, m: usize, n: usize, noise_um: f64) -> f64 {
     (1.0 - seen) * clean + seen * clean.min(noise_mae)
 }
 
+/// The Matérn 3/2 residual replaces the OU one when its cross-validated error is below this
+/// share of the OU model's.
+const SMOOTH_GAIN: f64 = 0.97;
+
 /// Candidates of `auto` within this factor of the chosen one's cross-validated error are weighed
 /// for the model-choice term of the band; beyond it (as [`CrossValidation::score_bp`]'s early
 /// stop) a candidate is not plausibly the better (its weight would be < 0.001 at m ≥ 100).
@@ -1058,6 +1062,8 @@ impl<'a> CrossValidation<'a> {
         // The residual as a smooth process (Matérn 3/2) instead of a rough one: a chirp or a
         // smooth roughness the terms do not hold, whose noise the OU prior passes on between
         // the samples (its lengths are longer: it keeps a slope across them).
+        let rough = best_err;
+        let mut smooth: Option<(PhysicsParams, f64)> = None;
         for corr in [20.0, 40.0, 80.0, 160.0, 320.0] {
             let mut cand = best.clone();
             (cand.kernel, cand.corr_um) = (physics::Kernel::Matern32, corr);
@@ -1067,10 +1073,15 @@ impl<'a> CrossValidation<'a> {
                 cv_error_um: e,
                 params: Some(cand.clone()),
             });
-            if e < best_err {
-                best = cand;
-                best_err = e;
+            if smooth.as_ref().is_none_or(|s| e < s.1) {
+                smooth = Some((cand, e));
             }
+        }
+        // Only a clear gain: the best of five more candidates beats the OU model by chance
+        // as often as not where the residual is rough.
+        if let Some((cand, e)) = smooth.filter(|s| s.1 < SMOOTH_GAIN * rough) {
+            best = cand;
+            best_err = e;
         }
         (best, best_err, scores)
     }
@@ -1101,6 +1112,59 @@ mod tests {
             best = best.min(cv.record(e));
         }
         (best, cv.selection_bias(best))
+    }
+
+    /// A smooth residual no period holds (a chirp sweeping 1/900 to 1/200 µm⁻¹) is kriged with
+    /// the Matérn 3/2 prior, which joins the samples with a slope and averages their noise; a
+    /// rough one (OU, 15 µm) keeps the OU prior.
+    #[test]
+    fn a_smooth_residual_takes_the_matern_prior_and_a_rough_one_keeps_ou() {
+        let grid = Grid {
+            start_um: 0.0,
+            step_um: 5.0,
+            n: 1901,
+        };
+        let span = 9500.0;
+        let mut normal = test_curve::normals(7);
+        let chirp: Vec<f64> = (0..grid.n)
+            .map(|i| {
+                let x = grid.position(i);
+                let (f0, f1) = (1.0 / 900.0, 1.0 / 200.0);
+                (std::f64::consts::TAU * (f0 * x + (f1 - f0) * x * x / (2.0 * span))).sin()
+            })
+            .collect();
+        let phi = (-5.0f64 / 15.0).exp();
+        let mut r = 0.0;
+        let rough: Vec<f64> = (0..grid.n)
+            .map(|_| {
+                r = phi * r + 0.2 * (1.0 - phi * phi).sqrt() * normal();
+                r
+            })
+            .collect();
+        let idx = crate::sampling::Design::new(crate::sampling::DesignKind::Random, 600, 5)
+            .indices(grid.n)
+            .unwrap();
+        let s = ReconSettings::default();
+        let mean_err = |g: &[f64], truth: &[f64]| {
+            g.iter().zip(truth).map(|(a, b)| (a - b).abs()).sum::<f64>() / truth.len() as f64
+        };
+        for (truth, smooth) in [(&chirp, true), (&rough, false)] {
+            let samples = GridSamples {
+                idx: idx.clone(),
+                values: idx.iter().map(|&i| truth[i] + 0.01 * normal()).collect(),
+            };
+            let r = reconstruct(&grid, &samples, &s).unwrap();
+            let kernel = r.params.as_ref().map(|p| p.kernel);
+            if smooth {
+                assert_eq!(kernel, Some(physics::Kernel::Matern32), "{:?}", r.params);
+                // Against the interpolant through the noisy samples.
+                let pchip = interpolate(Method::Pchip, &grid, &samples.idx, &samples.values);
+                let (e, ep) = (mean_err(&r.values, truth), mean_err(&pchip, truth));
+                assert!(e < 0.8 * ep, "Matérn {e:.4} µm against pchip {ep:.4} µm");
+            } else {
+                assert_eq!(kernel, Some(physics::Kernel::Ou), "{:?}", r.params);
+            }
+        }
     }
 
     /// Held-out residuals N(0, σ) at 300 samples.
