@@ -261,6 +261,27 @@ pub fn ou_weight_norms(
     s2
 }
 
+/// The union of the ascending `obs_idx` and `at`, ascending.
+fn union_sorted(obs_idx: &[usize], at: &[usize]) -> Vec<usize> {
+    let mut pts: Vec<usize> = obs_idx.iter().chain(at).copied().collect();
+    pts.sort_unstable();
+    pts.dedup();
+    pts
+}
+
+/// `values` (one per ascending `pts`) at the ascending `at`, each one of `pts`.
+fn at_points(pts: &[usize], values: &[f64], at: &[usize]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(at.len());
+    let mut j = 0;
+    for &q in at {
+        while pts[j] < q {
+            j += 1;
+        }
+        out.push(values[j]);
+    }
+    out
+}
+
 /// [`ou_smooth`] at the grid indices `at` only (ascending): the OU process is Markov, so the
 /// filter steps from one index of interest (observed or asked) to the next with that gap's
 /// transition, O(m + |at|) instead of O(n). Cross-validation asks for the held-out points alone.
@@ -273,24 +294,7 @@ pub fn ou_smooth_at(
     ell: f64,
     noise2: f64,
 ) -> Vec<f64> {
-    // The union of observed and asked indices, ascending.
-    let mut pts: Vec<usize> = Vec::with_capacity(obs_idx.len() + at.len());
-    let (mut a, mut b) = (0, 0);
-    while a < obs_idx.len() || b < at.len() {
-        let next = match (obs_idx.get(a), at.get(b)) {
-            (Some(&o), Some(&q)) => o.min(q),
-            (Some(&o), None) => o,
-            (None, Some(&q)) => q,
-            (None, None) => break,
-        };
-        while obs_idx.get(a) == Some(&next) {
-            a += 1;
-        }
-        while at.get(b) == Some(&next) {
-            b += 1;
-        }
-        pts.push(next);
-    }
+    let pts = union_sorted(obs_idx, at);
     let np = pts.len();
     let (mut mf, mut pf, mut phis) = (vec![0.0; np], vec![0.0; np], vec![0.0; np]);
     let (mut m, mut p) = (0.0, sigma2);
@@ -318,15 +322,7 @@ pub fn ou_smooth_at(
         let g = pf[j] * phi / pp;
         ms[j] = mf[j] + g * (ms[j + 1] - phi * mf[j]);
     }
-    let mut out = Vec::with_capacity(at.len());
-    let mut j = 0;
-    for &q in at {
-        while pts[j] < q {
-            j += 1;
-        }
-        out.push(ms[j]);
-    }
-    out
+    at_points(&pts, &ms, at)
 }
 
 /// The Matérn 3/2 state (value, slope): transition over `dt` µm and its process noise, for
@@ -337,14 +333,6 @@ fn m32_step(dt: f64, sigma2: f64, ell: f64) -> (Matrix2<f64>, Matrix2<f64>) {
     let a = Matrix2::new(1.0 + l * dt, dt, -l * l * dt, 1.0 - l * dt) * e;
     let p_inf = Matrix2::new(sigma2, 0.0, 0.0, l * l * sigma2);
     (a, p_inf - a * p_inf * a.transpose())
-}
-
-/// The union of the ascending `obs_idx` and `at`, ascending.
-fn union_sorted(obs_idx: &[usize], at: &[usize]) -> Vec<usize> {
-    let mut pts: Vec<usize> = obs_idx.iter().chain(at).copied().collect();
-    pts.sort_unstable();
-    pts.dedup();
-    pts
 }
 
 /// The Matérn 3/2 Kalman filter over `pts` (ascending grid indices, step µm): per point the
@@ -445,15 +433,8 @@ pub fn m32_smooth_at(
         let g = f.smoother_gain(j);
         ms[j] = f.m_filt[j] + g * (ms[j + 1] - f.a[j + 1] * f.m_filt[j]);
     }
-    let mut out = Vec::with_capacity(at.len());
-    let mut j = 0;
-    for &q in at {
-        while pts[j] < q {
-            j += 1;
-        }
-        out.push(ms[j][0]);
-    }
-    out
+    let values: Vec<f64> = ms.iter().map(|m| m[0]).collect();
+    at_points(&pts, &values, at)
 }
 
 /// [`m32_smooth_at`] at every index of an n-point grid.
@@ -787,27 +768,33 @@ mod tests {
         }
     }
 
+    /// Σ_j K_xj² of a linear smoother `smooth` of `m` observations, from its unit responses.
+    fn unit_response_norms(n: usize, m: usize, smooth: impl Fn(&[f64]) -> Vec<f64>) -> Vec<f64> {
+        let mut brute = vec![0.0; n];
+        for j in 0..m {
+            let mut unit = vec![0.0; m];
+            unit[j] = 1.0;
+            for (b, v) in brute.iter_mut().zip(smooth(&unit)) {
+                *b += v * v;
+            }
+        }
+        brute
+    }
+
     #[test]
     fn matern_weight_norms_are_the_sum_of_squared_unit_responses() {
         let n = 120;
-        let idx = vec![3, 10, 11, 40, 41, 42, 80, 119];
+        // Two observations at 40: a repeated target.
+        let idx = vec![3, 10, 11, 40, 40, 41, 42, 80, 119];
         for (s2, ell, n2) in [
             (1.0, 5.0, 1.0),
             (2.0, 40.0, 0.1),
             (0.5, 3.0, 3.0),
             (1.0, 300.0, 1e-4),
         ] {
-            let mut brute = vec![0.0; n];
-            for j in 0..idx.len() {
-                let mut unit = vec![0.0; idx.len()];
-                unit[j] = 1.0;
-                for (b, v) in brute
-                    .iter_mut()
-                    .zip(m32_smooth(n, 2.0, &idx, &unit, s2, ell, n2))
-                {
-                    *b += v * v;
-                }
-            }
+            let brute = unit_response_norms(n, idx.len(), |unit| {
+                m32_smooth(n, 2.0, &idx, unit, s2, ell, n2)
+            });
             let fast = m32_weight_norms(n, 2.0, &idx, s2, ell, n2);
             for (x, (a, b)) in fast.iter().zip(&brute).enumerate() {
                 assert!(
@@ -849,17 +836,9 @@ mod tests {
         let n = 300;
         let idx = [0usize, 3, 4, 4, 40, 41, 90, 200, 201, 202, 299];
         for (sigma2, ell, noise2) in [(1.0, 5.0, 1.0), (2.0, 40.0, 0.1), (0.5, 1.0, 3.0)] {
-            let mut brute = vec![0.0; n];
-            for j in 0..idx.len() {
-                let mut unit = vec![0.0; idx.len()];
-                unit[j] = 1.0;
-                for (b, v) in brute
-                    .iter_mut()
-                    .zip(ou_smooth(n, 2.0, &idx, &unit, sigma2, ell, noise2))
-                {
-                    *b += v * v;
-                }
-            }
+            let brute = unit_response_norms(n, idx.len(), |unit| {
+                ou_smooth(n, 2.0, &idx, unit, sigma2, ell, noise2)
+            });
             let fast = ou_weight_norms(n, 2.0, &idx, sigma2, ell, noise2);
             for i in 0..n {
                 assert!(
