@@ -88,28 +88,10 @@ pub fn run(a: Args) -> CliResult {
         samples::read_samples_csv(&a.samples, &grid, &sel).map_err(CliError::input)?;
     // Repeated cycles of a position show a sample's own noise: a told σ below it is raised.
     let noise = NoiseFloor::from_scatter(a.noise_um, &scatter.repeats);
-    if noise.changed() {
-        eprintln!(
-            "warning: {}: --noise-um {} µm is below the repeated cycles' scatter ({:.4} µm, {} degrees of \
-             freedom); the curve uses the repeats'",
-            a.samples.display(),
-            noise.told_um,
-            noise.used_um,
-            noise.dof
-        );
-    }
+    warn_raised(&a.samples, &noise, "repeated cycles'", "repeats'");
     // A campaign's frames show the camera's share: a σ still below it is raised to it.
     let frames = NoiseFloor::from_scatter(noise.used_um, &scatter.frames);
-    if frames.changed() {
-        eprintln!(
-            "warning: {}: --noise-um {} µm is below the frames' scatter ({:.4} µm, {} degrees of \
-             freedom); the curve uses the frames'",
-            a.samples.display(),
-            frames.told_um,
-            frames.used_um,
-            frames.dof
-        );
-    }
+    warn_raised(&a.samples, &frames, "frames'", "frames'");
     crate::recon::limits::check_solve_size(method, solver, grid.n, s.len())
         .map_err(|e| CliError::input(format!("{}: {e}", a.samples.display())))?;
     if s.len() > grid.n {
@@ -158,6 +140,20 @@ pub fn run(a: Args) -> CliResult {
         outln!("{v}");
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The warning that a σ told below the `scatter` of the file's `source` was raised to it.
+fn warn_raised(path: &std::path::Path, f: &NoiseFloor, scatter: &str, source: &str) {
+    if f.changed() {
+        eprintln!(
+            "warning: {}: --noise-um {} µm is below the {scatter} scatter ({:.4} µm, {} degrees of \
+             freedom); the curve uses the {source}",
+            path.display(),
+            f.told_um,
+            f.used_um,
+            f.dof
+        );
+    }
 }
 
 /// `--axis`, `--direction`, `--phase` as a selection of one curve.

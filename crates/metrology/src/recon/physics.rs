@@ -42,6 +42,46 @@ impl Kernel {
     fn is_ou(&self) -> bool {
         *self == Kernel::Ou
     }
+
+    /// The residual's posterior mean at the ascending grid indices `at` ([`ou_smooth_at`],
+    /// [`m32_smooth_at`]), or at all `n` when `at` is None ([`ou_smooth`], [`m32_smooth`]).
+    #[allow(clippy::too_many_arguments)]
+    fn smooth(
+        self,
+        n: usize,
+        at: Option<&[usize]>,
+        step: f64,
+        obs_idx: &[usize],
+        obs: &[f64],
+        sigma2: f64,
+        ell: f64,
+        noise2: f64,
+    ) -> Vec<f64> {
+        match (self, at) {
+            (Kernel::Ou, Some(at)) => ou_smooth_at(step, obs_idx, obs, at, sigma2, ell, noise2),
+            (Kernel::Ou, None) => ou_smooth(n, step, obs_idx, obs, sigma2, ell, noise2),
+            (Kernel::Matern32, Some(at)) => {
+                m32_smooth_at(step, obs_idx, obs, at, sigma2, ell, noise2)
+            }
+            (Kernel::Matern32, None) => m32_smooth(n, step, obs_idx, obs, sigma2, ell, noise2),
+        }
+    }
+
+    /// The smoother's Σ_j K_xj² at every grid point ([`ou_weight_norms`], [`m32_weight_norms`]).
+    fn weight_norms(
+        self,
+        n: usize,
+        step: f64,
+        obs_idx: &[usize],
+        sigma2: f64,
+        ell: f64,
+        noise2: f64,
+    ) -> Vec<f64> {
+        match self {
+            Kernel::Ou => ou_weight_norms(n, step, obs_idx, sigma2, ell, noise2),
+            Kernel::Matern32 => m32_weight_norms(n, step, obs_idx, sigma2, ell, noise2),
+        }
+    }
 }
 
 /// Model structure and hyper-parameters.
@@ -261,11 +301,26 @@ pub fn ou_weight_norms(
     s2
 }
 
-/// The union of the ascending `obs_idx` and `at`, ascending.
+/// The union of the ascending `obs_idx` and `at`, ascending: one merge, O(m + |at|) (the
+/// cross-validation asks for it once per fold and candidate).
 fn union_sorted(obs_idx: &[usize], at: &[usize]) -> Vec<usize> {
-    let mut pts: Vec<usize> = obs_idx.iter().chain(at).copied().collect();
-    pts.sort_unstable();
-    pts.dedup();
+    let mut pts: Vec<usize> = Vec::with_capacity(obs_idx.len() + at.len());
+    let (mut a, mut b) = (0, 0);
+    while a < obs_idx.len() || b < at.len() {
+        let next = match (obs_idx.get(a), at.get(b)) {
+            (Some(&o), Some(&q)) => o.min(q),
+            (Some(&o), None) => o,
+            (None, Some(&q)) => q,
+            (None, None) => break,
+        };
+        while obs_idx.get(a) == Some(&next) {
+            a += 1;
+        }
+        while at.get(b) == Some(&next) {
+            b += 1;
+        }
+        pts.push(next);
+    }
     pts
 }
 
@@ -423,17 +478,7 @@ pub fn m32_smooth_at(
     noise2: f64,
 ) -> Vec<f64> {
     let pts = union_sorted(obs_idx, at);
-    if pts.is_empty() {
-        return Vec::new();
-    }
-    let f = M32Filter::run(step, &pts, obs_idx, Some(obs), sigma2, ell, noise2);
-    let np = pts.len();
-    let mut ms = f.m_filt.clone();
-    for j in (0..np - 1).rev() {
-        let g = f.smoother_gain(j);
-        ms[j] = f.m_filt[j] + g * (ms[j + 1] - f.a[j + 1] * f.m_filt[j]);
-    }
-    let values: Vec<f64> = ms.iter().map(|m| m[0]).collect();
+    let values = m32_posterior(step, &pts, obs_idx, obs, sigma2, ell, noise2);
     at_points(&pts, &values, at)
 }
 
@@ -448,7 +493,29 @@ pub fn m32_smooth(
     noise2: f64,
 ) -> Vec<f64> {
     let all: Vec<usize> = (0..n).collect();
-    m32_smooth_at(step, obs_idx, obs, &all, sigma2, ell, noise2)
+    m32_posterior(step, &all, obs_idx, obs, sigma2, ell, noise2)
+}
+
+/// The Matérn 3/2 posterior mean at every one of `pts` (ascending, holding every `obs_idx`).
+fn m32_posterior(
+    step: f64,
+    pts: &[usize],
+    obs_idx: &[usize],
+    obs: &[f64],
+    sigma2: f64,
+    ell: f64,
+    noise2: f64,
+) -> Vec<f64> {
+    if pts.is_empty() {
+        return Vec::new();
+    }
+    let f = M32Filter::run(step, pts, obs_idx, Some(obs), sigma2, ell, noise2);
+    let mut ms = f.m_filt.clone();
+    for j in (0..pts.len() - 1).rev() {
+        let g = f.smoother_gain(j);
+        ms[j] = f.m_filt[j] + g * (ms[j + 1] - f.a[j + 1] * f.m_filt[j]);
+    }
+    ms.iter().map(|m| m[0]).collect()
 }
 
 /// Σ_j K_xj² at every grid point x for [`m32_smooth`] (K its linear map of the observations),
@@ -586,24 +653,10 @@ pub fn fit_normal(
     let var = resid.iter().map(|v| v * v).sum::<f64>() / m as f64;
     let noise2 = (noise_um * noise_um).max(1e-6 * var).max(1e-18);
     let sigma2 = (var - noise2).max(noise2);
-    let (rough_at, rough) = match (at, p.kernel) {
-        (Some(at), Kernel::Ou) => (
-            at.to_vec(),
-            ou_smooth_at(step_um, idx, &resid, at, sigma2, p.corr_um, noise2),
-        ),
-        (None, Kernel::Ou) => (
-            Vec::new(),
-            ou_smooth(n, step_um, idx, &resid, sigma2, p.corr_um, noise2),
-        ),
-        (Some(at), Kernel::Matern32) => (
-            at.to_vec(),
-            m32_smooth_at(step_um, idx, &resid, at, sigma2, p.corr_um, noise2),
-        ),
-        (None, Kernel::Matern32) => (
-            Vec::new(),
-            m32_smooth(n, step_um, idx, &resid, sigma2, p.corr_um, noise2),
-        ),
-    };
+    let rough = p
+        .kernel
+        .smooth(n, at, step_um, idx, &resid, sigma2, p.corr_um, noise2);
+    let rough_at = at.map_or_else(Vec::new, <[usize]>::to_vec);
     Some(Fitted {
         beta,
         rough_at,
@@ -643,9 +696,9 @@ impl Fitted {
         }
         let (sigma2, noise2) = (self.sigma2, self.noise2);
         let a = rows.columns(0, cols);
-        let smooth = |v: Vec<f64>| match p.kernel {
-            Kernel::Ou => ou_smooth(n, step_um, idx, &v, sigma2, p.corr_um, noise2),
-            Kernel::Matern32 => m32_smooth(n, step_um, idx, &v, sigma2, p.corr_um, noise2),
+        let smooth = |v: Vec<f64>| {
+            p.kernel
+                .smooth(n, None, step_um, idx, &v, sigma2, p.corr_um, noise2)
         };
         let b = self.chol.solve(&a.transpose().into_owned());
         let mut c = grid_rows.columns(0, cols).into_owned();
@@ -659,10 +712,9 @@ impl Fitted {
             }
         }
         let cg = &c * (&b * b.transpose());
-        let kk = match p.kernel {
-            Kernel::Ou => ou_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2),
-            Kernel::Matern32 => m32_weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2),
-        };
+        let kk = p
+            .kernel
+            .weight_norms(n, step_um, idx, sigma2, p.corr_um, noise2);
         let s2 = noise_um.max(0.0).powi(2);
         // Column by column: the matrices are column-major.
         let mut sum: Vec<f64> = kk;
